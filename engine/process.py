@@ -1,0 +1,178 @@
+"""Run real broker processes: spawn, poll until ready, stop, with nothing left behind.
+
+- :func:`spawn` starts an argv (no shell) in a session and process group of its own, stdin from
+  /dev/null, stdout and stderr appended to ``<log_dir>/<name>.log``.
+- :func:`wait_until` polls a predicate until it returns something truthy or a deadline passes; it
+  fails fast, with the log's tail, if the watched child exits meanwhile. No bare sleeps elsewhere.
+- :func:`stop` sends SIGTERM to the whole group, SIGKILL after a grace period, and reaps the child,
+  so a JVM and anything it forked are gone when it returns.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TypeVar
+
+from engine.errors import ProcessError, WaitTimeoutError
+
+T = TypeVar("T")
+
+
+@dataclass
+class Child:
+    """A spawned process; its pid is also its process-group id."""
+
+    name: str
+    argv: tuple[str, ...]
+    log_path: Path
+    popen: subprocess.Popen[bytes]
+
+    @property
+    def pid(self) -> int:
+        return self.popen.pid
+
+    def running(self) -> bool:
+        """True while the leader has not exited (polls, so it also reaps an exited leader)."""
+        return self.popen.poll() is None
+
+    def group_alive(self) -> bool:
+        """True while a live process (not a zombie awaiting its reaper) is in the child's group."""
+        try:
+            os.killpg(self.pid, 0)
+        except ProcessLookupError:
+            return False
+        except PermissionError:  # exists, owned by someone else (should not happen)
+            return True
+        return bool(_live_group_members(self.pid))
+
+    def log_tail(self, max_bytes: int = 4000) -> str:
+        """The end of the child's log, for error messages."""
+        try:
+            with self.log_path.open("rb") as fh:
+                fh.seek(max(0, self.log_path.stat().st_size - max_bytes))
+                return fh.read().decode("utf-8", "replace")
+        except OSError:
+            return ""
+
+
+def spawn(
+    argv: Sequence[str | os.PathLike[str]],
+    *,
+    log_dir: Path,
+    name: str,
+    cwd: Path | None = None,
+    extra_env: Mapping[str, str] | None = None,
+) -> Child:
+    """Start ``argv`` in its own process group; output goes to ``log_dir/<name>.log``."""
+    args = tuple(os.fspath(a) for a in argv)
+    if not args:
+        raise ProcessError("cannot spawn an empty command")
+    log_dir.mkdir(parents=True, exist_ok=True)
+    log_path = log_dir / f"{name}.log"
+    env = {**os.environ, **extra_env} if extra_env else None
+    with log_path.open("ab") as log:
+        try:
+            popen = subprocess.Popen(  # noqa: S603 - argv list, no shell
+                args,
+                stdin=subprocess.DEVNULL,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                cwd=cwd,
+                env=env,
+                start_new_session=True,
+                close_fds=True,
+            )
+        except OSError as exc:
+            raise ProcessError(f"cannot start {name} ({args[0]}): {exc}") from exc
+    return Child(name=name, argv=args, log_path=log_path, popen=popen)
+
+
+def wait_until(
+    predicate: Callable[[], T],
+    deadline: float,
+    interval: float = 0.05,
+    *,
+    what: str | None = None,
+    child: Child | None = None,
+    ignore: tuple[type[BaseException], ...] = (),
+) -> T:
+    """Call ``predicate`` every ``interval`` s until it returns a truthy value, and return it.
+
+    ``deadline`` is a budget in seconds from now. Exceptions listed in ``ignore`` count as "not
+    yet" (the last one is quoted on timeout). If ``child`` exits first, raise :class:`ProcessError`
+    at once with its log tail; on timeout raise :class:`WaitTimeoutError` naming ``what``.
+    """
+    label = what or getattr(predicate, "__name__", repr(predicate))
+    end = time.monotonic() + deadline
+    last_error: BaseException | None = None
+    while True:
+        try:
+            result = predicate()
+        except ignore as exc:
+            last_error = exc
+        else:
+            if result:
+                return result
+        if child is not None and not child.running():
+            raise ProcessError(
+                f"{child.name} exited with code {child.popen.returncode} while waiting for {label}"
+                f"; log {child.log_path}:\n{child.log_tail()}"
+            )
+        remaining = end - time.monotonic()
+        if remaining <= 0:
+            detail = f"last error: {last_error}" if last_error else ""
+            if child is not None:
+                detail += f"\nlog {child.log_path}:\n{child.log_tail()}"
+            raise WaitTimeoutError(label, deadline, detail.strip())
+        time.sleep(min(interval, remaining))
+
+
+def stop(child: Child, grace: float = 10.0) -> int:
+    """SIGTERM the child's group, SIGKILL it after ``grace`` s, reap; return the leader's exit code.
+
+    Returns once no live process is left in the group (members the leader left behind are
+    killed too)."""
+    _signal_group(child, signal.SIGTERM)
+    try:
+        child.popen.wait(timeout=grace)
+    except subprocess.TimeoutExpired:
+        _signal_group(child, signal.SIGKILL)
+        child.popen.wait()
+    if child.group_alive():
+        try:
+            wait_until(lambda: not child.group_alive(), grace, 0.01, what="the group to exit")
+        except WaitTimeoutError:
+            _signal_group(child, signal.SIGKILL)
+            wait_until(lambda: not child.group_alive(), 5.0, 0.01,
+                       what=f"process group {child.pid} to die after SIGKILL")
+    return child.popen.returncode
+
+
+def _signal_group(child: Child, sig: signal.Signals) -> None:
+    try:
+        os.killpg(child.pid, sig)
+    except ProcessLookupError:
+        pass
+
+
+def _live_group_members(pgid: int) -> list[int]:
+    """Pids in process group ``pgid`` that are not zombies (Linux /proc)."""
+    members = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        # "pid (comm) state ppid pgrp ...": comm may contain blanks and parentheses.
+        state, _ppid, pgrp = stat.rsplit(")", 1)[1].split()[:3]
+        if int(pgrp) == pgid and state not in ("Z", "X"):
+            members.append(int(entry.name))
+    return members

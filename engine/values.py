@@ -1,0 +1,69 @@
+"""Validation of the values that go into rendered config files.
+
+A value that could break or inject into a config file (a newline, a non-numeric port, a host name
+where an address belongs, a relative path) is refused here, before rendering, with a
+:class:`engine.errors.ConfigValueError` naming the field. The shapes refuse the same values earlier;
+this is the driver-side second check the design asks for.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import re
+from pathlib import Path
+
+from engine.errors import ConfigValueError
+
+#: Characters no rendered path may contain: line breaks end a config line, NUL ends a C string,
+#: a backslash is an escape in Java .properties files.
+FORBIDDEN_PATH_CHARS = ("\n", "\r", "\0", "\\")
+
+
+def check_port(field: str, value: object) -> int:
+    """A TCP port: an int (not a bool, not a string) in 1..65535."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ConfigValueError(field, value, "a port must be an integer")
+    if not 1 <= value <= 65535:
+        raise ConfigValueError(field, value, "a port must be in 1..65535")
+    return value
+
+
+def check_host(field: str, value: object) -> str:
+    """An IPv4 or IPv6 address (no host names: a broker binds to an address), normalised."""
+    if not isinstance(value, str):
+        raise ConfigValueError(field, value, "an IP address must be a string")
+    try:
+        return str(ipaddress.ip_address(value))
+    except ValueError:
+        raise ConfigValueError(field, value, "not an IPv4 or IPv6 address") from None
+
+
+def check_path(field: str, value: object, *, forbid: str = "") -> Path:
+    """An absolute path: no line break, NUL, backslash, outer blank, nor a character of ``forbid``."""
+    if not isinstance(value, (str, Path)):
+        raise ConfigValueError(field, value, "a path must be a string or Path")
+    text = str(value)
+    bad = [c for c in (*FORBIDDEN_PATH_CHARS, *forbid) if c in text]
+    if bad:
+        raise ConfigValueError(field, value, f"a path must not contain {bad[0]!r}")
+    if text != text.strip():
+        raise ConfigValueError(field, value, "a path must not start or end with whitespace")
+    path = Path(text)
+    if not path.is_absolute():
+        raise ConfigValueError(field, value, "the path must be absolute")
+    return path
+
+
+_USER = re.compile(r"[a-z_][a-z0-9_.-]{0,31}")
+
+
+def check_user(field: str, value: object) -> str:
+    """A POSIX user name (lower case letters, digits, ``_ . -``; at most 32 characters)."""
+    if not isinstance(value, str) or not _USER.fullmatch(value):
+        raise ConfigValueError(field, value, "not a user name")
+    return value
+
+
+def host_in_url(host: str) -> str:
+    """``host`` as it appears in ``PROTOCOL://host:port`` (IPv6 in brackets)."""
+    return f"[{host}]" if ipaddress.ip_address(host).version == 6 else host

@@ -1,0 +1,136 @@
+#!/usr/bin/env bash
+# Install the real parts plantkg runs against, idempotently; `make setup` calls this.
+#   1. Debian packages: mosquitto (the system service is stopped and disabled: tests and agents
+#      spawn their own brokers), a Java runtime and Maven, each only if its command is missing.
+#   2. Python: .venv with plantkg installed editable plus the test extra, redone only when
+#      pyproject.toml changed (stamp: .venv/.plantkg-pyproject.sha256).
+#   3. Kafka: broker jars resolved from Maven Central by third_party/kafka/pom.xml into
+#      .plantkg/kafka/<version>/libs, redone only when the pom changed (stamp beside libs/).
+# A second run installs nothing and takes about a second.
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$ROOT"
+
+PYTHON="${PYTHON:-python3}"
+VENV="$ROOT/.venv"
+POM="$ROOT/third_party/kafka/pom.xml"
+
+say() { printf 'setup: %s\n' "$*"; }
+die() { printf 'setup: error: %s\n' "$*" >&2; exit 1; }
+sha() { sha256sum "$@" | cut -d' ' -f1; }
+
+# Run a command with its output in a log file; show the log only if the command fails.
+LOG_DIR="$ROOT/.plantkg/setup-logs"
+quietly() { # name command...
+    local log="$LOG_DIR/$1.log"
+    shift
+    mkdir -p "$LOG_DIR"
+    if ! "$@" >"$log" 2>&1; then
+        tail -n 60 "$log" >&2
+        die "'$*' failed; full log: ${log#"$ROOT"/}"
+    fi
+}
+
+# --- 1. Debian packages -------------------------------------------------------------------------
+
+have() { command -v "$1" >/dev/null 2>&1; }
+# mosquitto lives in /usr/sbin, which a non-root PATH often lacks.
+have_mosquitto() { have mosquitto || [ -x /usr/sbin/mosquitto ]; }
+
+# Root for apt: ourselves, else sudo (decided before running anything, so a refusal is visible).
+SUDO=()
+need_root() {
+    [ "$(id -u)" -eq 0 ] && return 0
+    have sudo || die "installing ${APT_WANTED[*]} needs root and sudo is missing; install them as root, then rerun"
+    SUDO=(sudo)
+}
+as_root() { "${SUDO[@]}" "$@"; }
+
+# The Debian package starts and enables a system-wide mosquitto on port 1883; we spawn our own.
+disable_system_mosquitto() {
+    if [ -d /run/systemd/system ] && have systemctl; then
+        as_root systemctl disable --now mosquitto.service >/dev/null 2>&1 || true
+    else
+        if [ -x /etc/init.d/mosquitto ]; then
+            as_root /etc/init.d/mosquitto stop >/dev/null 2>&1 || true
+        fi
+        if have update-rc.d; then
+            as_root update-rc.d mosquitto disable >/dev/null 2>&1 || true
+        fi
+    fi
+}
+
+APT_WANTED=()
+have_mosquitto || APT_WANTED+=(mosquitto)
+have java || APT_WANTED+=(default-jre-headless)
+have mvn || APT_WANTED+=(maven)
+
+if [ "${#APT_WANTED[@]}" -gt 0 ]; then
+    have apt-get || die "missing ${APT_WANTED[*]} and no apt-get here; install them with your package manager"
+    need_root
+    say "apt: installing ${APT_WANTED[*]}"
+    quietly apt-update as_root apt-get update
+    quietly apt-install as_root env DEBIAN_FRONTEND=noninteractive \
+        apt-get install -y --no-install-recommends "${APT_WANTED[@]}"
+    if [[ " ${APT_WANTED[*]} " == *" mosquitto "* ]]; then
+        say "apt: stopping and disabling the system mosquitto service (plantkg spawns its own)"
+        disable_system_mosquitto
+    fi
+fi
+
+# --- 2. Python environment ----------------------------------------------------------------------
+
+if [ ! -x "$VENV/bin/python" ]; then
+    have "$PYTHON" || die "$PYTHON not found; install Python 3.11 or newer"
+    say "python: creating .venv with $("$PYTHON" --version 2>&1)"
+    "$PYTHON" -m venv "$VENV"
+fi
+
+PY_STAMP="$VENV/.plantkg-pyproject.sha256"
+PY_HASH="$(sha pyproject.toml)"
+if [ "$(cat "$PY_STAMP" 2>/dev/null || true)" != "$PY_HASH" ]; then
+    say "python: pip install -e '.[test]' (pyproject.toml changed since the last install)"
+    quietly pip-install "$VENV/bin/python" -m pip install --disable-pip-version-check -e '.[test]'
+    printf '%s\n' "$PY_HASH" >"$PY_STAMP"
+fi
+
+# --- 3. Kafka jars ------------------------------------------------------------------------------
+
+KAFKA_VERSION="$(sed -n 's:.*<kafka.version>\(.*\)</kafka.version>.*:\1:p' "$POM")"
+[ -n "$KAFKA_VERSION" ] || die "no <kafka.version> in $POM"
+KAFKA_HOME="$ROOT/.plantkg/kafka/$KAFKA_VERSION"
+KAFKA_STAMP="$KAFKA_HOME/.pom.sha256"
+POM_HASH="$(sha "$POM")"
+
+if [ "$(cat "$KAFKA_STAMP" 2>/dev/null || true)" != "$POM_HASH" ] || [ ! -d "$KAFKA_HOME/libs" ]; then
+    say "kafka: resolving Apache Kafka $KAFKA_VERSION jars from Maven Central into ${KAFKA_HOME#"$ROOT"/}/libs"
+    mkdir -p "$KAFKA_HOME"
+    rm -rf "$KAFKA_HOME/libs.partial"
+    # Into a scratch folder first, so an interrupted resolve never leaves a half libs/ behind.
+    quietly mvn mvn -B -f "$POM" dependency:copy-dependencies \
+        -DincludeScope=runtime -DoutputDirectory="$KAFKA_HOME/libs.partial"
+    rm -rf "$KAFKA_HOME/libs"
+    mv "$KAFKA_HOME/libs.partial" "$KAFKA_HOME/libs"
+    printf '%s\n' "$POM_HASH" >"$KAFKA_STAMP"
+fi
+
+# log4j 1.2 configs (Kafka 3.x binds slf4j to reload4j): the broker logs INFO to stdout, which the
+# engine sends to the broker's log file; tools (StorageTool) log WARN to stderr only.
+write_if_changed() { # file content
+    if [ "$(cat "$1" 2>/dev/null || true)" != "$2" ]; then
+        say "kafka: writing ${1#"$ROOT"/}"
+        printf '%s\n' "$2" >"$1"
+    fi
+}
+write_if_changed "$KAFKA_HOME/log4j.properties" "log4j.rootLogger=INFO, stdout
+log4j.appender.stdout=org.apache.log4j.ConsoleAppender
+log4j.appender.stdout.layout=org.apache.log4j.PatternLayout
+log4j.appender.stdout.layout.ConversionPattern=[%d] %p %m (%c)%n"
+write_if_changed "$KAFKA_HOME/tools-log4j.properties" "log4j.rootLogger=WARN, stderr
+log4j.appender.stderr=org.apache.log4j.ConsoleAppender
+log4j.appender.stderr.Target=System.err
+log4j.appender.stderr.layout=org.apache.log4j.PatternLayout
+log4j.appender.stderr.layout.ConversionPattern=[%d] %p %m (%c)%n"
+
+say "ready: mosquitto $(command -v mosquitto || echo /usr/sbin/mosquitto), java $(command -v java), kafka $KAFKA_VERSION, .venv"

@@ -1,0 +1,48 @@
+"""Shared fixtures. Integration tests must leave no child process of ours behind: an autouse
+fixture compares this process's children before and after each integration test."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+
+def child_pids() -> set[int]:
+    """Pids whose parent is this test process (zombies included: an unreaped child is a leak)."""
+    me = os.getpid()
+    found: set[int] = set()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:  # exited meanwhile
+            continue
+        # "pid (comm) state ppid ...": comm may hold spaces or parentheses, split after the last ")".
+        fields = stat.rsplit(")", 1)[1].split()
+        if int(fields[1]) == me:
+            found.add(int(entry.name))
+    return found
+
+
+def describe(pid: int) -> str:
+    try:
+        cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        cmd = "?"
+    return f"{pid}: {cmd.strip()[:200]}"
+
+
+@pytest.fixture(autouse=True)
+def no_leftover_children(request: pytest.FixtureRequest):
+    """Fail an integration test that leaves a child process running (session fixtures such as
+    the shared Kafka broker start before this snapshot, so they do not count)."""
+    if request.node.get_closest_marker("integration") is None:
+        yield
+        return
+    before = child_pids()
+    yield
+    left = child_pids() - before
+    assert not left, "test left child processes behind:\n" + "\n".join(map(describe, left))

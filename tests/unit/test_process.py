@@ -1,0 +1,69 @@
+"""engine.process with harmless real processes (sh, sleep): spawn, wait, stop, nothing left."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import pytest
+
+from engine import netutil, process
+from engine.errors import ProcessError, WaitTimeoutError
+
+
+def test_spawn_logs_and_stop_kills_the_whole_group(tmp_path: Path) -> None:
+    # The shell forks a grandchild; stopping must end both (same process group).
+    child = process.spawn(["sh", "-c", "echo started; sleep 60 & wait"], log_dir=tmp_path, name="t")
+    process.wait_until(lambda: "started" in child.log_tail(), 5.0, 0.01, what="output")
+    assert child.running() and child.group_alive()
+    assert process.stop(child, grace=5.0) != 0
+    assert not child.group_alive()
+    assert (tmp_path / "t.log").read_text() == "started\n"
+
+
+def test_stop_escalates_to_sigkill(tmp_path: Path) -> None:
+    child = process.spawn(["sh", "-c", "trap '' TERM; echo ready; while :; do sleep 0.05; done"],
+                          log_dir=tmp_path, name="stubborn")
+    process.wait_until(lambda: "ready" in child.log_tail(), 5.0, 0.01)
+    start = time.monotonic()
+    assert process.stop(child, grace=0.3) == -9
+    assert time.monotonic() - start < 5
+    assert not child.group_alive()
+
+
+def test_wait_until_timeout_names_what_it_waited_for() -> None:
+    with pytest.raises(WaitTimeoutError, match="timed out after 0.1 s waiting for the moon"):
+        process.wait_until(lambda: False, 0.1, 0.01, what="the moon")
+
+
+def test_wait_until_quotes_last_ignored_error() -> None:
+    def boom():
+        raise ConnectionError("refused")
+
+    with pytest.raises(WaitTimeoutError, match="refused"):
+        process.wait_until(boom, 0.05, 0.01, ignore=(ConnectionError,))
+
+
+def test_wait_until_returns_value() -> None:
+    assert process.wait_until(lambda: 42, 1.0) == 42
+
+
+def test_wait_until_fails_fast_when_child_exits(tmp_path: Path) -> None:
+    child = process.spawn(["sh", "-c", "echo bad config; exit 3"], log_dir=tmp_path, name="dies")
+    start = time.monotonic()
+    with pytest.raises(ProcessError, match="exited with code 3") as err:
+        process.wait_until(lambda: False, 30.0, 0.01, what="never", child=child)
+    assert time.monotonic() - start < 10
+    assert "bad config" in str(err.value)
+    process.stop(child)
+
+
+def test_spawn_missing_binary(tmp_path: Path) -> None:
+    with pytest.raises(ProcessError, match="cannot start"):
+        process.spawn([str(tmp_path / "nope")], log_dir=tmp_path, name="nope")
+
+
+def test_free_ports_are_distinct_and_free() -> None:
+    ports = netutil.free_ports(3)
+    assert len(set(ports)) == 3
+    assert not any(netutil.port_open("127.0.0.1", p) for p in ports)
