@@ -1,0 +1,1 @@
+"""plantkg knowledge-graph layer: load, validate, query and export the plant graph."""
