@@ -1,0 +1,38 @@
+"""The ``plantkg`` command line: one click group, one module per command.
+
+User mistakes (a bad file, an invalid plant, a malformed query) end with a one-paragraph message on
+stderr and an exit code — never a traceback. Exit codes: 0 success, 1 the plant has violations,
+2 unusable input.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from engine.cli.common import run_guarded
+from engine.cli.query import query_command
+from engine.cli.validate import validate_command
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(package_name="plantkg", prog_name="plantkg")
+def cli() -> None:
+    """plantkg — configure a plant's message brokers from a knowledge graph.
+
+    The plant is written as Turtle against the plantkg ontology; shapes say what a valid plant is.
+    """
+
+
+cli.add_command(validate_command)
+cli.add_command(query_command)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the console script; returns the exit code."""
+    return run_guarded(cli, argv if argv is not None else sys.argv[1:])
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,49 @@
+"""Every IRI plantkg's Python code uses, in one place.
+
+Modules never spell an IRI out: they import it from here, so a rename of a term is one edit and a
+typo is an ImportError instead of a query that silently matches nothing.
+"""
+
+from __future__ import annotations
+
+from rdflib import Namespace
+from rdflib.namespace import OWL, RDF, RDFS, SH, XSD
+
+#: The ontology itself (owl:Ontology IRI) and its terms.
+ONTOLOGY_IRI = "https://w3id.org/plantkg/ontology"
+PK = Namespace(ONTOLOGY_IRI + "#")
+#: SWRL rules in RDF (swrl:Imp, swrl:ClassAtom, ...), as Protégé writes them.
+SWRL = Namespace("http://www.w3.org/2003/11/swrl#")
+#: Shapes of shapes/*.ttl.
+PKS = Namespace("https://w3id.org/plantkg/shapes#")
+#: Named graphs the engine and the SPARQL endpoint expose.
+GRAPH_ONTOLOGY = ONTOLOGY_IRI
+GRAPH_INFERRED = "https://w3id.org/plantkg/graph/inferred"
+GRAPH_OBSERVED = "https://w3id.org/plantkg/graph/observed"
+
+#: Prefixes offered to every SPARQL query (a user may still declare their own).
+PREFIXES: dict[str, str] = {
+    "pk": str(PK),
+    "pks": str(PKS),
+    "rdf": str(RDF),
+    "rdfs": str(RDFS),
+    "owl": str(OWL),
+    "xsd": str(XSD),
+    "sh": str(SH),
+}
+
+__all__ = [
+    "GRAPH_INFERRED",
+    "GRAPH_OBSERVED",
+    "GRAPH_ONTOLOGY",
+    "ONTOLOGY_IRI",
+    "OWL",
+    "PK",
+    "PKS",
+    "PREFIXES",
+    "RDF",
+    "RDFS",
+    "SH",
+    "SWRL",
+    "XSD",
+]
