@@ -26,7 +26,7 @@ from engine.values import check_host, check_path, check_port, host_in_url
 
 CLUSTER_ID_FILE = "cluster.id"
 DEFAULT_HEAP = "512m"
-_CLUSTER_ID = re.compile(r"[A-Za-z0-9_-]{22}")
+_CLUSTER_ID = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]{21}")  # no leading "-": read as an option
 _HEAP = re.compile(r"[1-9][0-9]{0,5}[mMgG]")
 
 
@@ -92,8 +92,15 @@ def render_server_properties(cfg: KafkaNodeConfig) -> str:
 
 
 def new_cluster_id() -> str:
-    """A fresh KRaft cluster id: base64url of 16 random bytes, without padding (22 chars)."""
-    return base64.urlsafe_b64encode(os.urandom(16)).decode("ascii").rstrip("=")
+    """A fresh KRaft cluster id: base64url of 16 random bytes, without padding (22 chars).
+
+    Never starting with ``-``: StorageTool would read ``-t -abc...`` as an option (Kafka's own
+    ``Uuid.randomUuid`` redraws such ids for the same reason).
+    """
+    while True:
+        cid = base64.urlsafe_b64encode(os.urandom(16)).decode("ascii").rstrip("=")
+        if not cid.startswith("-"):
+            return cid
 
 
 def cluster_id(broker_dir: Path) -> str:

@@ -213,3 +213,12 @@ def test_broker_command_refuses_bad_heap(tmp_path: Path, heap: str) -> None:
     fake = KafkaParts("3.9.1", tmp_path, tmp_path / "libs", None, None)
     with pytest.raises(ConfigValueError):
         kafka_runtime.broker_command(fake, Path("/usr/bin/java"), tmp_path / "s", tmp_path, heap=heap)
+
+
+def test_cluster_id_never_starts_with_a_dash() -> None:
+    """StorageTool reads ``-t -abc`` as an option; one id in 64 would start with '-' if drawn blindly."""
+    ids = [kafka_runtime.new_cluster_id() for _ in range(3000)]
+    assert not [i for i in ids if i.startswith("-")]
+    with pytest.raises(EngineError, match="cluster_id"):  # refused before any part is looked at
+        kafka_runtime.storage_format_command(None, Path("/usr/bin/java"),  # type: ignore[arg-type]
+                                             Path("/tmp/x.properties"), "-" + "A" * 21)

@@ -1,0 +1,256 @@
+"""The agent's HTTP API (Flask): ``create_app(state)`` with one blueprint, ``/v1``.
+
+Routes and bodies are those of docs/engine-contracts.md; the OpenAPI document
+(:mod:`engine.agent.openapi`) describes them. Every route but ``/v1/openapi.json`` needs
+``Authorization: Bearer <token>`` (compared in constant time). Errors are JSON
+``{"error", "hint", "retryable", "field"?}``:
+
+=====  ==================================================================================
+400    malformed JSON, unknown/missing field, invalid value (``field`` names it)
+401    missing or wrong token
+404    unknown broker or route
+409    the broker cannot do it: fewer Kafka partitions, broker failed or stopped
+422    the agent cannot do it: no driver for the kind, a part missing, the broker exited
+       while starting
+503    try again: the broker is still starting, restarting, or did not answer (retryable)
+500    a bug in the agent (retryable: it may be transient)
+=====  ==================================================================================
+"""
+
+from __future__ import annotations
+
+import hmac
+import json
+import logging
+from dataclasses import dataclass
+from importlib.metadata import PackageNotFoundError, version
+from typing import Any
+
+from flask import Blueprint, Flask, Response, current_app, jsonify, request
+from werkzeug.exceptions import HTTPException
+from werkzeug.routing import PathConverter
+
+from engine.agent.manager import BrokerManager, BrokerNotFoundError, BrokerNotRunningError
+from engine.agent.openapi import openapi_document
+from engine.agent.wire import BROKER_ID, WireError, broker_spec_from_json, topic_spec_from_json
+from engine.errors import (
+    BrokerUnavailableError,
+    ConfigValueError,
+    DriverRefusedError,
+    EngineError,
+    UnknownDriverError,
+)
+from engine.model import to_dict
+
+log = logging.getLogger(__name__)
+
+MAX_BODY_BYTES = 1 << 20
+EXTENSION = "plantkg_agent"
+
+
+@dataclass(frozen=True)
+class AgentState:
+    """What the app serves: the brokers, the token clients must present, the agent's name."""
+
+    brokers: BrokerManager
+    token: str
+    name: str = "plantkg-agent"
+
+
+class TopicName(PathConverter):
+    """Any non-empty rest of the path: MQTT topic names hold slashes, even leading or doubled
+    ones (a client percent-encodes the name; the server decodes %2F back to /)."""
+
+    regex = ".+"
+    part_isolating = False
+
+
+v1 = Blueprint("v1", __name__, url_prefix="/v1")
+
+
+def create_app(state: AgentState) -> Flask:
+    """A Flask app serving ``state``; start ``state.brokers`` (``open()``) before serving."""
+    app = Flask("engine.agent")
+    app.config["MAX_CONTENT_LENGTH"] = MAX_BODY_BYTES
+    app.json.sort_keys = False  # type: ignore[attr-defined]
+    app.extensions[EXTENSION] = state
+    app.url_map.converters["topic"] = TopicName
+    app.url_map.merge_slashes = False
+    app.register_blueprint(v1)
+    app.register_error_handler(HTTPException, _http_error)
+    app.register_error_handler(Exception, _error)
+    return app
+
+
+def _state() -> AgentState:
+    return current_app.extensions[EXTENSION]
+
+
+# --- authentication ------------------------------------------------------------------------
+
+@v1.before_request
+def _authenticate() -> Response | None:
+    if request.endpoint == "v1.openapi":
+        return None
+    header = request.headers.get("Authorization", "")
+    scheme, _, token = header.partition(" ")
+    expected = _state().token.encode("utf-8")
+    if scheme.lower() == "bearer" and hmac.compare_digest(token.strip().encode("utf-8"), expected):
+        return None
+    response = _json_error(401, "missing or wrong bearer token",
+                           "send 'Authorization: Bearer <token>' with the token from the agent's "
+                           "token file", retryable=False)
+    response.headers["WWW-Authenticate"] = 'Bearer realm="plantkg-agent"'
+    return response
+
+
+# --- routes --------------------------------------------------------------------------------
+
+@v1.get("/health")
+def health() -> Response:
+    state = _state()
+    return jsonify({
+        "status": "ok",
+        "agent": state.name,
+        "version": _version(),
+        "drivers": state.brokers.registry.kinds(),
+        "driver_errors": state.brokers.registry.errors,
+    })
+
+
+@v1.get("/brokers")
+def list_brokers() -> Response:
+    return jsonify({"brokers": to_dict(_state().brokers.list())})
+
+
+@v1.get("/brokers/<broker_id>")
+def get_broker(broker_id: str) -> Response:
+    observed = _state().brokers.get(_broker_id(broker_id))
+    if observed is None:
+        raise BrokerNotFoundError(broker_id)
+    return jsonify(to_dict(observed))
+
+
+@v1.put("/brokers/<broker_id>")
+def put_broker(broker_id: str) -> Response:
+    spec = broker_spec_from_json(_body())
+    if spec.id != _broker_id(broker_id):
+        raise WireError("id", f"{spec.id!r} differs from the id in the URL ({broker_id!r})")
+    return jsonify(to_dict(_state().brokers.put(spec)))
+
+
+@v1.delete("/brokers/<broker_id>")
+def delete_broker(broker_id: str) -> tuple[str, int]:
+    _state().brokers.delete(_broker_id(broker_id))
+    return "", 204
+
+
+@v1.put("/brokers/<broker_id>/topics/<topic:name>")
+def put_topic(broker_id: str, name: str) -> Response:
+    topic = topic_spec_from_json(_body())
+    if topic.broker_id != _broker_id(broker_id):
+        raise WireError("broker_id", f"{topic.broker_id!r} differs from the broker id in the URL "
+                        f"({broker_id!r})")
+    if topic.name != name:
+        raise WireError("name", f"{topic.name!r} differs from the topic name in the URL ({name!r})")
+    return jsonify(to_dict(_state().brokers.put_topic(topic)))
+
+
+@v1.delete("/brokers/<broker_id>/topics/<topic:name>")
+def delete_topic(broker_id: str, name: str) -> tuple[str, int]:
+    _state().brokers.delete_topic(_broker_id(broker_id), name)
+    return "", 204
+
+
+@v1.get("/openapi.json")
+def openapi() -> Response:
+    return jsonify(openapi_document(_version()))
+
+
+# --- helpers -------------------------------------------------------------------------------
+
+def _broker_id(value: str) -> str:
+    if not BROKER_ID.fullmatch(value):
+        raise WireError("id", "a broker id is 1 to 128 characters of A-Z a-z 0-9 _ . - starting "
+                        "with a letter, a digit or _")
+    return value
+
+
+def _body() -> Any:
+    """The request's JSON, strictly: UTF-8, no duplicate keys, no NaN/Infinity."""
+    raw = request.get_data(cache=False)
+    if not raw:
+        raise WireError("body", "empty; expected a JSON object")
+    try:
+        return json.loads(raw.decode("utf-8"), object_pairs_hook=_no_duplicates,
+                          parse_constant=_no_constant)
+    except UnicodeDecodeError as exc:
+        raise WireError("body", f"not UTF-8 ({exc.reason})") from None
+    except ValueError as exc:
+        if isinstance(exc, WireError):
+            raise
+        raise WireError("body", f"not JSON: {exc}") from None
+
+
+def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    result: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in result:
+            raise WireError(key, "given twice")
+        result[key] = value
+    return result
+
+
+def _no_constant(name: str) -> Any:
+    raise WireError("body", f"{name} is not JSON")
+
+
+def _version() -> str:
+    try:
+        return version("plantkg")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def _json_error(status: int, message: str, hint: str | None, *, retryable: bool,
+                field: str | None = None) -> Response:
+    body: dict[str, Any] = {"error": message, "hint": hint, "retryable": retryable}
+    if field is not None:
+        body["field"] = field
+    response = jsonify(body)
+    response.status_code = status
+    return response
+
+
+#: Error type -> HTTP status, most specific first.
+_STATUS: tuple[tuple[type[BaseException], int], ...] = (
+    (WireError, 400),
+    (ConfigValueError, 400),
+    (BrokerNotFoundError, 404),
+    (DriverRefusedError, 409),
+    (BrokerNotRunningError, 409),
+    (UnknownDriverError, 422),
+    (BrokerUnavailableError, 503),
+    (EngineError, 422),
+)
+
+
+def _error(exc: Exception) -> Response:
+    for cls, status in _STATUS:
+        if isinstance(exc, cls):
+            assert isinstance(exc, EngineError)
+            field = getattr(exc, "field", None)
+            if status >= 422 or status == 409:
+                log.warning("%s %s -> %d: %s", request.method, request.path, status, exc.message)
+            return _json_error(status, exc.message, exc.hint, retryable=status == 503, field=field)
+    log.exception("%s %s failed", request.method, request.path)
+    return _json_error(500, f"internal error: {type(exc).__name__}: {exc}",
+                       "see the agent's log; this is a bug in plantkg", retryable=True)
+
+
+def _http_error(exc: HTTPException) -> Response:
+    hints = {404: "see GET /v1/openapi.json for the routes",
+             405: "see GET /v1/openapi.json for the methods of this route",
+             413: f"bodies are at most {MAX_BODY_BYTES} bytes"}
+    return _json_error(exc.code or 500, exc.description or exc.name, hints.get(exc.code or 0),
+                       retryable=(exc.code or 500) >= 500)

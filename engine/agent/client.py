@@ -1,0 +1,147 @@
+"""AgentClient: the engine's side of the agent API (docs/engine-contracts.md), stdlib only.
+
+Failures become dispatch errors the caller can act on:
+
+- connection refused/reset, timeout, 5xx (503 included) -> :class:`TemporaryDispatchError` (retry);
+- 401 -> :class:`AgentAuthError`; any other 4xx -> :class:`PermanentDispatchError`;
+- the agent's ``error`` and ``hint`` are the exception's message and hint; ``host`` is the URL's.
+
+``put_broker`` and ``delete_broker`` wait for a broker to start or stop (a Kafka start takes
+5-60 s, its stop up to 30 s), so they use ``broker_timeout`` (default 150 s) instead of
+``timeout``. A timed-out PUT is safe to repeat: the agent keeps starting the broker and answers
+the next PUT once it is healthy.
+"""
+
+from __future__ import annotations
+
+import http.client
+import json
+import socket
+import urllib.error
+import urllib.parse
+import urllib.request
+from typing import Any
+
+from engine.agent.wire import WireError, observed_broker_from_json, observed_topic_from_json
+from engine.errors import AgentAuthError, PermanentDispatchError, TemporaryDispatchError
+from engine.model import BrokerSpec, ObservedBroker, ObservedTopic, TopicSpec, to_dict
+
+DEFAULT_BROKER_TIMEOUT = 150.0
+
+
+class AgentClient:
+    """One agent at ``base_url`` (e.g. ``http://127.0.0.2:7300``) with its bearer token."""
+
+    def __init__(self, base_url: str, token: str, *, timeout: float = 30.0,
+                 broker_timeout: float = DEFAULT_BROKER_TIMEOUT) -> None:
+        parsed = urllib.parse.urlsplit(base_url)
+        if parsed.scheme not in ("http", "https") or not parsed.hostname:
+            raise ValueError(f"agent URL {base_url!r} must be http(s)://host:port")
+        self.base_url = base_url.rstrip("/")
+        self.host = parsed.hostname
+        self.timeout = timeout
+        self.broker_timeout = max(broker_timeout, timeout)
+        self._token = token
+        # Agents are addressed directly: never send their token through an HTTP proxy.
+        self._opener = urllib.request.build_opener(urllib.request.ProxyHandler({}))
+
+    def __repr__(self) -> str:  # no token in logs
+        return f"AgentClient({self.base_url!r})"
+
+    # --- the contract ----------------------------------------------------------------------
+
+    def health(self) -> dict:
+        return self._request("GET", "/v1/health")
+
+    def list_brokers(self) -> list[ObservedBroker]:
+        data = self._request("GET", "/v1/brokers")
+        brokers = data.get("brokers") if isinstance(data, dict) else None
+        if not isinstance(brokers, list):
+            raise self._bad_answer("GET /v1/brokers", "no 'brokers' array")
+        return [self._parse(observed_broker_from_json, b, "GET /v1/brokers") for b in brokers]
+
+    def get_broker(self, broker_id: str) -> ObservedBroker | None:
+        path = f"/v1/brokers/{_segment(broker_id)}"
+        data = self._request("GET", path, missing_ok=True)
+        return None if data is None else self._parse(observed_broker_from_json, data, path)
+
+    def put_broker(self, spec: BrokerSpec) -> ObservedBroker:
+        path = f"/v1/brokers/{_segment(spec.id)}"
+        data = self._request("PUT", path, to_dict(spec), timeout=self.broker_timeout)
+        return self._parse(observed_broker_from_json, data, path)
+
+    def delete_broker(self, broker_id: str) -> None:
+        self._request("DELETE", f"/v1/brokers/{_segment(broker_id)}", timeout=self.broker_timeout)
+
+    def put_topic(self, spec: TopicSpec) -> ObservedTopic:
+        path = f"/v1/brokers/{_segment(spec.broker_id)}/topics/{_segment(spec.name)}"
+        return self._parse(observed_topic_from_json, self._request("PUT", path, to_dict(spec)), path)
+
+    def delete_topic(self, broker_id: str, name: str) -> None:
+        self._request("DELETE", f"/v1/brokers/{_segment(broker_id)}/topics/{_segment(name)}")
+
+    # --- HTTP ------------------------------------------------------------------------------
+
+    def _request(self, method: str, path: str, body: Any = None, *, timeout: float | None = None,
+                 missing_ok: bool = False) -> Any:
+        what = f"{method} {path}"
+        data = json.dumps(body).encode("utf-8") if body is not None else None
+        request = urllib.request.Request(self.base_url + path, data=data, method=method)
+        request.add_header("Authorization", f"Bearer {self._token}")
+        request.add_header("Accept", "application/json")
+        if data is not None:
+            request.add_header("Content-Type", "application/json")
+        try:
+            with self._opener.open(request, timeout=timeout or self.timeout) as response:
+                raw = response.read()
+        except urllib.error.HTTPError as exc:
+            with exc:
+                if exc.code == 404 and missing_ok:
+                    return None
+                raise self._http_error(what, exc.code, exc.read()) from None
+        except (urllib.error.URLError, http.client.HTTPException, OSError) as exc:
+            reason = exc.reason if isinstance(exc, urllib.error.URLError) else exc
+            if isinstance(reason, (socket.timeout, TimeoutError)):
+                problem = f"no answer within {timeout or self.timeout:.0f} s"
+            else:
+                problem = f"cannot reach the agent ({reason})"
+            raise TemporaryDispatchError(
+                f"agent {self.base_url}: {what}: {problem}",
+                hint="is `plantkg agent` running there? retry later", host=self.host,
+            ) from exc
+        if not raw:
+            return None
+        try:
+            return json.loads(raw)
+        except ValueError:
+            raise self._bad_answer(what, "the answer is not JSON") from None
+
+    def _http_error(self, what: str, status: int, raw: bytes) -> Exception:
+        try:
+            body = json.loads(raw)
+            message, hint = str(body["error"]), body.get("hint")
+        except (ValueError, KeyError, TypeError):
+            message, hint = raw.decode("utf-8", "replace").strip()[:500] or "(no body)", None
+        text = f"agent {self.base_url}: {what} -> {status}: {message}"
+        if status == 401:
+            return AgentAuthError(text, hint=hint or "check the agent's token", host=self.host)
+        if status >= 500:
+            return TemporaryDispatchError(text, hint=hint, host=self.host)
+        return PermanentDispatchError(text, hint=hint, host=self.host)
+
+    def _bad_answer(self, what: str, problem: str) -> PermanentDispatchError:
+        return PermanentDispatchError(
+            f"agent {self.base_url}: {what}: {problem}",
+            hint="is this URL a plantkg agent of the same version?", host=self.host,
+        )
+
+    def _parse(self, parse: Any, data: Any, what: str) -> Any:
+        try:
+            return parse(data)
+        except WireError as exc:
+            raise self._bad_answer(what, f"unexpected answer: {exc.message}") from None
+
+
+def _segment(text: str) -> str:
+    """One path segment, every reserved character percent-encoded (MQTT ``/`` as %2F)."""
+    return urllib.parse.quote(text, safe="")

@@ -1,0 +1,130 @@
+"""One broker's folder on the agent: ``<state-dir>/brokers/<id>/``.
+
+::
+
+    spec.json        the BrokerSpec last PUT (its presence means "this broker should run")
+    pid.json         pid, start time (clock ticks since boot), argv, restarts, config hash, essence
+    topics.json      topics the agent was asked for (reported for implicit-topic drivers: MQTT)
+    <rendered>       the driver's config files (mosquitto.conf, server.properties, ...)
+    data/            the broker's data (Kafka log dirs)
+    logs/<kind>.log  the broker's stdout and stderr (and Mosquitto's own log)
+
+Files are written atomically (temporary file + rename), so a crash never leaves half a JSON file.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from engine.agent.wire import WireError, broker_spec_from_json, observed_topic_from_json
+from engine.errors import EngineError
+from engine.model import BrokerSpec, ObservedTopic, to_dict
+
+SPEC_FILE = "spec.json"
+PID_FILE = "pid.json"
+TOPICS_FILE = "topics.json"
+
+
+@dataclass(frozen=True)
+class PidRecord:
+    """What pid.json holds about the running process."""
+
+    pid: int
+    start_ticks: int
+    argv: tuple[str, ...]
+    restarts: int = 0
+    config_hash: str | None = None
+    essence: dict[str, Any] = field(default_factory=dict)
+
+
+def write_atomic(path: Path, text: str, mode: int = 0o644) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.chmod(tmp, mode)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+class BrokerFolder:
+    """Reads and writes the files of one broker folder."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def write_json(self, name: str, data: Any) -> None:
+        write_atomic(self.path / name, json.dumps(data, indent=2, sort_keys=True) + "\n")
+
+    def _read_json(self, name: str) -> Any | None:
+        path = self.path / name
+        try:
+            return json.loads(path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError) as exc:
+            raise EngineError(f"{path}: unreadable ({exc})",
+                              hint="delete the file; the agent rewrites it on the next PUT") from exc
+
+    # spec.json
+    def read_spec(self) -> BrokerSpec | None:
+        data = self._read_json(SPEC_FILE)
+        if data is None:
+            return None
+        try:
+            return broker_spec_from_json(data)
+        except WireError as exc:
+            raise EngineError(f"{self.path / SPEC_FILE}: {exc.message}",
+                              hint="PUT the broker again, or delete its folder") from exc
+
+    def write_spec(self, spec: BrokerSpec) -> None:
+        self.write_json(SPEC_FILE, to_dict(spec))
+
+    # pid.json
+    def read_pid(self) -> PidRecord | None:
+        data = self._read_json(PID_FILE)
+        if not isinstance(data, dict):
+            return None
+        try:
+            return PidRecord(
+                pid=int(data["pid"]), start_ticks=int(data["start_ticks"]),
+                argv=tuple(data["argv"]), restarts=int(data.get("restarts", 0)),
+                config_hash=data.get("config_hash"), essence=dict(data.get("essence", {})),
+            )
+        except (KeyError, TypeError, ValueError):
+            return None
+
+    def write_pid(self, record: PidRecord) -> None:
+        self.write_json(PID_FILE, {
+            "pid": record.pid, "start_ticks": record.start_ticks, "argv": list(record.argv),
+            "restarts": record.restarts, "config_hash": record.config_hash,
+            "essence": record.essence,
+        })
+
+    def remove_pid(self) -> None:
+        (self.path / PID_FILE).unlink(missing_ok=True)
+
+    # topics.json
+    def read_topics(self) -> list[ObservedTopic]:
+        data = self._read_json(TOPICS_FILE) or []
+        return [observed_topic_from_json(t) for t in data]
+
+    def write_topics(self, topics: list[ObservedTopic]) -> None:
+        self.write_json(TOPICS_FILE, [to_dict(t) for t in sorted(topics, key=lambda t: t.name)])
+
+    # rendered files
+    def write_rendered(self, files: dict[str, str]) -> None:
+        for name, text in files.items():
+            target = (self.path / name).resolve()
+            if target.parent != self.path.resolve() or name in (SPEC_FILE, PID_FILE, TOPICS_FILE):
+                raise EngineError(f"driver tried to write {name!r} outside its config files",
+                                  hint="fix the driver's render_config")
+            write_atomic(target, text)

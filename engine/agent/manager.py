@@ -1,0 +1,495 @@
+"""The agent's brokers: declarative PUT/DELETE, supervision, and re-adoption after a restart.
+
+:class:`BrokerManager` owns ``<state-dir>/brokers/`` (one :class:`~engine.agent.folder.BrokerFolder`
+per broker) and is what the HTTP layer calls. Its rules:
+
+- ``put(spec)`` is idempotent. A broker already running with the same *essence* (the driver says
+  which fields need a restart) and the same rendered config is left alone; anything else is
+  stopped, re-rendered, started, and the call returns once the driver's health check passes (or
+  raises when the driver's start deadline passes).
+- A supervision thread notices a broker that exits on its own, marks it CRASHED and restarts it
+  with exponential backoff (``backoff_base`` doubling up to ``backoff_cap``); ``restarts`` and
+  ``last_error`` show in its status. The backoff resets after ``stable_after`` s of health.
+- ``open()`` re-adopts brokers an earlier agent left running (pid, start time and command line
+  must match, see :mod:`engine.agent.procs`), stops strays, and starts brokers whose process is
+  gone: every folder with a ``spec.json`` is a broker that should run.
+
+Locking: each broker has an operation lock held for a whole PUT/DELETE/topic call (the supervisor
+only ``try``-locks it, so it never waits behind a slow start); ``self._lock`` guards the broker
+table and every field update, so a GET reads a consistent snapshot without waiting for a PUT.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import threading
+import time
+from dataclasses import dataclass, field, replace
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from engine import process
+from engine.agent.folder import BrokerFolder, PidRecord
+from engine.agent.procs import (
+    AdoptedProcess,
+    BrokerProcess,
+    SpawnedProcess,
+    mentions,
+    proc_info,
+    processes_of,
+    started_at,
+    stop_foreign,
+)
+from engine.agent.wire import BROKER_ID
+from engine.drivers.base import LOGS_DIR, Driver, config_hash, log_file
+from engine.drivers.registry import DriverRegistry
+from engine.errors import (
+    BrokerUnavailableError,
+    DriverError,
+    EngineError,
+    ProcessError,
+    UnknownDriverError,
+    WaitTimeoutError,
+)
+from engine.model import BrokerSpec, BrokerStatus, ObservedBroker, ObservedTopic, TopicSpec
+
+log = logging.getLogger(__name__)
+
+BROKERS_DIR = "brokers"
+REMOVED_DIR = "removed"
+
+
+class BrokerNotFoundError(EngineError):
+    """No broker with this id on this agent (HTTP 404)."""
+
+    def __init__(self, broker_id: str) -> None:
+        super().__init__(f"no broker {broker_id!r} on this agent",
+                         hint="PUT /v1/brokers/<id> first")
+        self.broker_id = broker_id
+
+
+class BrokerNotRunningError(EngineError):
+    """The broker failed or is stopped; a topic cannot be changed on it now (HTTP 409)."""
+
+
+@dataclass(eq=False)
+class _Broker:
+    spec: BrokerSpec
+    driver: Driver | None                 # None: no driver for the stored kind any more
+    folder: BrokerFolder
+    op: threading.Lock = field(default_factory=threading.Lock)
+    proc: BrokerProcess | None = None
+    status: BrokerStatus = BrokerStatus.STOPPED
+    restarts: int = 0
+    last_error: str | None = None
+    config_hash: str | None = None
+    essence: dict[str, Any] | None = None  # of the running process
+    failures: int = 0                      # consecutive crashes, for the backoff
+    next_start: float | None = None        # monotonic time the supervisor (re)starts it
+    healthy_since: float | None = None
+    deleted: bool = False
+
+
+class BrokerManager:
+    """All brokers of one agent; thread-safe."""
+
+    def __init__(
+        self,
+        state_dir: Path,
+        registry: DriverRegistry,
+        *,
+        backoff_base: float = 1.0,
+        backoff_cap: float = 30.0,
+        stable_after: float = 30.0,
+        tick: float = 0.1,
+    ) -> None:
+        self.state_dir = state_dir
+        self.registry = registry
+        self.backoff_base = backoff_base
+        self.backoff_cap = backoff_cap
+        self.stable_after = stable_after
+        self.tick = tick
+        self._lock = threading.Lock()
+        self._brokers: dict[str, _Broker] = {}
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    @property
+    def brokers_dir(self) -> Path:
+        return self.state_dir / BROKERS_DIR
+
+    # --- life cycle ------------------------------------------------------------------------
+
+    def open(self) -> BrokerManager:
+        """Load the broker folders, re-adopt or schedule their processes, start supervising."""
+        self.brokers_dir.mkdir(parents=True, exist_ok=True)
+        for path in sorted(self.brokers_dir.iterdir()):
+            if path.is_dir() and BROKER_ID.fullmatch(path.name):
+                try:
+                    self._load(path)
+                except EngineError as exc:
+                    log.error("broker folder %s ignored: %s", path, exc)
+        self._thread = threading.Thread(target=self._supervise_loop, name="plantkg-supervisor",
+                                        daemon=True)
+        self._thread.start()
+        return self
+
+    def close(self, *, stop_brokers: bool = False) -> None:
+        """Stop supervising; with ``stop_brokers`` also stop every broker (specs stay, so the next
+        agent starts them again)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        if stop_brokers:
+            for b in self._all():
+                with b.op:
+                    if b.proc is not None:
+                        self._stop_proc(b)
+
+    # --- API -------------------------------------------------------------------------------
+
+    def list(self) -> list[ObservedBroker]:
+        return [self._observe(b) for b in sorted(self._all(), key=lambda b: b.spec.id)]
+
+    def get(self, broker_id: str) -> ObservedBroker | None:
+        with self._lock:
+            b = self._brokers.get(broker_id)
+        return self._observe(b) if b is not None else None
+
+    def put(self, spec: BrokerSpec) -> ObservedBroker:
+        """Make broker ``spec.id`` run as ``spec``; return it once healthy."""
+        driver = self.registry.get(spec.kind)
+        driver.validate(spec)
+        b = self._claim(spec, driver)
+        try:
+            if self._unchanged(b, spec, driver):
+                if b.spec != spec:
+                    b.folder.write_spec(spec)
+                    self._update(b, spec=spec)
+                if b.status is not BrokerStatus.RUNNING:
+                    self._wait_healthy(b)
+                return self._observe(b)
+            if b.proc is not None:
+                self._stop_proc(b)
+            if b.spec.kind != spec.kind:
+                self._retire_folder(b)
+            b.folder.path.mkdir(parents=True, exist_ok=True)
+            b.folder.write_spec(spec)
+            self._update(b, spec=spec, driver=driver, failures=0, next_start=None, last_error=None)
+            try:
+                self._start(b, restart=False)
+            except Exception as exc:
+                self._update(b, status=BrokerStatus.FAILED, last_error=f"start failed: {exc}")
+                raise
+            self._wait_healthy(b)
+            return self._observe(b)
+        finally:
+            b.op.release()
+
+    def delete(self, broker_id: str) -> None:
+        """Stop the broker and move its folder to ``<state-dir>/removed/`` (idempotent)."""
+        with self._lock:
+            b = self._brokers.get(broker_id)
+        if b is None:
+            return
+        with b.op:
+            if b.deleted:
+                return
+            if b.proc is not None:
+                self._stop_proc(b)
+            self._retire_folder(b)
+            with self._lock:
+                b.deleted = True
+                self._brokers.pop(broker_id, None)
+
+    def put_topic(self, topic: TopicSpec) -> ObservedTopic:
+        """Create or alter a topic; an implicit-topics driver (MQTT) only validates, and the agent
+        records the topic in topics.json."""
+        b = self._existing(topic.broker_id)
+        try:
+            driver = self._topic_driver(b)
+            observed = driver.ensure_topic(b.spec, topic)
+            if driver.implicit_topics:
+                kept = [t for t in b.folder.read_topics() if t.name != observed.name]
+                b.folder.write_topics([*kept, observed])
+            return observed
+        finally:
+            b.op.release()
+
+    def delete_topic(self, broker_id: str, name: str) -> None:
+        try:
+            b = self._existing(broker_id)
+        except BrokerNotFoundError:
+            return
+        try:
+            driver = self._topic_driver(b)
+            driver.delete_topic(b.spec, name)
+            if driver.implicit_topics:
+                b.folder.write_topics([t for t in b.folder.read_topics() if t.name != name])
+        finally:
+            b.op.release()
+
+    # --- helpers for the API ---------------------------------------------------------------
+
+    def _all(self) -> list[_Broker]:
+        with self._lock:
+            return list(self._brokers.values())
+
+    def _update(self, b: _Broker, **changes: Any) -> None:
+        with self._lock:
+            for name, value in changes.items():
+                setattr(b, name, value)
+
+    def _claim(self, spec: BrokerSpec, driver: Driver) -> _Broker:
+        """The broker's record (created if new) with its operation lock held."""
+        while True:
+            with self._lock:
+                b = self._brokers.get(spec.id)
+                if b is None:
+                    b = _Broker(spec, driver, BrokerFolder(self.brokers_dir / spec.id))
+                    self._brokers[spec.id] = b
+            b.op.acquire()
+            if not b.deleted:
+                return b
+            b.op.release()
+
+    def _existing(self, broker_id: str) -> _Broker:
+        """A known broker with its operation lock held, else BrokerNotFoundError."""
+        with self._lock:
+            b = self._brokers.get(broker_id)
+        if b is None:
+            raise BrokerNotFoundError(broker_id)
+        b.op.acquire()
+        if b.deleted:
+            b.op.release()
+            raise BrokerNotFoundError(broker_id)
+        return b
+
+    def _unchanged(self, b: _Broker, spec: BrokerSpec, driver: Driver) -> bool:
+        """Running (or starting) with the same essence and the same rendered files."""
+        if b.proc is None or not b.proc.alive() or b.driver is not driver:
+            return False
+        if b.essence != driver.essence(spec):
+            return False
+        try:
+            return config_hash(driver.render_config(spec, b.folder.path)) == b.config_hash
+        except EngineError:
+            return False
+
+    def _topic_driver(self, b: _Broker) -> Driver:
+        """The broker's driver, if its topics can be changed now (always for implicit topics)."""
+        if b.driver is not None and b.driver.implicit_topics:
+            return b.driver
+        self._require_running(b)
+        assert b.driver is not None
+        return b.driver
+
+    def _require_running(self, b: _Broker) -> None:
+        if b.status is BrokerStatus.RUNNING and b.proc is not None and b.proc.alive():
+            return
+        where = f"broker {b.spec.id!r} is {b.status.value}"
+        if b.status in (BrokerStatus.STARTING, BrokerStatus.CRASHED):
+            raise BrokerUnavailableError(f"{where}; the agent is (re)starting it",
+                                         hint="try again in a few seconds")
+        raise BrokerNotRunningError(
+            f"{where}" + (f": {b.last_error}" if b.last_error else ""),
+            hint="PUT the broker again to start it",
+        )
+
+    def _observe(self, b: _Broker) -> ObservedBroker:
+        with self._lock:
+            spec, driver, proc, status = b.spec, b.driver, b.proc, b.status
+            observed = ObservedBroker(
+                spec=spec, status=status, pid=proc.pid if proc else None,
+                started_at=started_at(proc.start_ticks) if proc else None,
+                restarts=b.restarts, config_hash=b.config_hash, last_error=b.last_error,
+            )
+        topics: list[ObservedTopic] = []
+        if driver is not None and driver.implicit_topics:
+            topics = b.folder.read_topics()
+        elif driver is not None and status is BrokerStatus.RUNNING:
+            try:
+                topics = driver.observe_topics(spec)
+            except DriverError as exc:
+                log.warning("topics of broker %s not observed: %s", spec.id, exc)
+        return replace(observed, topics=tuple(sorted(topics, key=lambda t: t.name)))
+
+    # --- processes -------------------------------------------------------------------------
+
+    def _start(self, b: _Broker, *, restart: bool) -> None:
+        """Prepare, render, spawn; status STARTING (the caller or the supervisor waits)."""
+        driver, spec, path = b.driver, b.spec, b.folder.path
+        assert driver is not None
+        (path / LOGS_DIR).mkdir(parents=True, exist_ok=True)
+        driver.prepare(spec, path)
+        files = driver.render_config(spec, path)
+        b.folder.write_rendered(files)
+        argv = driver.command(spec, path)
+        child = process.spawn(argv, log_dir=path / LOGS_DIR, name=driver.kind, cwd=path)
+        proc = SpawnedProcess(child)
+        restarts = b.restarts + (1 if restart else 0)
+        digest, essence = config_hash(files), driver.essence(spec)
+        try:
+            b.folder.write_pid(PidRecord(pid=proc.pid, start_ticks=proc.start_ticks,
+                                         argv=tuple(argv), restarts=restarts, config_hash=digest,
+                                         essence=essence))
+        except BaseException:
+            proc.stop(driver.stop_grace)  # untracked, it would run unsupervised
+            raise
+        self._update(b, proc=proc, status=BrokerStatus.STARTING, restarts=restarts,
+                     config_hash=digest, essence=essence, next_start=None, healthy_since=None)
+        log.info("broker %s (%s) started, pid %d", spec.id, driver.kind, proc.pid)
+
+    def _wait_healthy(self, b: _Broker) -> None:
+        """Poll the driver's health check until the start deadline; RUNNING on success."""
+        driver, spec, proc = b.driver, b.spec, b.proc
+        assert driver is not None and proc is not None
+
+        def healthy() -> bool:
+            if not proc.alive():
+                code = proc.exit_code()
+                raise ProcessError(
+                    f"broker {spec.id!r} ({driver.kind}) exited"
+                    + (f" with code {code}" if code is not None else "")
+                    + f" while starting; log {log_file(b.folder.path, driver.kind)} ends with:\n"
+                    + _last_lines(proc.log_tail())
+                )
+            return driver.health(spec, 1.0)
+
+        try:
+            process.wait_until(healthy, driver.start_deadline, min(0.25, driver.start_deadline / 400),
+                               what=f"broker {spec.id!r} ({driver.kind}) to answer its health check")
+        except ProcessError as exc:
+            self._update(b, proc=None, status=BrokerStatus.FAILED, last_error=exc.message)
+            raise
+        except WaitTimeoutError as exc:
+            self._update(b, last_error=exc.message)
+            raise BrokerUnavailableError(
+                f"broker {spec.id!r} is still starting after {driver.start_deadline:.0f} s",
+                hint="PUT it again to keep waiting; see its log "
+                f"{log_file(b.folder.path, driver.kind)}",
+            ) from exc
+        self._update(b, status=BrokerStatus.RUNNING, healthy_since=time.monotonic())
+
+    def _stop_proc(self, b: _Broker) -> None:
+        assert b.proc is not None
+        grace = b.driver.stop_grace if b.driver is not None else 30.0
+        b.proc.stop(grace)
+        b.folder.remove_pid()
+        self._update(b, proc=None, status=BrokerStatus.STOPPED, healthy_since=None, next_start=None)
+        log.info("broker %s stopped", b.spec.id)
+
+    def _retire_folder(self, b: _Broker) -> None:
+        """Move the folder to removed/<id>.<UTC time> (logs and data kept for a post-mortem)."""
+        if not b.folder.path.exists():
+            return
+        stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%S.%fZ")
+        target = self.state_dir / REMOVED_DIR / f"{b.spec.id}.{stamp}"
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.move(str(b.folder.path), str(target))
+
+    # --- re-adoption -----------------------------------------------------------------------
+
+    def _load(self, path: Path) -> None:
+        folder = BrokerFolder(path)
+        spec = folder.read_spec()
+        if spec is None or spec.id != path.name:
+            return
+        try:
+            driver: Driver | None = self.registry.get(spec.kind)
+        except UnknownDriverError as exc:
+            self._brokers[spec.id] = _Broker(spec, None, folder, status=BrokerStatus.FAILED,
+                                             last_error=exc.message)
+            return
+        assert driver is not None
+        b = _Broker(spec, driver, folder)
+        pid = folder.read_pid()
+        adopted = None
+        if pid is not None:
+            info = proc_info(pid.pid)
+            if info is not None and info.start_ticks == pid.start_ticks \
+                    and mentions(info, path, pid.argv[0]):
+                adopted = AdoptedProcess(info, log_file(path, driver.kind))
+            b.restarts = pid.restarts
+        program = pid.argv[0] if pid is not None else None
+        if program is None:
+            try:
+                program = driver.command(spec, path)[0]
+            except EngineError:
+                program = None
+        for stray in processes_of(path, program) if program else []:
+            if adopted is None or stray.pid != adopted.pid:
+                log.warning("stopping stray process %d of broker %s: %s", stray.pid, spec.id,
+                            " ".join(stray.argv))
+                stop_foreign(stray, driver.stop_grace)
+        if adopted is not None and pid is not None:
+            b.proc, b.config_hash, b.essence = adopted, pid.config_hash, pid.essence
+            b.status = BrokerStatus.RUNNING if driver.health(spec, 1.0) else BrokerStatus.STARTING
+            if b.status is BrokerStatus.RUNNING:
+                b.healthy_since = time.monotonic()
+            log.info("broker %s re-adopted (pid %d, %s)", spec.id, adopted.pid, b.status.value)
+        elif pid is not None:
+            b.status = BrokerStatus.CRASHED
+            b.last_error = f"process {pid.pid} was gone when the agent started"
+            b.next_start = time.monotonic()
+        else:
+            b.next_start = time.monotonic()
+        self._brokers[spec.id] = b
+
+    # --- supervision -----------------------------------------------------------------------
+
+    def _supervise_loop(self) -> None:
+        while not self._stop.wait(self.tick):
+            for b in self._all():
+                if self._stop.is_set() or not b.op.acquire(blocking=False):
+                    continue
+                try:
+                    if not b.deleted and b.driver is not None:
+                        self._supervise(b)
+                except Exception:  # noqa: BLE001 - the supervisor must outlive any one broker
+                    log.exception("supervising broker %s", b.spec.id)
+                finally:
+                    b.op.release()
+
+    def _backoff(self, failures: int) -> float:
+        return min(self.backoff_cap, self.backoff_base * 2 ** max(failures - 1, 0))
+
+    def _supervise(self, b: _Broker) -> None:
+        now = time.monotonic()
+        assert b.driver is not None
+        if b.proc is not None:
+            if not b.proc.alive():
+                code = b.proc.exit_code()
+                failures = b.failures + 1
+                delay = self._backoff(failures)
+                when = datetime.now(timezone.utc).isoformat(timespec="seconds")
+                error = (f"exited unexpectedly at {when}"
+                         + (f" with code {code}" if code is not None else "")
+                         + f"; restart in {delay:.1f} s. Log ends with:\n"
+                         + _last_lines(b.proc.log_tail()))
+                self._update(b, proc=None, status=BrokerStatus.CRASHED, failures=failures,
+                             next_start=now + delay, last_error=error, healthy_since=None)
+                log.warning("broker %s %s", b.spec.id, error)
+            elif b.status is BrokerStatus.STARTING:
+                if b.driver.health(b.spec, 0.5):
+                    self._update(b, status=BrokerStatus.RUNNING, healthy_since=now)
+            elif b.failures and b.healthy_since is not None \
+                    and now - b.healthy_since >= self.stable_after:
+                self._update(b, failures=0)
+            return
+        if b.next_start is not None and now >= b.next_start:
+            try:
+                self._start(b, restart=b.status is BrokerStatus.CRASHED)
+            except Exception as exc:  # noqa: BLE001 - reported in the status, retried
+                failures = b.failures + 1
+                delay = self._backoff(failures)
+                self._update(b, status=BrokerStatus.CRASHED, failures=failures,
+                             next_start=now + delay,
+                             last_error=f"restart failed: {exc}; next try in {delay:.1f} s")
+                log.warning("broker %s: restart failed: %s", b.spec.id, exc)
+
+
+def _last_lines(text: str, count: int = 12) -> str:
+    return "\n".join(text.strip().splitlines()[-count:])

@@ -1,0 +1,193 @@
+"""The agent API as an OpenAPI 3.1 document, written by hand (served at ``/v1/openapi.json``).
+
+Schemas mirror engine.model's dataclasses as :func:`engine.model.to_dict` writes them; a unit test
+checks that every route of the app is described here and nothing more.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+_NULLABLE_INT = {"type": ["integer", "null"]}
+
+
+def _ref(name: str) -> dict[str, str]:
+    return {"$ref": f"#/components/schemas/{name}"}
+
+
+def _error_responses(*codes: int) -> dict[str, Any]:
+    text = {
+        400: "Invalid JSON, unknown or missing field, or invalid value (`field` names it)",
+        401: "Missing or wrong bearer token",
+        404: "Unknown broker",
+        409: "The broker cannot do this (fewer Kafka partitions, broker failed or stopped)",
+        422: "The agent cannot do this (no driver for the kind, a part missing, the broker "
+             "exited while starting)",
+        503: "Try again: the broker is starting, restarting, or did not answer",
+        500: "Internal error",
+    }
+    return {str(c): {"description": text[c], "content": {
+        "application/json": {"schema": _ref("Error")}}} for c in codes}
+
+
+def _json(schema: dict[str, Any], description: str) -> dict[str, Any]:
+    return {"description": description, "content": {"application/json": {"schema": schema}}}
+
+
+_BROKER_ID = {"name": "broker_id", "in": "path", "required": True,
+              "schema": {"type": "string", "pattern": "^[A-Za-z0-9_][A-Za-z0-9_.-]{0,127}$"}}
+_TOPIC_NAME = {"name": "name", "in": "path", "required": True,
+               "description": "The topic name, percent-encoded (MQTT names hold slashes: %2F)",
+               "schema": {"type": "string"}}
+
+_SCHEMAS: dict[str, Any] = {
+    "Error": {
+        "type": "object", "required": ["error", "retryable"],
+        "properties": {
+            "error": {"type": "string"},
+            "hint": {"type": ["string", "null"]},
+            "retryable": {"type": "boolean"},
+            "field": {"type": "string", "description": "The field of the body at fault"},
+        },
+    },
+    "BrokerSpec": {
+        "type": "object", "additionalProperties": False,
+        "required": ["id", "iri", "name", "kind", "host", "port"],
+        "properties": {
+            "id": _BROKER_ID["schema"],
+            "iri": {"type": "string"},
+            "name": {"type": "string", "minLength": 1},
+            "kind": {"type": "string", "description": "A driver name: mosquitto, kafka, ..."},
+            "host": {"type": "string", "description": "IPv4 or IPv6 address the broker binds"},
+            "port": {"type": "integer", "minimum": 1, "maximum": 65535},
+        },
+    },
+    "TopicSpec": {
+        "type": "object", "additionalProperties": False,
+        "required": ["broker_id", "name", "iri"],
+        "properties": {
+            "broker_id": {"type": "string"},
+            "name": {"type": "string", "minLength": 1},
+            "iri": {"type": "string"},
+            "partitions": {"type": ["integer", "null"], "minimum": 1, "maximum": 10000},
+            "replication_factor": {"type": ["integer", "null"], "minimum": 1, "maximum": 32767},
+            "retention_ms": {"type": ["integer", "null"], "minimum": -1},
+            "qos": {"type": ["integer", "null"], "minimum": 0, "maximum": 2},
+            "retain": {"type": ["boolean", "null"]},
+        },
+    },
+    "ObservedTopic": {
+        "type": "object", "required": ["name"],
+        "properties": {
+            "name": {"type": "string"},
+            "partitions": _NULLABLE_INT,
+            "replication_factor": _NULLABLE_INT,
+            "retention_ms": _NULLABLE_INT,
+            "qos": _NULLABLE_INT,
+            "retain": {"type": ["boolean", "null"]},
+        },
+    },
+    "ObservedBroker": {
+        "type": "object", "required": ["spec", "status", "topics", "restarts"],
+        "properties": {
+            "spec": _ref("BrokerSpec"),
+            "status": {"type": "string",
+                       "enum": ["running", "starting", "stopped", "crashed", "failed"]},
+            "topics": {"type": "array", "items": _ref("ObservedTopic")},
+            "pid": _NULLABLE_INT,
+            "started_at": {"type": ["number", "null"], "description": "Seconds since the epoch"},
+            "restarts": {"type": "integer", "description": "Restarts after crashes"},
+            "config_hash": {"type": ["string", "null"]},
+            "last_error": {"type": ["string", "null"]},
+        },
+    },
+    "Health": {
+        "type": "object", "required": ["status", "agent", "version"],
+        "properties": {
+            "status": {"const": "ok"},
+            "agent": {"type": "string"},
+            "version": {"type": "string"},
+            "drivers": {"type": "array", "items": {"type": "string"}},
+            "driver_errors": {"type": "object", "additionalProperties": {"type": "string"}},
+        },
+    },
+}
+
+
+def openapi_document(version: str) -> dict[str, Any]:
+    """The document for agent ``version``."""
+    secured = [{"bearer": []}]
+    return {
+        "openapi": "3.1.0",
+        "info": {
+            "title": "plantkg agent",
+            "version": version,
+            "description": "Declarative, idempotent management of the message brokers of one "
+                           "machine. See docs/agent.md.",
+        },
+        "servers": [{"url": "/"}],
+        "security": secured,
+        "components": {
+            "securitySchemes": {"bearer": {"type": "http", "scheme": "bearer"}},
+            "schemas": _SCHEMAS,
+        },
+        "paths": {
+            "/v1/health": {"get": {
+                "operationId": "health", "summary": "The agent answers",
+                "responses": {"200": _json(_ref("Health"), "Alive"), **_error_responses(401)},
+            }},
+            "/v1/brokers": {"get": {
+                "operationId": "listBrokers", "summary": "Every broker of this agent",
+                "responses": {
+                    "200": _json({"type": "object", "required": ["brokers"], "properties": {
+                        "brokers": {"type": "array", "items": _ref("ObservedBroker")}}},
+                        "The brokers, sorted by id"),
+                    **_error_responses(401),
+                },
+            }},
+            "/v1/brokers/{broker_id}": {
+                "parameters": [_BROKER_ID],
+                "get": {
+                    "operationId": "getBroker", "summary": "One broker as observed",
+                    "responses": {"200": _json(_ref("ObservedBroker"), "The broker"),
+                                  **_error_responses(400, 401, 404)},
+                },
+                "put": {
+                    "operationId": "putBroker",
+                    "summary": "Make the broker run as specified (idempotent)",
+                    "description": "Same essence already running and healthy: returned unchanged. "
+                                   "Otherwise stopped, re-rendered, started; answers once the "
+                                   "driver's health check passes (503 after its start deadline).",
+                    "requestBody": {"required": True, "content": {
+                        "application/json": {"schema": _ref("BrokerSpec")}}},
+                    "responses": {"200": _json(_ref("ObservedBroker"), "Running and healthy"),
+                                  **_error_responses(400, 401, 422, 503, 500)},
+                },
+                "delete": {
+                    "operationId": "deleteBroker",
+                    "summary": "Stop the broker and retire its folder (idempotent)",
+                    "responses": {"204": {"description": "Gone"}, **_error_responses(400, 401)},
+                },
+            },
+            "/v1/brokers/{broker_id}/topics/{name}": {
+                "parameters": [_BROKER_ID, _TOPIC_NAME],
+                "put": {
+                    "operationId": "putTopic", "summary": "Create or alter a topic",
+                    "requestBody": {"required": True, "content": {
+                        "application/json": {"schema": _ref("TopicSpec")}}},
+                    "responses": {"200": _json(_ref("ObservedTopic"), "The topic as observed"),
+                                  **_error_responses(400, 401, 404, 409, 422, 503)},
+                },
+                "delete": {
+                    "operationId": "deleteTopic", "summary": "Delete a topic (idempotent)",
+                    "responses": {"204": {"description": "Gone"},
+                                  **_error_responses(400, 401, 409, 503)},
+                },
+            },
+            "/v1/openapi.json": {"get": {
+                "operationId": "openapi", "summary": "This document", "security": [],
+                "responses": {"200": {"description": "OpenAPI 3.1",
+                                      "content": {"application/json": {}}}},
+            }},
+        },
+    }

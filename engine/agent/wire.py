@@ -1,0 +1,150 @@
+"""JSON <-> engine.model dataclasses for the agent API, strictly.
+
+The agent reads BrokerSpec and TopicSpec bodies with :func:`broker_spec_from_json` and
+:func:`topic_spec_from_json`: an unknown field, a missing one, a value of the wrong JSON type or an
+unsafe value (control character, port out of range, a host name where an address belongs) raises
+:class:`WireError` naming the field, which the agent answers with 400. The client reads the agent's
+answers with :func:`observed_broker_from_json` / :func:`observed_topic_from_json`. Writing is
+:func:`engine.model.to_dict`.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import MISSING, fields
+from typing import Any
+
+from engine.drivers.base import check_text
+from engine.errors import ConfigValueError, EngineError
+from engine.model import BrokerSpec, BrokerStatus, ObservedBroker, ObservedTopic, TopicSpec
+from engine.values import check_host, check_port
+
+#: pk:id as the shapes allow it (pks:PlantElement-idValue); ids name folders on the agent.
+BROKER_ID = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,127}")
+#: A broker kind is an entry-point name.
+KIND = re.compile(r"[a-z][a-z0-9_-]{0,63}")
+
+
+class WireError(EngineError):
+    """A request or answer body that does not fit the API; ``field`` names the culprit."""
+
+    def __init__(self, field: str, problem: str) -> None:
+        super().__init__(f"{field}: {problem}", hint=f"correct the field {field!r} of the JSON body")
+        self.field = field
+        self.problem = problem
+
+
+def _fields(data: Any, cls: type, where: str, *, strict: bool = True) -> dict[str, Any]:
+    """``data`` as keyword arguments of dataclass ``cls``: no missing key, and no unknown one
+    if ``strict`` (requests); answers are read leniently so a newer agent can add fields."""
+    if not isinstance(data, dict):
+        raise WireError(where or "body", f"expected a JSON object, got {_json_type(data)}")
+    known = {f.name: f for f in fields(cls)}
+    for key in data:
+        if key not in known and strict:
+            raise WireError(_join(where, str(key)), f"unknown field (known: {', '.join(known)})")
+    for name, f in known.items():
+        if name not in data and f.default is MISSING and f.default_factory is MISSING:
+            raise WireError(_join(where, name), "missing")
+    return {k: v for k, v in data.items() if k in known}
+
+
+def _join(where: str, name: str) -> str:
+    return f"{where}.{name}" if where else name
+
+
+def _typed(data: dict[str, Any], name: str, types: tuple[type, ...], where: str,
+           optional: bool = False) -> Any:
+    value = data.get(name)
+    if value is None and optional:
+        return None
+    if isinstance(value, bool) and bool not in types:
+        raise WireError(_join(where, name), f"expected {_names(types)}, got a boolean")
+    if not isinstance(value, types):
+        raise WireError(_join(where, name), f"expected {_names(types)}, got {_json_type(value)}")
+    return value
+
+
+def _names(types: tuple[type, ...]) -> str:
+    return " or ".join({str: "a string", int: "an integer", bool: "a boolean",
+                        float: "a number"}[t] for t in types)
+
+
+def _json_type(value: Any) -> str:
+    return "null" if value is None else {dict: "an object", list: "an array", str: "a string",
+                                         int: "an integer", float: "a number"}.get(type(value), "?")
+
+
+def _checked(where: str, check: Any, *args: Any) -> Any:
+    try:
+        return check(*args)
+    except ConfigValueError as exc:
+        raise WireError(_join(where, exc.field), exc.problem) from None
+
+
+def broker_spec_from_json(data: Any, where: str = "", *, strict: bool = True) -> BrokerSpec:
+    """A validated BrokerSpec. The host is kept as written (an IPv6 address is not compressed),
+    so the spec an agent reports equals the one it was given."""
+    data = _fields(data, BrokerSpec, where, strict=strict)
+    broker_id = _typed(data, "id", (str,), where)
+    if not BROKER_ID.fullmatch(broker_id):
+        raise WireError(_join(where, "id"), "must be 1 to 128 characters of A-Z a-z 0-9 _ . - "
+                        "starting with a letter, a digit or _")
+    iri = _checked(where, check_text, "iri", _typed(data, "iri", (str,), where))
+    if any(c.isspace() for c in iri):
+        raise WireError(_join(where, "iri"), "an IRI must not contain whitespace")
+    name = _checked(where, check_text, "name", _typed(data, "name", (str,), where))
+    kind = _typed(data, "kind", (str,), where)
+    if not KIND.fullmatch(kind):
+        raise WireError(_join(where, "kind"), "must be a lower-case driver name such as mosquitto")
+    host = _typed(data, "host", (str,), where)
+    _checked(where, check_host, "host", host)
+    port = _checked(where, check_port, "port", _typed(data, "port", (int,), where))
+    return BrokerSpec(id=broker_id, iri=iri, name=name, kind=kind, host=host, port=port)
+
+
+def topic_spec_from_json(data: Any, where: str = "") -> TopicSpec:
+    """A TopicSpec with JSON types checked; names and ranges are the driver's to check."""
+    data = _fields(data, TopicSpec, where)
+    broker_id = _typed(data, "broker_id", (str,), where)
+    name = _checked(where, check_text, "name", _typed(data, "name", (str,), where))
+    iri = _checked(where, check_text, "iri", _typed(data, "iri", (str,), where))
+    ints = {k: _typed(data, k, (int,), where, optional=True)
+            for k in ("partitions", "replication_factor", "retention_ms", "qos")}
+    retain = _typed(data, "retain", (bool,), where, optional=True)
+    return TopicSpec(broker_id=broker_id, name=name, iri=iri, retain=retain, **ints)
+
+
+def observed_topic_from_json(data: Any, where: str = "") -> ObservedTopic:
+    data = _fields(data, ObservedTopic, where, strict=False)
+    name = _typed(data, "name", (str,), where)
+    ints = {k: _typed(data, k, (int,), where, optional=True)
+            for k in ("partitions", "replication_factor", "retention_ms", "qos")}
+    retain = _typed(data, "retain", (bool,), where, optional=True)
+    return ObservedTopic(name=name, retain=retain, **ints)
+
+
+def observed_broker_from_json(data: Any, where: str = "") -> ObservedBroker:
+    data = _fields(data, ObservedBroker, where, strict=False)
+    spec = broker_spec_from_json(data["spec"], _join(where, "spec"), strict=False)
+    try:
+        status = BrokerStatus(_typed(data, "status", (str,), where))
+    except ValueError:
+        raise WireError(_join(where, "status"), f"not one of {[s.value for s in BrokerStatus]}") \
+            from None
+    topics_data = data.get("topics", [])
+    if not isinstance(topics_data, list):
+        raise WireError(_join(where, "topics"), "expected an array")
+    topics = tuple(observed_topic_from_json(t, _join(where, f"topics[{i}]"))
+                   for i, t in enumerate(topics_data))
+    started = _typed(data, "started_at", (int, float), where, optional=True)
+    return ObservedBroker(
+        spec=spec,
+        status=status,
+        topics=topics,
+        pid=_typed(data, "pid", (int,), where, optional=True),
+        started_at=float(started) if started is not None else None,
+        restarts=_typed(data, "restarts", (int,), where) if "restarts" in data else 0,
+        config_hash=_typed(data, "config_hash", (str,), where, optional=True),
+        last_error=_typed(data, "last_error", (str,), where, optional=True),
+    )

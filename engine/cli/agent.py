@@ -1,0 +1,38 @@
+"""``plantkg agent``: run the agent of this machine (see docs/agent.md)."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+
+from engine.agent.server import DEFAULT_PORT, parse_listen, run_agent
+
+
+@click.command("agent")
+@click.option("--listen", default=f"127.0.0.1:{DEFAULT_PORT}", show_default=True,
+              metavar="ADDRESS[:PORT]", help="Address to serve the API on ([::1]:PORT for IPv6).")
+@click.option("--state-dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Folder of the agent's brokers (created if missing).")
+@click.option("--token-file", type=click.Path(dir_okay=False, path_type=Path),
+              help="Bearer token file; created with a random token if missing.  "
+                   "[default: STATE_DIR/token]")
+@click.option("--allow-remote", is_flag=True,
+              help="Allow a --listen address other than loopback.")
+@click.option("--stop-brokers-on-exit", is_flag=True,
+              help="Stop the brokers on SIGTERM/SIGINT (by default they keep running).")
+@click.option("--name", help="The agent's name in /v1/health.  [default: its URL]")
+@click.option("-v", "--verbose", is_flag=True, help="Log every request.")
+def agent_command(listen: str, state_dir: Path, token_file: Path | None, allow_remote: bool,
+                  stop_brokers_on_exit: bool, name: str | None, verbose: bool) -> int:
+    """Run this machine's agent: start, supervise and configure its brokers over HTTP.
+
+    Brokers outlive the agent: on restart it re-adopts those still running and restarts the
+    others. Stop it with SIGTERM or Ctrl-C.
+    """
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.getLogger("werkzeug").setLevel(logging.INFO if verbose else logging.WARNING)
+    address = parse_listen(listen, allow_remote=allow_remote)
+    return run_agent(address, state_dir, token_file, stop_brokers_on_exit=stop_brokers_on_exit,
+                     name=name)

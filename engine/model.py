@@ -1,0 +1,197 @@
+"""The engine's data: desired state, observed state and the plan between them.
+
+Every stage after the knowledge graph passes these frozen dataclasses, and nothing else, to the
+next: ``derive`` builds a :class:`DesiredState` from the reasoned graph, agents report an
+:class:`ObservedState`, ``plan`` turns the two into a :class:`Plan` of :class:`Change` s, ``apply``
+sends the changes to agents. They are plain values (hashable, comparable, JSON-able through
+``to_dict``/``from_dict``) so each stage can be tested alone and plans can be kept as files.
+
+Only the fields the ontology models are compared when planning (the *essence* of a broker or a
+topic); pids, start times and restart counts are observed but never cause a change.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, fields
+from typing import Any, Mapping
+
+
+class BrokerStatus(str, enum.Enum):
+    """What an agent says about one broker process."""
+
+    RUNNING = "running"          # process alive and health check passed
+    STARTING = "starting"        # process alive, health check not yet passed
+    STOPPED = "stopped"          # not running, on purpose
+    CRASHED = "crashed"          # exited unexpectedly; the agent will restart it (with backoff)
+    FAILED = "failed"            # could not be started (bad config, port in use, ...)
+
+
+class Action(str, enum.Enum):
+    """What a change does to one object (Terraform's vocabulary)."""
+
+    NOOP = "no-op"
+    CREATE = "create"
+    UPDATE = "update"
+    REPLACE = "replace"
+    DELETE = "delete"
+
+
+@dataclass(frozen=True)
+class BrokerSpec:
+    """A broker that must exist: what the ontology says of it (its essence)."""
+
+    id: str                 # pk:id — the broker's address in plans and on its agent
+    iri: str                # the individual in the graph
+    name: str
+    kind: str               # pk:brokerType — also the driver's entry-point name
+    host: str               # pk:ip — the agent is found there
+    port: int               # pk:port
+
+    @property
+    def address(self) -> str:
+        return f"broker.{self.id}"
+
+
+@dataclass(frozen=True)
+class TopicSpec:
+    """A topic that must exist on one broker, with the settings that apply to that broker's kind."""
+
+    broker_id: str
+    name: str               # pk:name of the topic — the name on the wire
+    iri: str
+    partitions: int | None = None          # Kafka
+    replication_factor: int | None = None  # Kafka
+    retention_ms: int | None = None        # Kafka
+    qos: int | None = None                 # MQTT
+    retain: bool | None = None             # MQTT
+
+    @property
+    def address(self) -> str:
+        return f"topic.{self.broker_id}.{self.name}"
+
+
+@dataclass(frozen=True)
+class BridgeSpec:
+    """Forwarding of ``topics`` from broker ``source`` to broker ``target`` (one direction)."""
+
+    source: str
+    target: str
+    topics: tuple[str, ...]  # sorted topic names both brokers carry
+    asserted: bool = True    # asserted with pk:bridgesTo, or derived by the rules
+
+    @property
+    def address(self) -> str:
+        return f"bridge.{self.source}.{self.target}"
+
+
+@dataclass(frozen=True)
+class DesiredState:
+    """Everything the plant needs, sorted by address so equal plants give equal values."""
+
+    brokers: tuple[BrokerSpec, ...] = ()
+    topics: tuple[TopicSpec, ...] = ()
+    bridges: tuple[BridgeSpec, ...] = ()
+
+    def broker(self, broker_id: str) -> BrokerSpec | None:
+        return next((b for b in self.brokers if b.id == broker_id), None)
+
+    def topics_of(self, broker_id: str) -> tuple[TopicSpec, ...]:
+        return tuple(t for t in self.topics if t.broker_id == broker_id)
+
+
+@dataclass(frozen=True)
+class ObservedTopic:
+    """A topic as the broker (Kafka) or the agent's record (MQTT) reports it."""
+
+    name: str
+    partitions: int | None = None
+    replication_factor: int | None = None
+    retention_ms: int | None = None
+    qos: int | None = None
+    retain: bool | None = None
+
+
+@dataclass(frozen=True)
+class ObservedBroker:
+    """One broker as its agent reports it: the essence it runs, plus volatile facts."""
+
+    spec: BrokerSpec
+    status: BrokerStatus
+    topics: tuple[ObservedTopic, ...] = ()
+    pid: int | None = None
+    started_at: float | None = None       # seconds since the epoch
+    restarts: int = 0
+    config_hash: str | None = None
+    last_error: str | None = None
+
+
+@dataclass(frozen=True)
+class ObservedState:
+    """What runs: every broker reported by the agents that answered; ``unreachable`` hosts did not."""
+
+    brokers: tuple[ObservedBroker, ...] = ()
+    unreachable: tuple[str, ...] = ()
+
+    def broker(self, broker_id: str) -> ObservedBroker | None:
+        return next((b for b in self.brokers if b.spec.id == broker_id), None)
+
+
+@dataclass(frozen=True)
+class Change:
+    """One planned change: ``before``/``after`` are the essences (None when absent).
+
+    ``reason`` is for people only; no decision is taken on it.
+    """
+
+    address: str
+    action: Action
+    before: Mapping[str, Any] | None
+    after: Mapping[str, Any] | None
+    reason: str = ""
+
+
+@dataclass(frozen=True)
+class Refusal:
+    """A change the plant asks for that a broker cannot make (e.g. fewer Kafka partitions)."""
+
+    address: str
+    reason: str
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Ordered changes (brokers, then topics, then bridges; deletes last) and refusals."""
+
+    changes: tuple[Change, ...] = ()
+    refusals: tuple[Refusal, ...] = ()
+    unreachable: tuple[str, ...] = ()
+
+    @property
+    def pending(self) -> tuple[Change, ...]:
+        """The changes that do something."""
+        return tuple(c for c in self.changes if c.action is not Action.NOOP)
+
+    @property
+    def empty(self) -> bool:
+        return not self.pending
+
+    @property
+    def applicable(self) -> bool:
+        """Refusals or agents that did not answer make a plan not applicable as a whole."""
+        return not self.refusals and not self.unreachable
+
+
+def to_dict(value: Any) -> Any:
+    """A dataclass (or tuple/list of them) as JSON-able data; enums become their values."""
+    if hasattr(value, "__dataclass_fields__"):
+        return {f.name: to_dict(getattr(value, f.name)) for f in fields(value)}
+    if isinstance(value, enum.Enum):
+        return value.value
+    if isinstance(value, (list, tuple)):
+        return [to_dict(v) for v in value]
+    if isinstance(value, Mapping):
+        return {k: to_dict(v) for k, v in value.items()}
+    return value
+
+

@@ -1,0 +1,52 @@
+"""JSON <-> model for the agent API: strict for requests, lenient for answers, lossless."""
+
+from __future__ import annotations
+
+import pytest
+
+from engine.agent.wire import (
+    WireError,
+    broker_spec_from_json,
+    observed_broker_from_json,
+    topic_spec_from_json,
+)
+from engine.model import BrokerSpec, BrokerStatus, ObservedBroker, ObservedTopic, TopicSpec, to_dict
+
+SPEC = BrokerSpec("k1", "urn:plant:k1", "Kafka", "kafka", "127.0.0.3", 9092)
+
+
+def test_round_trips() -> None:
+    observed = ObservedBroker(SPEC, BrokerStatus.CRASHED, (ObservedTopic("t", 3, 1, 1000),), pid=42,
+                              started_at=1.5, restarts=2, config_hash="ab", last_error="x\ny")
+    assert observed_broker_from_json(to_dict(observed)) == observed
+    assert broker_spec_from_json(to_dict(SPEC)) == SPEC
+    topic = TopicSpec("k1", "t", "urn:t", partitions=3, replication_factor=1, retention_ms=-1)
+    assert topic_spec_from_json(to_dict(topic)) == topic
+
+
+def test_requests_are_strict_answers_lenient() -> None:
+    with pytest.raises(WireError) as info:
+        broker_spec_from_json({**to_dict(SPEC), "color": "red"})
+    assert info.value.field == "color"
+    answer = {**to_dict(ObservedBroker(SPEC, BrokerStatus.RUNNING)), "uptime": 3}
+    answer["spec"]["zone"] = "a"
+    assert observed_broker_from_json(answer).spec == SPEC
+
+
+@pytest.mark.parametrize(("changes", "field"), [
+    ({"partitions": "3"}, "partitions"),
+    ({"retain": "true"}, "retain"),
+    ({"qos": 1.0}, "qos"),
+    ({"name": "a\nb"}, "name"),
+    ({"broker_id": None}, "broker_id"),
+])
+def test_bad_topic_bodies(changes: dict, field: str) -> None:
+    with pytest.raises(WireError) as info:
+        topic_spec_from_json({**to_dict(TopicSpec("k1", "t", "urn:t")), **changes})
+    assert info.value.field == field
+
+
+def test_a_bad_status_in_an_answer() -> None:
+    answer = {**to_dict(ObservedBroker(SPEC, BrokerStatus.RUNNING)), "status": "sleeping"}
+    with pytest.raises(WireError, match="status"):
+        observed_broker_from_json(answer)
