@@ -13,7 +13,7 @@ The data graph is the plant files plus the ontology (so subclass axioms count); 
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, astuple, dataclass
 from functools import lru_cache
 from pathlib import Path
 from typing import Iterable, Literal as Lit
@@ -235,7 +235,9 @@ def validate(
         results = _from_violations(plant, list(run(plant.store, shapes)))
     else:
         results = _run_pyshacl(plant, shapes)
-    results = sorted(set(results))
+    # None (no path or value) sorts first: plain tuple order would compare None with a string
+    # when two results differ only there (e.g. MaxCount and Datatype on one property).
+    results = sorted(set(results), key=lambda r: tuple("" if x is None else x for x in astuple(r)))
     return ValidationReport(
         conforms=not any(r.severity == "Violation" for r in results),
         results=tuple(results),

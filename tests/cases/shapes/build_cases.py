@@ -33,6 +33,11 @@ SHAPES_DIR = ROOT / "shapes"
 PK = "https://w3id.org/plantkg/ontology#"
 PKS = "https://w3id.org/plantkg/shapes#"
 EX = "http://example.org/plant#"
+RDF = "http://www.w3.org/1999/02/22-rdf-syntax-ns#"
+RDFS = "http://www.w3.org/2000/01/rdf-schema#"
+OWL = "http://www.w3.org/2002/07/owl#"
+#: Prefixes an expected focus, path or value may use (a path without one is a pk: local name).
+PREFIXES = {"ex:": EX, "pk:": PK, "rdf:": RDF, "rdfs:": RDFS, "owl:": OWL}
 
 HEADER = """\
 @prefix pk:  <https://w3id.org/plantkg/ontology#> .
@@ -187,8 +192,8 @@ class R:
     """One expected result; ``focus``/``value`` starting with ``ex:`` are plant IRIs."""
 
     focus: str
-    path: str | None  # local name in pk:, or None
-    value: str | None  # "ex:x" for a plant IRI, else a literal's lexical form, or None
+    path: str | None  # local name in pk:, a prefixed name such as "rdf:type", or None
+    value: str | None  # "ex:x" / "pk:X" for an IRI, else a literal's lexical form, or None
     shape: str  # local name in pks:
     component: str  # e.g. "MinCount" (ConstraintComponent is appended)
     severity: str = "Violation"
@@ -205,7 +210,10 @@ class Case:
 
 
 def _iri(text: str) -> str:
-    return EX + text[3:] if text.startswith("ex:") else text
+    for prefix, namespace in PREFIXES.items():
+        if text.startswith(prefix):
+            return namespace + text[len(prefix):]
+    return text
 
 
 def _messages() -> dict[str, str]:
@@ -229,7 +237,7 @@ def _row(r: R, messages: dict[str, str]) -> dict[str, str | None]:
     shape = PKS + r.shape
     return {
         "focus": _iri(r.focus),
-        "path": PK + r.path if r.path else None,
+        "path": (_iri(r.path) if ":" in r.path else PK + r.path) if r.path else None,
         "value": _iri(r.value) if r.value is not None else None,
         "shape": shape,
         "component": r.component + "ConstraintComponent",
@@ -314,6 +322,80 @@ CASES: list[Case] = [
                    R("ex:kafka1", "brokerType", "kafka\r", "PlantElement-noControlChars", "SPARQL")]),
     Case("description-may-hold-newlines", "a multi-line description (allowed: free text, not config)",
          edits=[('pk:description "Mosquitto of cell 1" ;', 'pk:description "Mosquitto of cell 1\\nsecond line" ;')]),
+    Case("description-language-tagged", "a description with a language tag (not the xsd:string of its range)",
+         edits=[('pk:description "Collaborative robot of cell 1" ;', 'pk:description "Collaborative robot of cell 1"@en ;')],
+         expected=[R("ex:robot", "description", "Collaborative robot of cell 1", "PlantElement-description", "Datatype")]),
+    Case("id-language-tagged", "an id with a language tag",
+         edits=[('pk:id "pick-place" ;', 'pk:id "pick-place"@en ;')],
+         expected=[R("ex:pickPlace", "id", "pick-place", "PlantElement-idValue", "Datatype")]),
+    # --- What the reasoner needs: disjoint classes, domains, ranges, typed individuals, no sameAs ---
+    Case("disjoint-skill-and-type", "an individual typed both pk:Skill and pk:ResourceType (disjoint classes)",
+         edits=[("ex:pickPlace a pk:Skill ;", "ex:pickPlace a pk:Skill , pk:ResourceType ;")],
+         expected=[R("ex:pickPlace", "rdf:type", "pk:Skill", "PlantElement-disjointClasses", "SPARQL"),
+                   R("ex:pickPlace", "rdf:type", "pk:ResourceType", "PlantElement-disjointClasses", "SPARQL")]),
+    Case("disjoint-broker-and-topic", "a topic also typed pk:Broker (then also missing a broker's settings)",
+         edits=[("ex:energy a pk:Topic ;", "ex:energy a pk:Topic , pk:Broker ;")],
+         expected=[R("ex:energy", "rdf:type", "pk:Topic", "PlantElement-disjointClasses", "SPARQL"),
+                   R("ex:energy", "rdf:type", "pk:Broker", "PlantElement-disjointClasses", "SPARQL"),
+                   R("ex:energy", "brokerType", None, "Broker-brokerType", "MinCount"),
+                   R("ex:energy", "ip", None, "Broker-ip", "MinCount"),
+                   R("ex:energy", "port", None, "Broker-port", "MinCount")]),
+    Case("disjoint-mqttbroker-and-topic", "a topic also typed pk:MqttBroker (a Broker by definition)",
+         edits=[("ex:command a pk:Topic ;", "ex:command a pk:Topic , pk:MqttBroker ;")],
+         expected=[R("ex:command", "rdf:type", "pk:Topic", "PlantElement-disjointClasses", "SPARQL"),
+                   R("ex:command", "rdf:type", "pk:MqttBroker", "PlantElement-disjointClasses", "SPARQL"),
+                   R("ex:command", None, "ex:command", "DefinedBrokerClass", "Class")]),
+    Case("disjoint-plant-subclass", "a resource also typed with a plant class declared under pk:Topic",
+         edits=[("ex:scada a pk:Resource ;", "ex:scada a pk:Resource , ex:SmartTopic ;")],
+         add=f"ex:SmartTopic <{RDFS}subClassOf> pk:Topic .",
+         expected=[R("ex:scada", "rdf:type", "pk:Resource", "PlantElement-disjointClasses", "SPARQL"),
+                   R("ex:scada", "rdf:type", "ex:SmartTopic", "PlantElement-disjointClasses", "SPARQL"),
+                   R("ex:scada", None, "ex:scada", "Topic-carried", "SPARQL", W)]),
+    Case("plant-subclass-of-resource", "a resource also typed with a plant class declared under pk:Resource (no result)",
+         edits=[("ex:robot a pk:Resource ;", "ex:robot a pk:Resource , ex:CollaborativeRobot ;")],
+         add=f"ex:CollaborativeRobot <{RDFS}subClassOf> pk:Resource ."),
+    Case("plant-class-under-two-classes", "a plant class declared under pk:Skill and pk:ResourceType, and a skill of it",
+         edits=[("ex:pickPlace a pk:Skill ;", "ex:pickPlace a ex:HybridSkill ;")],
+         add=f"ex:HybridSkill <{RDFS}subClassOf> pk:Skill , pk:ResourceType .",
+         expected=[R("ex:HybridSkill", "rdfs:subClassOf", "pk:Skill", "PlantClass-disjointSuperclasses", "SPARQL"),
+                   R("ex:HybridSkill", "rdfs:subClassOf", "pk:ResourceType", "PlantClass-disjointSuperclasses", "SPARQL")]),
+    Case("domain-brand-on-broker", "pk:brand (domain Resource) on a broker",
+         edits=[('pk:description "Mosquitto of cell 1" ;', 'pk:description "Mosquitto of cell 1" ;\n    pk:brand "Eclipse" ;')],
+         expected=[R("ex:mqtt1", "brand", "Eclipse", "Resource-domain", "SPARQL")]),
+    Case("domain-port-on-topic", "pk:port (domain Broker) on a topic",
+         edits=[("pk:retain true .", "pk:retain true ;\n    pk:port 1883 .")],
+         expected=[R("ex:command", "port", "1883", "Broker-domain", "SPARQL")]),
+    Case("domain-hasTopic-from-resource", "pk:hasTopic (domain Broker) from a resource",
+         edits=[("pk:subscribes ex:temperature .", "pk:subscribes ex:temperature ;\n    pk:hasTopic ex:temperature .")],
+         expected=[R("ex:scada", "hasTopic", "ex:temperature", "Broker-domain", "SPARQL")]),
+    Case("domain-attribute-on-skill", "pk:attribute (domain ResourceType) on a skill",
+         edits=[('pk:name "Measure energy" .', 'pk:name "Measure energy" ;\n    pk:attribute "fast" .')],
+         expected=[R("ex:measureEnergy", "attribute", "fast", "ResourceType-domain", "SPARQL")]),
+    Case("domain-value-on-resource", "pk:value and pk:valueType (domain Property) on a resource",
+         edits=[("pk:publishes ex:energy .", 'pk:publishes ex:energy ;\n    pk:value 5 ;\n    pk:valueType "integer" .')],
+         expected=[R("ex:meter", "value", "5", "Property-domain", "SPARQL"),
+                   R("ex:meter", "valueType", "integer", "Property-domain", "SPARQL")]),
+    Case("domain-qos-on-broker", "pk:qos (domain Topic) on a broker",
+         edits=[('pk:ip "::1" ;', 'pk:ip "::1" ;\n    pk:qos 1 ;')],
+         expected=[R("ex:mqtt2", "qos", "1", "Topic-domain", "SPARQL")]),
+    Case("domain-untyped-subject", "resource properties on a node with no type at all",
+         add='ex:ghost pk:brand "ACME" ;\n    pk:sendsTo ex:mqtt1 .',
+         expected=[R("ex:ghost", "brand", "ACME", "Resource-domain", "SPARQL"),
+                   R("ex:ghost", "sendsTo", "ex:mqtt1", "Resource-domain", "SPARQL")]),
+    Case("range-literal-for-broker", "sendsTo a literal where a broker individual belongs",
+         edits=[("pk:sendsTo ex:mqtt1 ;", 'pk:sendsTo ex:mqtt1 , "mqtt1" ;')],
+         expected=[R("ex:robot", "sendsTo", "mqtt1", "Resource-sendsTo", "Class")]),
+    Case("typed-missing", "a node with pk:id 5 and a name but no type (id's range is xsd:string)",
+         add='ex:stray pk:id 5 ;\n    pk:name "Stray" .',
+         expected=[R("ex:stray", None, "ex:stray", "PlantElement-typed", "SPARQL")]),
+    Case("sameas-two-individuals", "a resource declared owl:sameAs another resource",
+         add=f"ex:robot <{OWL}sameAs> ex:meter .",
+         expected=[R("ex:robot", "owl:sameAs", "ex:meter", "PlantElement-sameAs", "SPARQL"),
+                   R("ex:meter", "owl:sameAs", "ex:robot", "PlantElement-sameAs", "SPARQL")]),
+    Case("sameas-outside-node", "a resource owl:sameAs an outside IRI (reported), two outside IRIs (not)",
+         add=f"ex:robot <{OWL}sameAs> <http://www.wikidata.org/entity/Q1> .\n"
+             f"<urn:example:a> <{OWL}sameAs> <urn:example:b> .",
+         expected=[R("ex:robot", "owl:sameAs", "http://www.wikidata.org/entity/Q1", "PlantElement-sameAs", "SPARQL")]),
     # --- Resource ---
     Case("resource-brand-twice", "a resource with two brands",
          edits=[('pk:brand "Universal Robots" ;', 'pk:brand "Universal Robots" , "UR" ;')],
@@ -354,10 +436,16 @@ CASES: list[Case] = [
     Case("resource-subscribes-uncarried", "a resource subscribes to a topic its broker does not carry",
          edits=[("pk:subscribes ex:temperature .", "pk:subscribes ex:temperature , ex:command .")],
          expected=[R("ex:scada", "subscribes", "ex:command", "Resource-subscribedCarried", "SPARQL")]),
+    Case("resource-localization-language-tagged", "a localization with a language tag",
+         edits=[('pk:localization "cell 1" ;', 'pk:localization "cell 1"@en ;')],
+         expected=[R("ex:robot", "localization", "cell 1", "Resource-localization", "Datatype")]),
     # --- ResourceType ---
     Case("resourcetype-attribute-not-string", "an attribute written as a number",
          edits=[('pk:attribute "6-axis" , "collaborative" .', 'pk:attribute 6 , "collaborative" .')],
          expected=[R("ex:industrialRobot", "attribute", "6", "ResourceType-attribute", "Datatype")]),
+    Case("resourcetype-attribute-language-tagged", "an attribute with a language tag",
+         edits=[('pk:attribute "6-axis" , "collaborative" .', 'pk:attribute "6-axis" , "collaborative"@en .')],
+         expected=[R("ex:industrialRobot", "attribute", "collaborative", "ResourceType-attribute", "Datatype")]),
     # --- Property ---
     Case("property-value-missing", "a property without pk:value",
          edits=[('    pk:value "SN-42" ;\n', "")],
@@ -408,6 +496,54 @@ CASES: list[Case] = [
     Case("property-string-typed-number", "valueType string, value 42 written as an integer",
          edits=[('pk:value "SN-42" ;', "pk:value 42 ;")],
          expected=[R("ex:serial", "value", "42", "Property-valueDatatype", "SPARQL", W)]),
+    Case("property-valueType-language-tagged", "valueType \"string\"@en",
+         edits=[('pk:valueType "string" .', 'pk:valueType "string"@en .')],
+         expected=[R("ex:serial", "valueType", "string", "Property-valueTypeValue", "In")]),
+    # --- Property: literals the reasoner reads ---
+    Case("property-value-date-datatype", "a value written as an xsd:date (outside the OWL 2 datatype map)",
+         edits=[('pk:value "SN-42" ;', 'pk:value "2023-05-01"^^xsd:date ;')],
+         expected=[R("ex:serial", "value", "2023-05-01", "Property-valueLiteral", "SPARQL"),
+                   R("ex:serial", "value", "2023-05-01", "Property-valueDatatype", "SPARQL", W)]),
+    Case("property-value-custom-datatype", "a value with a datatype IRI of the plant's own",
+         edits=[('pk:value "SN-42" ;', 'pk:value "SN-42"^^ex:serialNumber ;')],
+         expected=[R("ex:serial", "value", "SN-42", "Property-valueLiteral", "SPARQL"),
+                   R("ex:serial", "value", "SN-42", "Property-valueDatatype", "SPARQL", W)]),
+    Case("property-value-ill-typed", "valueType string, value \"SN-42\"^^xsd:integer (not an integer)",
+         edits=[('pk:value "SN-42" ;', 'pk:value "SN-42"^^xsd:integer ;')],
+         expected=[R("ex:serial", "value", "SN-42", "Property-valueLiteral", "SPARQL"),
+                   R("ex:serial", "value", "SN-42", "Property-valueDatatype", "SPARQL", W)]),
+    Case("property-value-language-tagged", "valueType string, a language-tagged value (a warning only)",
+         edits=[('pk:value "SN-42" ;', 'pk:value "SN-42"@en ;')],
+         expected=[R("ex:serial", "value", "SN-42", "Property-valueDatatype", "SPARQL", W)]),
+    Case("property-value-integer-64-bit", "an integer value of 9223372036854775807, the largest 64-bit one (no result)",
+         edits=[("pk:value 6 ;", "pk:value 9223372036854775807 ;")]),
+    Case("property-value-integer-too-big", "an integer value of 9223372036854775808 (beyond 64 bits)",
+         edits=[("pk:value 6 ;", "pk:value 9223372036854775808 ;")],
+         expected=[R("ex:axes", "value", "9223372036854775808", "Property-valueLiteral", "SPARQL")]),
+    Case("property-value-double-inf", "a double value INF",
+         edits=[("pk:value 8.5e2 ;", 'pk:value "INF"^^xsd:double ;')],
+         expected=[R("ex:reach", "value", "INF", "Property-valueLiteral", "SPARQL")]),
+    Case("property-value-decimal-overflow", "a decimal value of 10^400 (beyond the largest double)",
+         edits=[("pk:value 5.0 ;", f'pk:value "1{"0" * 400}"^^xsd:decimal ;')],
+         expected=[R("ex:payload", "value", "1" + "0" * 400, "Property-valueLiteral", "SPARQL")]),
+    Case("property-value-dateTime-feb-30", "a dateTime on 30 February",
+         edits=[('pk:value "2023-05-01T08:00:00Z"^^xsd:dateTime ;', 'pk:value "2023-02-30T08:00:00Z"^^xsd:dateTime ;')],
+         expected=[R("ex:installed", "value", "2023-02-30T08:00:00Z", "Property-valueLiteral", "SPARQL")]),
+    Case("property-value-dateTime-1900-02-29", "a dateTime on 29 February 1900 (not a leap year)",
+         edits=[('pk:value "2023-05-01T08:00:00Z"^^xsd:dateTime ;', 'pk:value "1900-02-29T08:00:00Z"^^xsd:dateTime ;')],
+         expected=[R("ex:installed", "value", "1900-02-29T08:00:00Z", "Property-valueLiteral", "SPARQL")]),
+    Case("property-value-dateTime-2000-02-29", "a dateTime on 29 February 2000 (a leap year; no result)",
+         edits=[('pk:value "2023-05-01T08:00:00Z"^^xsd:dateTime ;', 'pk:value "2000-02-29T08:00:00Z"^^xsd:dateTime ;')]),
+    Case("property-value-dateTime-local", "a dateTime without timezone, at 24:00:00 (no result)",
+         edits=[('pk:value "2023-05-01T08:00:00Z"^^xsd:dateTime ;', 'pk:value "2023-05-01T24:00:00"^^xsd:dateTime ;')]),
+    Case("property-value-dateTime-milliseconds", "a dateTime with 3 decimals of seconds (no result)",
+         edits=[('pk:value "2023-05-01T08:00:00Z"^^xsd:dateTime ;', 'pk:value "2023-05-01T08:00:00.123Z"^^xsd:dateTime ;')]),
+    Case("property-value-dateTime-microseconds", "a dateTime with 4 decimals of seconds (HermiT keeps 3)",
+         edits=[('pk:value "2023-05-01T08:00:00Z"^^xsd:dateTime ;', 'pk:value "2023-05-01T08:00:00.1234Z"^^xsd:dateTime ;')],
+         expected=[R("ex:installed", "value", "2023-05-01T08:00:00.1234Z", "Property-valueLiteral", "SPARQL")]),
+    Case("property-value-dateTime-year-12023", "a dateTime in the year 12023 (5 digits)",
+         edits=[('pk:value "2023-05-01T08:00:00Z"^^xsd:dateTime ;', 'pk:value "12023-05-01T08:00:00Z"^^xsd:dateTime ;')],
+         expected=[R("ex:installed", "value", "12023-05-01T08:00:00Z", "Property-valueLiteral", "SPARQL")]),
     # --- Broker ---
     Case("broker-type-missing", "a broker without brokerType",
          edits=[('    pk:brokerType "kafka" ;\n', "")],
@@ -422,6 +558,9 @@ CASES: list[Case] = [
          edits=[('pk:name "line-mqtt" ;\n    pk:brokerType "mosquitto" ;',
                  'pk:name "line-mqtt" ;\n    pk:brokerType "Mosquitto" ;')],
          expected=[R("ex:mqtt2", "brokerType", "Mosquitto", "Broker-brokerTypeValue", "In")]),
+    Case("broker-type-language-tagged", "brokerType \"kafka\"@en",
+         edits=[('pk:brokerType "kafka" ;', 'pk:brokerType "kafka"@en ;')],
+         expected=[R("ex:kafka1", "brokerType", "kafka", "Broker-brokerTypeValue", "In")]),
     Case("broker-ip-missing", "a broker without ip",
          edits=[('    pk:ip "127.0.0.4" ;\n', "")],
          expected=[R("ex:kafka1", "ip", None, "Broker-ip", "MinCount")]),
@@ -446,6 +585,9 @@ CASES: list[Case] = [
     Case("broker-ip-ipv6-full-and-mapped", "valid IPv6 forms: full, and IPv4-mapped (no result)",
          edits=[('pk:ip "::1" ;', 'pk:ip "2001:0db8:0000:0000:0000:ff00:0042:8329" ;'),
                 ('pk:ip "127.0.0.4" ;', 'pk:ip "::ffff:192.0.2.128" ;')]),
+    Case("broker-ip-language-tagged", "an ip with a language tag",
+         edits=[('pk:ip "127.0.0.4" ;', 'pk:ip "127.0.0.4"@en ;')],
+         expected=[R("ex:kafka1", "ip", "127.0.0.4", "Broker-ipValue", "Datatype")]),
     Case("broker-ip-not-string", "ip written as a number",
          edits=[('pk:ip "127.0.0.4" ;', "pk:ip 2130706436 ;")],
          expected=[R("ex:kafka1", "ip", "2130706436", "Broker-ipValue", "Datatype"),
@@ -547,13 +689,15 @@ CASES: list[Case] = [
                    R("ex:energy", "partitions", "3", "Topic-partitions", "MaxInclusive")]),
     Case("topic-replication-twice", "two replication factors",
          edits=[("pk:partitions 1 ;\n    pk:replicationFactor 1 ;", "pk:partitions 1 ;\n    pk:replicationFactor 1 , 2 ;")],
-         expected=[R("ex:energy", "replicationFactor", None, "Topic-replicationFactor", "MaxCount")]),
+         expected=[R("ex:energy", "replicationFactor", None, "Topic-replicationFactor", "MaxCount"),
+                   R("ex:energy", "replicationFactor", "2", "Topic-kafkaReplication", "SPARQL")]),
     Case("topic-replication-zero", "replication factor 0",
          edits=[("pk:partitions 1 ;\n    pk:replicationFactor 1 ;", "pk:partitions 1 ;\n    pk:replicationFactor 0 ;")],
          expected=[R("ex:energy", "replicationFactor", "0", "Topic-replicationFactor", "MinInclusive")]),
     Case("topic-replication-too-big", "replication factor 32768 (more than a Java short)",
          edits=[("pk:partitions 1 ;\n    pk:replicationFactor 1 ;", "pk:partitions 1 ;\n    pk:replicationFactor 32768 ;")],
-         expected=[R("ex:energy", "replicationFactor", "32768", "Topic-replicationFactor", "MaxInclusive")]),
+         expected=[R("ex:energy", "replicationFactor", "32768", "Topic-replicationFactor", "MaxInclusive"),
+                   R("ex:energy", "replicationFactor", "32768", "Topic-kafkaReplication", "SPARQL")]),
     Case("topic-replication-not-integer", "replication factor true",
          edits=[("pk:partitions 1 ;\n    pk:replicationFactor 1 ;", "pk:partitions 1 ;\n    pk:replicationFactor true ;")],
          expected=[R("ex:energy", "replicationFactor", "true", "Topic-replicationFactor", "Datatype"),
@@ -566,6 +710,11 @@ CASES: list[Case] = [
                     "with an integer is a type error, so both bounds fail.",
                     [R("ex:energy", "replicationFactor", "true", "Topic-replicationFactor", "Datatype"),
                      R("ex:energy", "replicationFactor", "true", "Topic-replicationFactor", "MinInclusive")])),
+    Case("topic-kafka-replication-2", "replication factor 2 on a Kafka topic (each plantkg Kafka broker is one node)",
+         edits=[("pk:partitions 1 ;\n    pk:replicationFactor 1 ;", "pk:partitions 1 ;\n    pk:replicationFactor 2 ;")],
+         expected=[R("ex:energy", "replicationFactor", "2", "Topic-kafkaReplication", "SPARQL")]),
+    Case("topic-mqtt-replication-2", "replication factor 2 on a topic only Mosquitto carries (ignored; no result)",
+         edits=[("pk:retain true .", "pk:retain true ;\n    pk:replicationFactor 2 .")]),
     Case("topic-retention-twice", "two retention times",
          edits=[("pk:retentionMs -1 .", "pk:retentionMs -1 , 1000 .")],
          expected=[R("ex:energy", "retentionMs", None, "Topic-retentionMs", "MaxCount")]),
@@ -583,6 +732,9 @@ CASES: list[Case] = [
     Case("topic-valueTopic-twice", "two valueTopic values",
          edits=[('pk:valueTopic "temperature" ;', 'pk:valueTopic "temperature" , "celsius" ;')],
          expected=[R("ex:temperature", "valueTopic", None, "Topic-valueTopic", "MaxCount")]),
+    Case("topic-valueTopic-language-tagged", "valueTopic \"temperature\"@en",
+         edits=[('pk:valueTopic "temperature" ;', 'pk:valueTopic "temperature"@en ;')],
+         expected=[R("ex:temperature", "valueTopic", "temperature", "Topic-valueTopic", "Datatype")]),
     Case("topic-valueTopic-not-string", "valueTopic written as a number",
          edits=[('pk:valueTopic "temperature" ;', "pk:valueTopic 21 ;")],
          expected=[R("ex:temperature", "valueTopic", "21", "Topic-valueTopic", "Datatype")]),
@@ -599,6 +751,13 @@ CASES: list[Case] = [
     Case("topic-mqtt-plus-wildcard", "an MQTT topic name with + (a wildcard)",
          edits=[('pk:name "cell1/robot/command" ;', 'pk:name "cell1/+/command" ;')],
          expected=[R("ex:command", "name", "cell1/+/command", "Topic-mqttWildcard", "SPARQL")]),
+    Case("topic-mqtt-space", "an MQTT topic name with a space (would split a bridge's topic line)",
+         edits=[('pk:name "cell1/robot/command" ;', 'pk:name "cell1/robot command" ;')],
+         expected=[R("ex:command", "name", "cell1/robot command", "Topic-mqttSpace", "SPARQL")]),
+    Case("topic-on-both-kinds-with-space", "a topic on Mosquitto and Kafka named with a space",
+         edits=[('pk:name "cell1.temperature" ;', 'pk:name "cell1 temperature" ;')],
+         expected=[R("ex:temperature", "name", "cell1 temperature", "Topic-kafkaName", "SPARQL"),
+                   R("ex:temperature", "name", "cell1 temperature", "Topic-mqttSpace", "SPARQL")]),
     Case("topic-mqtt-too-long", "an MQTT topic name of 32768 characters but 65536 UTF-8 bytes",
          edits=[('pk:name "cell1/robot/command" ;', f'pk:name "{"é" * 32768}" ;')],
          expected=[R("ex:command", "name", "é" * 32768, "Topic-mqttLength", "SPARQL")]),
@@ -640,6 +799,11 @@ CASES: list[Case] = [
          add='ex:energy2 a pk:Topic ;\n    pk:id "t-energy2" ;\n    pk:name "plant_energy-total" .',
          expected=[R("ex:energy", "name", "plant_energy-total", "Topic-kafkaCollision", "SPARQL"),
                    R("ex:energy2", "name", "plant_energy-total", "Topic-kafkaCollision", "SPARQL")]),
+    Case("topic-kafka-same-name-other-broker",
+         "the same name on two Kafka brokers, and one topic carried by both (no result)",
+         add='ex:kafka2 a pk:Broker ;\n    pk:id "kafka2" ;\n    pk:name "line-kafka" ;\n    pk:brokerType "kafka" ;\n'
+             '    pk:ip "127.0.0.6" ;\n    pk:port 9092 ;\n    pk:hasTopic ex:temperature , ex:energy2 .\n'
+             'ex:energy2 a pk:Topic ;\n    pk:id "t-energy2" ;\n    pk:name "plant.energy-total" .'),
     Case("topic-mqtt-same-name", "two topics on one Mosquitto broker with the same name (no result)",
          edits=[("pk:hasTopic ex:temperature , ex:command ;", "pk:hasTopic ex:temperature , ex:command , ex:command2 ;")],
          add='ex:command2 a pk:Topic ;\n    pk:id "t-command2" ;\n    pk:name "cell1/robot/command" .'),
