@@ -1,11 +1,13 @@
 # plantkg: `make test` installs what is missing (scripts/setup.sh) and runs the whole suite.
+# `make demo` runs the robot cell end to end (DEMO_ARGS, e.g. DEMO_ARGS='--duration 20').
 # Pass pytest options with PYTEST_ARGS, e.g. make test PYTEST_ARGS='-m "not integration"'
 
 SHELL := /bin/bash
 VENV := .venv
 PYTEST_ARGS ?=
+DEMO_ARGS ?=
 
-.PHONY: setup test lint
+.PHONY: setup test lint demo
 
 setup:
 	bash scripts/setup.sh
@@ -15,3 +17,6 @@ test: setup
 
 lint: setup
 	$(VENV)/bin/lint-imports
+
+demo: setup
+	$(VENV)/bin/plantkg demo $(DEMO_ARGS)

@@ -11,8 +11,14 @@ import sys
 
 import click
 
+from engine.cli.agent import agent_command
 from engine.cli.common import run_guarded
+from engine.cli.demo import demo_command
+from engine.cli.apply import apply_command
+from engine.cli.destroy import destroy_command
+from engine.cli.plan import plan_command
 from engine.cli.query import query_command
+from engine.cli.status import status_command
 from engine.cli.validate import validate_command
 
 
@@ -27,6 +33,12 @@ def cli() -> None:
 
 cli.add_command(validate_command)
 cli.add_command(query_command)
+cli.add_command(plan_command)
+cli.add_command(apply_command)
+cli.add_command(destroy_command)
+cli.add_command(status_command)
+cli.add_command(agent_command)
+cli.add_command(demo_command)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,54 @@
+"""``plantkg plan FILE...``: show what apply would change; nothing is changed.
+
+Exit codes: 0 the plan was made (with ``--detailed-exitcode``: and it is empty), 1 the plant has
+violations (with ``--detailed-exitcode``: changes are pending — an invalid plant is then 2),
+2 unusable input, an agent problem, or a plan that cannot be applied (refusals, unreachable agents).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from engine.cli.common import file_argument
+from engine.cli.reconcile import agents_option, prepare, print_violations
+from engine.render_plan import plan_json, render_plan
+from kg.errors import EXIT_UNUSABLE, EXIT_VIOLATIONS
+
+EXIT_CHANGES = 1
+
+
+@click.command("plan")
+@file_argument
+@click.option("--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True,
+              help="text for people, json for programs")
+@agents_option
+@click.option("--detailed-exitcode", is_flag=True,
+              help="exit 1 when changes are pending, 0 when none (as terraform plan)")
+def plan_command(files: tuple[str, ...], fmt: str, agents_file: Path | None,
+                 detailed_exitcode: bool) -> int:
+    """Compare the plant in FILE(s) with what the agents run and show the changes apply would make.
+
+    The plant is validated, reasoned over and derived; every agent of the plant's hosts is asked
+    what it runs. Nothing is started, stopped or changed.
+
+    \b
+    Example:
+      plantkg plan ontology/examples/robot-cell.ttl --agents agents.toml
+    """
+    result, _ = prepare(files, agents_file)
+    if not result.valid:
+        print_violations(result, fmt)
+        return EXIT_UNUSABLE if detailed_exitcode else EXIT_VIOLATIONS
+    plan = result.plan
+    assert plan is not None
+    if fmt == "json":
+        click.echo(plan_json(plan))
+    else:
+        click.echo(render_plan(plan, color=True))
+    if not plan.applicable:
+        return EXIT_UNUSABLE
+    if detailed_exitcode and not plan.empty:
+        return EXIT_CHANGES
+    return 0

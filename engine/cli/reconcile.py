@@ -1,0 +1,73 @@
+"""What plan, apply, destroy and status share: the --agents option, running the pipeline,
+printing an invalid plant's violations, asking for confirmation."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from engine.agents_config import AgentDirectory
+from engine.errors import EngineError
+from engine.pipeline import Pipeline, run_pipeline
+from kg.render import validation_json, validation_text
+
+agents_option = click.option(
+    "--agents", "agents_file", type=click.Path(path_type=Path, dir_okay=False), default=None,
+    metavar="FILE",
+    help="agents file (TOML); default $PLANTKG_AGENTS or ~/.config/plantkg/agents.toml",
+)
+yes_option = click.option("--yes", "-y", is_flag=True, help="do not ask for confirmation")
+
+
+class ConfirmationRequiredError(EngineError):
+    """Changes would be made, nobody can be asked, and --yes was not given."""
+
+
+def load_directory(agents_file: Path | None) -> AgentDirectory:
+    """The agents file, its warnings printed to stderr."""
+    directory = AgentDirectory.load(agents_file)
+    _warn(directory.warnings)
+    return directory
+
+
+def _warn(warnings: list[str]) -> None:
+    for warning in warnings:
+        click.echo(click.style("warning: ", fg="yellow", bold=True) + warning, err=True)
+
+
+def prepare(files: tuple[str, ...], agents_file: Path | None, *, destroy: bool = False,
+            observe: bool = True) -> tuple[Pipeline, AgentDirectory | None]:
+    """Run the pipeline; the directory is None when ``observe`` is False."""
+    directory = load_directory(agents_file) if observe else None
+    seen = len(directory.warnings) if directory else 0
+    result = run_pipeline(files, directory, destroy=destroy, observe=observe)
+    if directory is not None:
+        _warn(directory.warnings[seen:])  # token files read while observing
+    return result, directory
+
+
+def print_violations(result: Pipeline, fmt: str = "text") -> None:
+    """An invalid plant's report (stdout, as ``plantkg validate`` prints it) and a note (stderr)."""
+    if fmt == "json":
+        click.echo(validation_json(result.report))
+    else:
+        click.echo(validation_text(result.report, result.plant.prefixes))
+    click.echo(click.style("error: ", fg="red", bold=True)
+               + "the plant has violations; nothing was planned, started or stopped", err=True)
+
+
+def confirm(question: str, *, yes: bool, what: str) -> None:
+    """Go on if ``--yes``; else ask on a terminal (only 'yes' goes on); else refuse."""
+    if yes:
+        return
+    if not sys.stdin.isatty():
+        raise ConfirmationRequiredError(
+            f"refusing to {what} without confirmation: standard input is not a terminal",
+            hint=f"run it in a terminal, or pass --yes to {what} without asking")
+    click.echo(f"\n{question}\n  Only 'yes' will be accepted.")
+    answer = click.prompt("  Enter a value", default="", show_default=False)
+    if answer.strip() != "yes":
+        click.echo("Cancelled: nothing was changed.")
+        raise click.Abort()

@@ -1,0 +1,106 @@
+"""``plantkg status FILE...``: what each broker of the plant is doing, as its agent reports it.
+
+One row per broker: id, kind, host:port, status, pid, uptime, restarts, topics (present/asked).
+A broker no agent runs is ``absent``; one whose agent did not answer is ``unknown``; brokers the
+agents run that the plant does not name are listed after, marked ``not in plant``. The answer is
+also written into the observed graph (see docs/reconciliation.md). Read-only; exit 0 unless the
+input is unusable (2) or the plant invalid (1).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import click
+
+from engine.cli.common import file_argument
+from engine.cli.progress import duration
+from engine.cli.reconcile import agents_option, prepare, print_violations
+from engine.model import BrokerStatus, DesiredState, ObservedBroker, ObservedState, to_dict
+from kg.errors import EXIT_VIOLATIONS
+
+HEADERS = ("id", "kind", "host:port", "status", "pid", "uptime", "restarts", "topics")
+_COLOURS = {"running": "green", "starting": "yellow", "stopped": "yellow", "crashed": "red",
+            "failed": "red", "absent": "red", "unknown": "red"}
+
+
+def status_rows(desired: DesiredState, observed: ObservedState, now: float) -> list[dict[str, str]]:
+    """The table's rows as strings (desired brokers first, then others the agents run)."""
+    rows = []
+    for spec in desired.brokers:
+        have = observed.broker(spec.id)
+        wanted = {t.name for t in desired.topics_of(spec.id)}
+        if have is None:
+            state = "unknown" if spec.host in observed.unreachable else "absent"
+            rows.append(_row(spec.id, spec.kind, spec.host, spec.port, state, None, now, wanted))
+        else:
+            rows.append(_row(spec.id, have.spec.kind, have.spec.host, have.spec.port,
+                             have.status.value, have, now, wanted))
+    named = {b.id for b in desired.brokers}
+    for have in observed.brokers:
+        if have.spec.id not in named:
+            row = _row(have.spec.id, have.spec.kind, have.spec.host, have.spec.port,
+                       have.status.value, have, now, set())
+            row["status"] += " (not in plant)"
+            rows.append(row)
+    return rows
+
+
+def _row(broker_id: str, kind: str, host: str, port: int, state: str, have: ObservedBroker | None,
+         now: float, wanted: set[str]) -> dict[str, str]:
+    present = {t.name for t in have.topics} if have else set()
+    alive = have is not None and have.status in (BrokerStatus.RUNNING, BrokerStatus.STARTING)
+    uptime = duration(max(0.0, now - have.started_at)) if alive and have and have.started_at else "-"
+    host_port = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+    topics = f"{len(present & wanted)}/{len(wanted)}"
+    if present - wanted:
+        topics += f" +{len(present - wanted)}"
+    return {
+        "id": broker_id, "kind": kind, "host:port": host_port, "status": state,
+        "pid": str(have.pid) if have and have.pid else "-", "uptime": uptime,
+        "restarts": str(have.restarts) if have else "-", "topics": topics,
+    }
+
+
+def render_table(rows: list[dict[str, str]]) -> str:
+    widths = {h: max([len(h)] + [len(r[h]) for r in rows]) for h in HEADERS}
+    lines = ["  ".join(click.style(h.upper().ljust(widths[h]), bold=True) for h in HEADERS)]
+    for row in rows:
+        cells = []
+        for h in HEADERS:
+            text = row[h].ljust(widths[h])
+            if h == "status":
+                text = click.style(text, fg=_COLOURS.get(row[h].split()[0], "white"))
+            cells.append(text)
+        lines.append("  ".join(cells).rstrip())
+    return "\n".join(lines)
+
+
+@click.command("status")
+@file_argument
+@agents_option
+@click.option("--format", "fmt", type=click.Choice(["table", "json"]), default="table",
+              show_default=True)
+def status_command(files: tuple[str, ...], agents_file: Path | None, fmt: str) -> int:
+    """Show what each broker of the plant in FILE(s) is doing, as its agent reports it.
+
+    \b
+    Example:
+      plantkg status ontology/examples/robot-cell.ttl --agents agents.toml
+    """
+    result, _ = prepare(files, agents_file)
+    if not result.valid:
+        print_violations(result)
+        return EXIT_VIOLATIONS
+    assert result.desired is not None and result.observed is not None
+    if fmt == "json":
+        click.echo(json.dumps({"brokers": status_rows(result.desired, result.observed, time.time()),
+                               "observed": to_dict(result.observed)}, indent=2))
+        return 0
+    click.echo(render_table(status_rows(result.desired, result.observed, time.time())))
+    if result.observed.unreachable:
+        click.echo(click.style("agents that did not answer: " + ", ".join(result.observed.unreachable),
+                               fg="red"), err=True)
+    return 0

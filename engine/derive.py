@@ -1,0 +1,229 @@
+"""Derive the desired state — brokers, topics, bridges — from the reasoned plant graph.
+
+``derive(plant)`` reads, by SPARQL over the asserted and the inferred facts (``reason`` must have
+run), only what the ontology concluded:
+
+- a :class:`BrokerSpec` for every ``pk:DeployedBroker`` (kind = ``pk:brokerType``, host =
+  ``pk:ip``, port = ``pk:port``);
+- a :class:`TopicSpec` for every ``pk:mustCarry(broker, topic)``, with the topic settings that
+  apply to the broker's kind. Which settings apply is read from the broker's inferred classes:
+  ``pk:KafkaBroker pk:topicSetting pk:partitions`` (``ontology/plantkg-rules.ttl``). A setting
+  property maps to the TopicSpec field of the same name in snake case (``pk:replicationFactor`` →
+  ``replication_factor``), so a new setting is Turtle plus a model field, not a branch here;
+- a :class:`BridgeSpec` for every ``pk:requiresBridge(a, c)``, forwarding the topics both brokers
+  must carry, ``asserted`` when the plant states ``pk:bridgesTo``.
+
+No value is spliced into a query: the only constants are vocabulary IRIs, serialised by Oxigraph.
+A deployed broker or carried topic missing what its spec needs raises :class:`DeriveError` naming
+it (the shapes catch this first on a validated plant). The output is sorted by address.
+"""
+
+from __future__ import annotations
+
+import re
+from collections import defaultdict
+from dataclasses import fields
+from typing import Iterable
+
+import pyoxigraph as ox
+
+from engine.errors import EngineError
+from engine.model import BridgeSpec, BrokerSpec, DesiredState, TopicSpec
+from engine.reason import INFERRED, input_graphs, is_reasoned
+from engine.rules_fast import short_name
+from engine.rules_tbox import dataset_options
+from kg.load import PlantGraph
+from kg.namespaces import PK, XSD
+
+__all__ = ["DeriveError", "NotReasonedError", "derive"]
+
+_PREFIXES = {"pk": str(PK)}
+_TOPIC_FIELDS = {f.name for f in fields(TopicSpec)} - {"broker_id", "name", "iri"}
+_INTEGERS = {str(XSD[t]) for t in ("integer", "int", "long", "short", "byte", "nonNegativeInteger",
+                                    "positiveInteger", "unsignedInt", "unsignedLong", "unsignedShort",
+                                    "unsignedByte", "negativeInteger", "nonPositiveInteger")}
+
+BROKERS = """
+SELECT ?b ?id ?name ?kind ?ip ?port WHERE {
+    ?b a pk:DeployedBroker .
+    OPTIONAL { ?b pk:id ?id } OPTIONAL { ?b pk:name ?name } OPTIONAL { ?b pk:brokerType ?kind }
+    OPTIONAL { ?b pk:ip ?ip } OPTIONAL { ?b pk:port ?port }
+}"""
+
+TOPICS = """
+SELECT ?b ?t ?name WHERE {
+    ?b a pk:DeployedBroker ; pk:mustCarry ?t .
+    OPTIONAL { ?t pk:name ?name }
+}"""
+
+SETTINGS = """
+SELECT ?b ?t ?setting ?value WHERE {
+    ?kind pk:topicSetting ?setting .
+    ?b a ?kind ; a pk:DeployedBroker ; pk:mustCarry ?t .
+    ?t ?setting ?value .
+}"""
+
+BRIDGES = """
+SELECT ?a ?c ?asserted WHERE {
+    ?a pk:requiresBridge ?c .
+    BIND (EXISTS { ?a pk:bridgesTo ?c } AS ?asserted)
+}"""
+
+SHARED = """
+SELECT DISTINCT ?a ?c ?t WHERE {
+    ?a pk:requiresBridge ?c .
+    ?a pk:mustCarry ?t .
+    ?c pk:mustCarry ?t .
+}"""
+
+
+class NotReasonedError(EngineError):
+    """``derive`` ran on a store ``reason`` has not filled."""
+
+    def __init__(self) -> None:
+        super().__init__("the plant has not been reasoned over: there are no inferred facts to derive from",
+                         hint="call engine.reason.reason(plant) before engine.derive.derive(plant)")
+
+
+class DeriveError(EngineError):
+    """A deployed broker or a carried topic lacks (or has several of) what its spec needs."""
+
+    def __init__(self, node: str, problem: str) -> None:
+        super().__init__(f"{node}: {problem}",
+                         hint="run `plantkg validate` on the plant: the shapes name what to fix")
+        self.node = node
+        self.problem = problem
+
+
+def derive(plant: PlantGraph) -> DesiredState:
+    """The desired state the reasoned ``plant`` asks for (see the module docstring)."""
+    if not is_reasoned(plant):
+        raise NotReasonedError()
+    store = plant.store
+    options = dataset_options(store, [*input_graphs(plant), INFERRED])
+
+    def select(query: str) -> Iterable[ox.QuerySolution]:
+        return store.query(query, prefixes=_PREFIXES, **options)  # type: ignore[arg-type]
+
+    brokers = _brokers(plant, select(BROKERS))
+    by_iri = {b.iri: b for b in brokers}
+    topics = _topics(plant, select(TOPICS), select(SETTINGS), by_iri)
+    names = {(t.iri) : t.name for t in topics}
+    shared: dict[tuple[str, str], set[str]] = defaultdict(set)
+    for row in select(SHARED):
+        t = row["t"].value
+        if t in names:
+            shared[(row["a"].value, row["c"].value)].add(names[t])
+    bridges = []
+    for row in select(BRIDGES):
+        a, c = row["a"].value, row["c"].value
+        if a not in by_iri or c not in by_iri:  # both ends are deployed by definition
+            raise DeriveError(_name(plant, row["a" if a not in by_iri else "c"]),
+                              "is at one end of a required bridge but is not a deployed broker")
+        bridges.append(BridgeSpec(by_iri[a].id, by_iri[c].id, tuple(sorted(shared[(a, c)])),
+                                  asserted=row["asserted"].value == "true"))
+    return DesiredState(
+        brokers=tuple(sorted(brokers, key=lambda b: b.address)),
+        topics=tuple(sorted(topics, key=lambda t: t.address)),
+        bridges=tuple(sorted(_unique(bridges, "bridge"), key=lambda b: b.address)),
+    )
+
+
+def _name(plant: PlantGraph, node: object) -> str:
+    text = short_name(node.value) if isinstance(node, ox.NamedNode) else str(node)
+    path = plant.source_of(node) if isinstance(node, (ox.NamedNode, ox.BlankNode)) else None
+    return f"{text} ({path})" if path else text
+
+
+def _one(plant: PlantGraph, node: object, prop: str, values: set[object]) -> ox.Literal:
+    if not values:
+        raise DeriveError(_name(plant, node), f"has no pk:{prop}")
+    if len(values) > 1:
+        raise DeriveError(_name(plant, node), f"has several pk:{prop} values: {sorted(map(str, values))}")
+    value = next(iter(values))
+    if not isinstance(value, ox.Literal):
+        raise DeriveError(_name(plant, node), f"pk:{prop} is {value}, not a literal")
+    return value
+
+
+def _brokers(plant: PlantGraph, rows: Iterable[ox.QuerySolution]) -> list[BrokerSpec]:
+    values: dict[ox.NamedNode, dict[str, set[object]]] = defaultdict(lambda: defaultdict(set))
+    for row in rows:
+        slot = values[row["b"]]
+        for var in ("id", "name", "kind", "ip", "port"):
+            if row[var] is not None:
+                slot[var].add(row[var])
+    out = []
+    props = {"id": "id", "name": "name", "kind": "brokerType", "ip": "ip", "port": "port"}
+    for node, slot in values.items():
+        got = {var: _one(plant, node, prop, slot[var]) for var, prop in props.items()}
+        port = _integer(plant, node, "port", got["port"])
+        out.append(BrokerSpec(id=got["id"].value, iri=node.value, name=got["name"].value,
+                              kind=got["kind"].value, host=got["ip"].value, port=port))
+    return _unique(out, "broker")
+
+
+def _topics(plant: PlantGraph, rows: Iterable[ox.QuerySolution], settings: Iterable[ox.QuerySolution],
+            brokers: dict[str, BrokerSpec]) -> list[TopicSpec]:
+    names: dict[tuple[str, ox.NamedNode], set[object]] = defaultdict(set)
+    for row in rows:
+        key = (row["b"].value, row["t"])
+        names[key]  # noqa: B018 - a topic without a name still gets a (failing) entry
+        if row["name"] is not None:
+            names[key].add(row["name"])
+    values: dict[tuple[str, str], dict[str, set[object]]] = defaultdict(lambda: defaultdict(set))
+    for row in settings:
+        values[(row["b"].value, row["t"].value)][_field(row["setting"].value)].add(row["value"])
+    out = []
+    for (broker, topic), found in names.items():
+        name = _one(plant, topic, "name", found)
+        kwargs = {}
+        for field_name, vals in values.get((broker, topic.value), {}).items():
+            literal = _one(plant, topic, _camel(field_name), vals)
+            kwargs[field_name] = _convert(plant, topic, field_name, literal)
+        out.append(TopicSpec(broker_id=brokers[broker].id, name=name.value, iri=topic.value, **kwargs))
+    return _unique(out, "topic")
+
+
+def _field(setting: str) -> str:
+    """``pk:replicationFactor`` → ``replication_factor``: the TopicSpec field of a setting."""
+    local = setting.rsplit("#", 1)[-1]
+    name = re.sub(r"(?<!^)(?=[A-Z])", "_", local).lower()
+    if name not in _TOPIC_FIELDS:
+        raise DeriveError(short_name(setting), "is named a pk:topicSetting in the ontology, but the "
+                          f"desired-state model has no topic field {name!r} for it")
+    return name
+
+
+def _camel(field_name: str) -> str:
+    head, *rest = field_name.split("_")
+    return head + "".join(w.capitalize() for w in rest)
+
+
+def _integer(plant: PlantGraph, node: object, prop: str, literal: ox.Literal) -> int:
+    if literal.datatype.value not in _INTEGERS:
+        raise DeriveError(_name(plant, node), f"pk:{prop} {literal} is not an integer")
+    return int(literal.value)
+
+
+def _convert(plant: PlantGraph, node: object, field_name: str, literal: ox.Literal) -> int | bool | str:
+    dt = literal.datatype.value
+    if dt in _INTEGERS:
+        return int(literal.value)
+    if dt == str(XSD.boolean):
+        return literal.value in ("true", "1")
+    if dt == str(XSD.string):
+        return literal.value
+    raise DeriveError(_name(plant, node), f"pk:{_camel(field_name)} {literal} has a datatype the "
+                      "desired state cannot hold")
+
+
+def _unique(specs: list, what: str) -> list:  # type: ignore[type-arg]
+    seen: dict[str, object] = {}
+    for spec in specs:
+        if spec.address in seen and seen[spec.address] != spec:
+            raise DeriveError(spec.address, f"two different {what}s have this address: "
+                              f"{getattr(seen[spec.address], 'iri', seen[spec.address])} and "
+                              f"{getattr(spec, 'iri', spec)} (ids and topic names must be unique)")
+        seen[spec.address] = spec
+    return list(seen.values())

@@ -1,0 +1,267 @@
+"""Plan: compare the desired state with the observed one and list the changes, in order.
+
+``plan(desired, observed)`` is pure (no I/O, no clock): the same two values always give the same
+:class:`~engine.model.Plan`. It compares *essences* only — a broker's :class:`BrokerSpec` fields
+and, for a topic, the settings that apply to its broker's kind and that the plant sets — so pids,
+start times and restart counts never show as drift (kopf's "essence", Terraform's plan).
+
+Change kinds, per address (``broker.<id>``, ``topic.<broker>.<name>``, ``bridge.<a>.<c>``):
+
+- create: desired, not observed.
+- update: changeable in place (a topic's retention or QoS, more partitions, a broker's name), or a
+  broker whose essence matches but that is crashed, failed or stopped ("restart").
+- replace: a broker's port, host or kind changed; the agent restarts it (a new host or kind means
+  a new broker: its topics are created again).
+- delete: observed, not desired (a broker's topics are listed before the broker).
+- no-op: nothing to do (kept in ``Plan.changes`` so a plan accounts for every object).
+
+Order: brokers, topics, bridges, then deletes (topics before their broker). Changes a broker cannot
+make (fewer Kafka partitions, another replication factor) are :class:`Refusal` s, and brokers on
+a host whose agent did not answer are left out and the host listed (what runs there is unknown,
+so nothing there can be planned): either makes the plan not applicable. Bridges are listed as no-ops until the agents can run them (issue 4).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Mapping
+from dataclasses import fields, replace
+from typing import Any
+
+from engine.model import (
+    Action,
+    BrokerSpec,
+    BrokerStatus,
+    Change,
+    DesiredState,
+    ObservedBroker,
+    ObservedState,
+    ObservedTopic,
+    Plan,
+    Refusal,
+    TopicSpec,
+)
+
+#: Broker fields whose change needs a new broker process (the agent restarts it): Terraform's
+#: "forces replacement". Every other BrokerSpec field is changed in place.
+REPLACE_FIELDS: tuple[str, ...] = ("kind", "host", "port")
+#: Replace fields after which the broker starts empty (its topics are created again).
+NEW_BROKER_FIELDS: tuple[str, ...] = ("kind", "host")
+
+#: Topic settings that mean something to each broker kind; a setting of another kind is ignored.
+#: A kind missing here compares every setting the plant gives.
+TOPIC_SETTINGS: Mapping[str, tuple[str, ...]] = {
+    "kafka": ("partitions", "replication_factor", "retention_ms"),
+    "mosquitto": ("qos", "retain"),
+}
+ALL_TOPIC_SETTINGS: tuple[str, ...] = tuple(
+    f.name for f in fields(ObservedTopic) if f.name != "name"
+)
+
+#: Statuses after which a broker whose essence matches is started again.
+RESTART_STATUSES: frozenset[BrokerStatus] = frozenset(
+    {BrokerStatus.CRASHED, BrokerStatus.FAILED, BrokerStatus.STOPPED}
+)
+
+_ORDER = {"broker": 0, "topic": 1, "bridge": 2}
+
+
+# ------------------------------------------------------------------------------------- essences
+
+def broker_essence(spec: BrokerSpec) -> dict[str, Any]:
+    """The fields of a broker the plan compares (all of BrokerSpec)."""
+    return {f.name: getattr(spec, f.name) for f in fields(spec)}
+
+
+def topic_settings(kind: str) -> tuple[str, ...]:
+    """The topic settings that apply to a broker of ``kind``."""
+    return TOPIC_SETTINGS.get(kind, ALL_TOPIC_SETTINGS)
+
+
+def topic_essence(topic: TopicSpec | ObservedTopic, broker_id: str, settings: Iterable[str]) -> dict[str, Any]:
+    """A topic's identity plus ``settings`` (a desired topic: only the ones the plant sets)."""
+    out: dict[str, Any] = {"broker_id": broker_id, "name": topic.name}
+    for name in settings:
+        value = getattr(topic, name)
+        if value is not None or isinstance(topic, ObservedTopic):
+            out[name] = value
+    return out
+
+
+# ------------------------------------------------------------------------------------- planning
+
+def plan(desired: DesiredState, observed: ObservedState) -> Plan:
+    """The ordered changes that turn ``observed`` into ``desired`` (pure)."""
+    unreachable = frozenset(observed.unreachable)
+    changes: list[Change] = []
+    refusals: list[Refusal] = []
+    deletes: list[Change] = []
+    for spec in desired.brokers:
+        if spec.host in unreachable:
+            continue  # its state is unknown: no change is planned, the host is listed
+        have = observed.broker(spec.id)
+        broker_change = _broker_change(spec, have)
+        changes.append(broker_change)
+        fresh = broker_change.action is Action.CREATE or (
+            broker_change.action is Action.REPLACE and _starts_empty(broker_change)
+        )
+        topics, refused, removed = _topic_changes(spec, desired.topics_of(spec.id), have, fresh)
+        changes.extend(topics)
+        refusals.extend(refused)
+        deletes.extend(removed)
+    wanted = {b.id for b in desired.brokers}
+    for have in observed.brokers:
+        if have.spec.id not in wanted:
+            deletes.extend(_broker_delete(have))
+    for bridge in desired.bridges:
+        changes.append(Change(bridge.address, Action.NOOP, None, {
+            "source": bridge.source, "target": bridge.target, "topics": list(bridge.topics),
+        }, "listed only: agents run bridges from issue 4 on"))
+    changes.sort(key=_sort_key)
+    deletes.sort(key=_delete_key)
+    return Plan(
+        changes=tuple(changes) + tuple(deletes),
+        refusals=tuple(sorted(refusals, key=lambda r: r.address)),
+        unreachable=tuple(sorted(unreachable)),
+    )
+
+
+def destroy_plan(desired: DesiredState, observed: ObservedState) -> Plan:
+    """Delete what the plant deployed: the observed brokers that ``desired`` names, and their topics.
+
+    Brokers the agents run for other plants (ids the plant does not name) are left alone.
+    """
+    ours = {b.id for b in desired.brokers}
+    mine = ObservedState(
+        brokers=tuple(b for b in observed.brokers if b.spec.id in ours),
+        unreachable=observed.unreachable,
+    )
+    result = plan(DesiredState(), mine)
+    return Plan(tuple(replace(c, reason="destroy: the plant names it") for c in result.changes),
+                result.refusals, result.unreachable)
+
+
+def _broker_change(spec: BrokerSpec, have: ObservedBroker | None) -> Change:
+    after = broker_essence(spec)
+    if have is None:
+        return Change(spec.address, Action.CREATE, None, after, "not running on its host")
+    before = broker_essence(have.spec)
+    forced = [f for f in REPLACE_FIELDS if before[f] != after[f]]
+    if forced:
+        what = ", ".join(f"{f} {_show(before[f])} → {_show(after[f])}" for f in forced)
+        if before["host"] != after["host"]:
+            how = "the broker moves: stopped on the old host, started anew on the new one"
+        elif before["kind"] != after["kind"]:
+            how = "the broker is stopped and started anew as the new kind"
+        else:
+            how = "the agent restarts the broker"
+        return Change(spec.address, Action.REPLACE, before, after, f"{what} forces replacement ({how})")
+    if before != after:
+        changed = ", ".join(f for f in after if before[f] != after[f])
+        return Change(spec.address, Action.UPDATE, before, after, f"{changed} changed in place")
+    if have.status in RESTART_STATUSES:
+        detail = f": {have.last_error}" if have.last_error else ""
+        return Change(spec.address, Action.UPDATE,
+                      {**before, "status": have.status.value},
+                      {**after, "status": BrokerStatus.RUNNING.value},
+                      f"restart: the broker is {have.status.value}{detail}")
+    return Change(spec.address, Action.NOOP, before, after)
+
+
+def _starts_empty(change: Change) -> bool:
+    assert change.before is not None and change.after is not None
+    return any(change.before[f] != change.after[f] for f in NEW_BROKER_FIELDS)
+
+
+def _topic_changes(
+    spec: BrokerSpec, topics: Iterable[TopicSpec], have: ObservedBroker | None, fresh: bool
+) -> tuple[list[Change], list[Refusal], list[Change]]:
+    """Changes for the topics of one desired broker; observed topics not desired are deleted."""
+    settings = topic_settings(spec.kind)
+    present = {} if (have is None or fresh) else {t.name: t for t in have.topics}
+    changes: list[Change] = []
+    refusals: list[Refusal] = []
+    wanted: set[str] = set()
+    for topic in topics:
+        wanted.add(topic.name)
+        after = topic_essence(topic, spec.id, settings)
+        old = present.get(topic.name)
+        if old is None:
+            why = "its broker starts anew" if fresh and have is not None else "not on the broker"
+            changes.append(Change(topic.address, Action.CREATE, None, after, why))
+            continue
+        before = topic_essence(old, spec.id, [k for k in after if k not in ("broker_id", "name")])
+        if before == after:
+            changes.append(Change(topic.address, Action.NOOP, before, after))
+            continue
+        refused = _refusal(topic.address, before, after)
+        if refused is not None:
+            refusals.append(refused)
+            continue
+        changed = ", ".join(f"{k} {_show(before[k])} → {_show(after[k])}"
+                            for k in after if before[k] != after[k])
+        changes.append(Change(topic.address, Action.UPDATE, before, after, f"{changed} (in place)"))
+    deletes = [
+        _topic_delete(spec.id, t, topic_settings(have.spec.kind))
+        for name, t in sorted(present.items()) if name not in wanted
+    ] if have is not None else []
+    return changes, refusals, deletes
+
+
+def _show(value: Any) -> str:
+    """A value in a reason, as JSON writes it (strings quoted, None as null)."""
+    return json.dumps(value)
+
+
+def _refusal(address: str, before: Mapping[str, Any], after: Mapping[str, Any]) -> Refusal | None:
+    """A change no broker can make in place, or None."""
+    old, new = before.get("partitions"), after.get("partitions")
+    if old is not None and new is not None and new < old:
+        return Refusal(address, f"partitions {old} → {new}: Kafka cannot remove partitions; keep "
+                                f"{old} or more, or give the topic another name")
+    old, new = before.get("replication_factor"), after.get("replication_factor")
+    if old is not None and new is not None and new != old:
+        return Refusal(address, f"replication factor {old} → {new}: cannot be changed in place; "
+                                f"keep {old}, or give the topic another name")
+    return None
+
+
+def _topic_delete(broker_id: str, topic: ObservedTopic, settings: Iterable[str]) -> Change:
+    before = topic_essence(topic, broker_id, settings)
+    return Change(f"topic.{broker_id}.{topic.name}", Action.DELETE, before, None,
+                  "not in the plant")
+
+
+def _broker_delete(have: ObservedBroker) -> list[Change]:
+    settings = topic_settings(have.spec.kind)
+    out = [_topic_delete(have.spec.id, t, settings) for t in sorted(have.topics, key=lambda t: t.name)]
+    out.append(Change(have.spec.address, Action.DELETE, broker_essence(have.spec), None,
+                      "not in the plant"))
+    return out
+
+
+def _sort_key(change: Change) -> tuple[int, str]:
+    return _ORDER[change.address.split(".", 1)[0]], change.address
+
+
+def _delete_key(change: Change) -> tuple[str, int, str]:
+    """Deletes grouped by broker, a broker's topics before the broker itself."""
+    kind, rest = change.address.split(".", 1)
+    broker = rest if kind == "broker" else _topic_broker(change)
+    return broker, 0 if kind == "topic" else 1, change.address
+
+
+def _topic_broker(change: Change) -> str:
+    data = change.before or change.after or {}
+    return str(data.get("broker_id", ""))
+
+
+def broker_of(change: Change) -> str:
+    """The broker id a change belongs to (a bridge belongs to its source)."""
+    kind, rest = change.address.split(".", 1)
+    if kind == "broker":
+        return rest
+    data = change.before or change.after or {}
+    if kind == "topic":
+        return str(data["broker_id"])
+    return str(data.get("source", rest.split(".", 1)[0]))

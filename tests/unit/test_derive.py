@@ -1,0 +1,123 @@
+"""engine.derive: the desired state read from asserted + inferred facts, with small inline plants."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from engine.derive import DeriveError, NotReasonedError, derive
+from engine.model import BridgeSpec, BrokerSpec, TopicSpec
+from engine.reason import reason
+from kg.load import load_plant
+
+ROOT = Path(__file__).resolve().parents[2]
+ROBOT_CELL = ROOT / "ontology" / "examples" / "robot-cell.ttl"
+RC = "https://w3id.org/plantkg/examples/robot-cell#"
+EX = "http://example.org/p#"
+
+HEADER = """@prefix pk: <https://w3id.org/plantkg/ontology#> .
+@prefix : <http://example.org/p#> .
+"""
+
+#: A Mosquitto and a Kafka broker; the publisher is on Mosquitto, the consumer on Kafka, no
+#: bridge asserted; one idle broker; one topic both carry with settings of both kinds.
+PLANT = """
+:mq a pk:Broker ; pk:id "mq" ; pk:name "mq" ; pk:brokerType "mosquitto" ; pk:ip "127.0.0.2" ; pk:port 1883 .
+:kf a pk:Broker ; pk:id "kf" ; pk:name "kf" ; pk:brokerType "kafka" ; pk:ip "127.0.0.3" ; pk:port 9092 ;
+    pk:hasTopic :archive .
+:idle a pk:Broker ; pk:id "idle" ; pk:name "idle" ; pk:brokerType "kafka" ; pk:ip "127.0.0.4" ; pk:port 9092 .
+:pos a pk:Topic ; pk:id "pos" ; pk:name "cell.robot.position" ; pk:qos 1 ; pk:retain true ;
+    pk:partitions 3 ; pk:replicationFactor 1 ; pk:retentionMs 60000 .
+:archive a pk:Topic ; pk:id "archive" ; pk:name "archive" ; pk:partitions 1 .
+:robot a pk:Resource ; pk:id "robot" ; pk:name "robot" ; pk:sendsTo :mq ; pk:publishes :pos .
+:db a pk:Resource ; pk:id "db" ; pk:name "db" ; pk:sendsTo :kf ; pk:subscribes :pos .
+"""
+
+
+def reasoned(tmp_path: Path, body: str, engine: str = "fast"):
+    path = tmp_path / "plant.ttl"
+    path.write_text(HEADER + body)
+    plant = load_plant([path])
+    reason(plant, engine=engine)  # type: ignore[arg-type]
+    return plant
+
+
+def test_needs_reasoning_first() -> None:
+    with pytest.raises(NotReasonedError, match="reason"):
+        derive(load_plant([ROBOT_CELL]))
+
+
+def test_robot_cell() -> None:
+    plant = load_plant([ROBOT_CELL])
+    reason(plant)
+    state = derive(plant)
+    assert state.brokers == (
+        BrokerSpec("kafka", RC + "kafka", "kafka-aggregation", "kafka", "127.0.0.3", 9092),
+        BrokerSpec("mosquitto", RC + "mosquitto", "mosquitto-cell", "mosquitto", "127.0.0.2", 1883),
+    )
+    assert state.topics == (
+        TopicSpec("kafka", "robot.abb-irb120.energy", RC + "robot-energy", partitions=3,
+                  replication_factor=1, retention_ms=604800000),
+        TopicSpec("kafka", "robot.abb-irb120.position", RC + "robot-position", partitions=3,
+                  replication_factor=1, retention_ms=604800000),
+        TopicSpec("mosquitto", "robot.abb-irb120.position", RC + "robot-position", qos=1, retain=False),
+    )
+    assert state.bridges == (BridgeSpec("mosquitto", "kafka", ("robot.abb-irb120.position",), asserted=True),)
+
+
+def test_derived_bridge_topics_and_settings_by_kind(tmp_path: Path) -> None:
+    state = derive(reasoned(tmp_path, PLANT))
+    assert [b.id for b in state.brokers] == ["kf", "mq"]  # idle is not deployed
+    assert state.topics == (
+        TopicSpec("kf", "archive", EX + "archive", partitions=1),
+        TopicSpec("kf", "cell.robot.position", EX + "pos", partitions=3, replication_factor=1, retention_ms=60000),
+        TopicSpec("mq", "cell.robot.position", EX + "pos", qos=1, retain=True),
+    )
+    # R1 required the bridge; it forwards the topic that caused it, not the Kafka-only one
+    assert state.bridges == (BridgeSpec("mq", "kf", ("cell.robot.position",), asserted=False),)
+
+
+def test_settings_that_apply_are_read_from_the_ontology(tmp_path: Path) -> None:
+    """Which settings a kind takes is Turtle: tell the plant MQTT brokers take partitions too."""
+    state = derive(reasoned(tmp_path, PLANT + "pk:MqttBroker pk:topicSetting pk:partitions .\n"))
+    mq = state.topics_of("mq")[0]
+    assert (mq.partitions, mq.qos, mq.retain) == (3, 1, True)
+
+
+def test_a_kind_without_settings_gets_bare_topics(tmp_path: Path) -> None:
+    body = PLANT.replace('"kafka" ; pk:ip "127.0.0.3"', '"nats" ; pk:ip "127.0.0.3"')
+    state = derive(reasoned(tmp_path, body))
+    assert state.broker("kf").kind == "nats"  # type: ignore[union-attr]
+    assert state.topics_of("kf") == (TopicSpec("kf", "archive", EX + "archive"),
+                                     TopicSpec("kf", "cell.robot.position", EX + "pos"))
+
+
+def test_deterministic(tmp_path: Path) -> None:
+    plant = reasoned(tmp_path, PLANT)
+    first = derive(plant)
+    reason(plant)
+    assert derive(plant) == first
+    assert list(first.topics) == sorted(first.topics, key=lambda t: t.address)
+
+
+def test_same_state_from_hermit(tmp_path: Path) -> None:
+    assert derive(reasoned(tmp_path, PLANT, "owlready2")) == derive(reasoned(tmp_path, PLANT, "fast"))
+
+
+def test_missing_value_is_named(tmp_path: Path) -> None:
+    with pytest.raises(DeriveError, match=r"p#mq|:mq|mq.*pk:ip") as caught:
+        derive(reasoned(tmp_path, PLANT.replace(' pk:ip "127.0.0.2" ;', "")))
+    assert "pk:ip" in str(caught.value) and "plant.ttl" in str(caught.value)
+
+
+def test_two_topics_with_one_name_on_a_broker(tmp_path: Path) -> None:
+    body = PLANT + ':other a pk:Topic ; pk:id "other" ; pk:name "archive" . :kf pk:hasTopic :other .\n'
+    with pytest.raises(DeriveError, match="topic.kf.archive"):
+        derive(reasoned(tmp_path, body))
+
+
+def test_a_setting_without_a_model_field_is_refused(tmp_path: Path) -> None:
+    body = PLANT + 'pk:KafkaBroker pk:topicSetting pk:valueTopic . :archive pk:valueTopic "x" .\n'
+    with pytest.raises(DeriveError, match="value_topic"):
+        derive(reasoned(tmp_path, body))

@@ -1,0 +1,136 @@
+"""plan() details the data cases do not show, and the text and JSON renderings of a plan."""
+
+from __future__ import annotations
+
+import json
+
+from engine.model import (
+    Action,
+    BrokerSpec,
+    BrokerStatus,
+    DesiredState,
+    ObservedBroker,
+    ObservedState,
+    ObservedTopic,
+    TopicSpec,
+)
+from engine.plan import TOPIC_SETTINGS, destroy_plan, plan
+from engine.render_plan import NO_CHANGES, plan_dict, plan_json, render_plan, summary_line
+from tests.unit.plan_data import load_case
+
+MQ = BrokerSpec("mq", "urn:x:mq", "mq", "mosquitto", "127.0.0.2", 1883)
+KF = BrokerSpec("kf", "urn:x:kf", "kf", "kafka", "127.0.0.3", 9092)
+
+
+def running(spec: BrokerSpec, *topics: ObservedTopic) -> ObservedBroker:
+    return ObservedBroker(spec, BrokerStatus.RUNNING, topics, pid=1)
+
+
+def test_topic_settings_agree_with_the_drivers() -> None:
+    base = __import__("pytest").importorskip("engine.drivers.base")
+    assert TOPIC_SETTINGS["kafka"] == base.KAFKA_TOPIC_FIELDS
+    assert TOPIC_SETTINGS["mosquitto"] == base.MQTT_TOPIC_FIELDS
+
+
+def test_kind_change_replaces_and_recreates_topics() -> None:
+    as_kafka = BrokerSpec("mq", "urn:x:mq", "mq", "kafka", "127.0.0.2", 1883)
+    desired = DesiredState((as_kafka,), (TopicSpec("mq", "t", "urn:x:t", partitions=2),))
+    observed = ObservedState((running(MQ, ObservedTopic("t", qos=1, retain=False)),))
+    result = plan(desired, observed)
+    assert [(c.address, c.action) for c in result.changes] == [
+        ("broker.mq", Action.REPLACE), ("topic.mq.t", Action.CREATE)]
+    assert "kind" in result.changes[0].reason
+
+
+def test_setting_the_plant_leaves_open_is_not_drift() -> None:
+    """A Kafka topic without retentionMs in the plant accepts whatever retention the broker has."""
+    desired = DesiredState((KF,), (TopicSpec("kf", "t", "urn:x:t", partitions=3),))
+    observed = ObservedState((running(KF, ObservedTopic("t", 3, 1, 604800000)),))
+    assert plan(desired, observed).empty
+
+
+def test_stopped_broker_is_started_and_starting_one_is_left_alone() -> None:
+    desired = DesiredState((MQ,))
+    stopped = ObservedState((ObservedBroker(MQ, BrokerStatus.STOPPED),))
+    starting = ObservedState((ObservedBroker(MQ, BrokerStatus.STARTING, pid=5),))
+    assert [c.action for c in plan(desired, stopped).pending] == [Action.UPDATE]
+    assert plan(desired, starting).empty
+
+
+def test_destroy_plan_touches_only_the_plants_brokers() -> None:
+    other = BrokerSpec("other", "urn:y:o", "o", "mosquitto", "127.0.0.2", 1999)
+    desired = DesiredState((MQ, KF), (TopicSpec("kf", "t", "urn:x:t", partitions=1),))
+    observed = ObservedState((running(KF, ObservedTopic("t", 1, 1, 5)), running(MQ), running(other)))
+    result = destroy_plan(desired, observed)
+    assert [(c.address, c.action) for c in result.changes] == [
+        ("topic.kf.t", Action.DELETE), ("broker.kf", Action.DELETE), ("broker.mq", Action.DELETE)]
+
+
+def test_unreachable_host_blocks_the_plan() -> None:
+    result = plan(DesiredState((MQ,)), ObservedState(unreachable=("127.0.0.2",)))
+    assert not result.applicable and result.unreachable == ("127.0.0.2",)
+    assert result.changes == ()
+
+
+# ------------------------------------------------------------------------------------ rendering
+
+def test_render_signs_and_summary() -> None:
+    desired, observed, _ = load_case("empty-all-create")
+    text = render_plan(plan(desired, observed))
+    assert "  + broker.kafka will be created" in text
+    assert '+ port = 9092' in text
+    assert text.splitlines()[-1] == "Plan: 5 to create, 0 to update, 0 to replace, 0 to destroy."
+
+
+def test_render_replace_shows_the_field_and_why() -> None:
+    desired, observed, _ = load_case("port-change-replace")
+    text = render_plan(plan(desired, observed))
+    assert "  -/+ broker.kafka must be replaced" in text
+    assert "~ port: 9092 → 9093   # forces replacement" in text
+    assert "# port 9092 → 9093 forces replacement (the agent restarts the broker)" in text
+
+
+def test_render_update_and_delete() -> None:
+    desired, observed, _ = load_case("retention-change-update")
+    assert "~ retention_ms: 604800000 → 86400000" in render_plan(plan(desired, observed))
+    desired, observed, _ = load_case("broker-removed-delete")
+    text = render_plan(plan(desired, observed))
+    assert "  - broker.kafka will be destroyed" in text
+    assert text.index("topic.kafka.robot.abb-irb120.energy") < text.index("  - broker.kafka")
+    assert text.splitlines()[-1] == "Plan: 0 to create, 0 to update, 0 to replace, 3 to destroy."
+
+
+def test_render_no_changes() -> None:
+    desired, observed, _ = load_case("volatile-fields-no-op")
+    result = plan(desired, observed)
+    assert summary_line(result) == NO_CHANGES
+    assert render_plan(result).splitlines()[-1] == NO_CHANGES
+
+
+def test_render_refusal_and_unreachable() -> None:
+    desired, observed, _ = load_case("partitions-down-refused")
+    text = render_plan(plan(desired, observed))
+    assert "! topic.kafka.robot.abb-irb120.energy: partitions 3 → 2" in text
+    assert "This plan cannot be applied" in text and NO_CHANGES not in text
+    desired, observed, _ = load_case("unreachable-host")
+    text = render_plan(plan(desired, observed))
+    assert "! 127.0.0.3" in text and "cannot be applied" in text
+
+
+def test_render_colour_only_when_asked() -> None:
+    desired, observed, _ = load_case("empty-all-create")
+    result = plan(desired, observed)
+    assert "\x1b[" not in render_plan(result)
+    assert "\x1b[" in render_plan(result, color=True)
+
+
+def test_plan_json_round_trips_the_plan() -> None:
+    desired, observed, _ = load_case("host-change-replace")
+    result = plan(desired, observed)
+    data = json.loads(plan_json(result))
+    assert data == json.loads(json.dumps(plan_dict(result)))
+    assert data["summary"] == {"create": 2, "update": 0, "replace": 1, "delete": 0}
+    assert data["applicable"] is True and data["empty"] is False
+    first = data["changes"][0]
+    assert first["address"] == "broker.kafka" and first["action"] == "replace"
+    assert first["before"]["host"] == "127.0.0.3" and first["after"]["host"] == "127.0.0.4"
