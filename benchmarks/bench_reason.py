@@ -22,16 +22,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import statistics
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-RESULTS = ROOT / "benchmarks" / "results"
+from benchmarks.common import RESULTS, machine, run_child
 
 _CHILD = r"""
 import hashlib, json, resource, sys, time
@@ -82,11 +78,7 @@ _KEYS = ("import", "load", "validate", "reason", "derive", "pipeline", "total", 
 
 
 def _child(mode: str, plant: Path, timeout: float) -> dict[str, object]:
-    proc = subprocess.run([sys.executable, "-c", _CHILD, mode, str(plant), str(timeout)],
-                          capture_output=True, text=True, cwd=ROOT, timeout=timeout + 120)
-    if proc.returncode != 0:
-        raise RuntimeError(f"{mode} run failed ({proc.returncode}): {proc.stderr[-2000:]}")
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    return run_child(_CHILD, mode, str(plant), str(timeout), timeout=timeout + 120)
 
 
 def _summary(runs: list[dict[str, object]]) -> dict[str, object]:
@@ -124,8 +116,7 @@ def measure(sizes: list[int], repeat: int, hermit_max: int, timeout: float,
             print(json.dumps({k: v for k, v in row.items()}, default=str)[:600], flush=True)
     return {
         "benchmark": "reason",
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform(),
-                    "load_average": os.getloadavg()},
+        "machine": machine(),
         "repeat": repeat,
         "hermit_repeat": hermit_repeat,
         "command": "python -m benchmarks.bench_reason " + " ".join(sys.argv[1:]),

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import statistics
 import subprocess
 import sys
@@ -29,8 +28,7 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-RESULTS = ROOT / "benchmarks" / "results"
+from benchmarks.common import RESULTS, ROOT, machine, run_child
 
 _CHILD = r"""
 import json, resource, sys, time
@@ -71,9 +69,7 @@ print(json.dumps(out))
 
 
 def _child(mode: str, plant: Path) -> dict[str, float]:
-    proc = subprocess.run([sys.executable, "-c", _CHILD, mode, str(plant)], capture_output=True,
-                          text=True, check=True, cwd=ROOT)
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    return run_child(_CHILD, mode, str(plant))  # type: ignore[return-value]
 
 
 def _cli(plant: Path) -> float:
@@ -118,8 +114,7 @@ def measure(sizes: list[int], repeat: int, reference_max: int) -> dict[str, obje
             print(json.dumps(row), flush=True)
     return {
         "benchmark": "validate",
-        "machine": {"cpus": __import__("os").cpu_count(), "python": platform.python_version(),
-                    "platform": platform.platform()},
+        "machine": machine(),
         "repeat": repeat,
         "command": "python -m benchmarks.bench_validate " + " ".join(sys.argv[1:]),
         "rows": rows,

@@ -53,12 +53,17 @@ class Child:
 
     def log_tail(self, max_bytes: int = 4000) -> str:
         """The end of the child's log, for error messages."""
-        try:
-            with self.log_path.open("rb") as fh:
-                fh.seek(max(0, self.log_path.stat().st_size - max_bytes))
-                return fh.read().decode("utf-8", "replace")
-        except OSError:
-            return ""
+        return read_tail(self.log_path, max_bytes)
+
+
+def read_tail(path: Path, max_bytes: int = 4000) -> str:
+    """The last ``max_bytes`` of a log file as text ("" if it cannot be read)."""
+    try:
+        with path.open("rb") as fh:
+            fh.seek(max(0, path.stat().st_size - max_bytes))
+            return fh.read().decode("utf-8", "replace")
+    except OSError:
+        return ""
 
 
 def spawn(

@@ -137,12 +137,7 @@ class AdoptedProcess:
         stop_foreign(ProcInfo(self.pid, self.start_ticks, self.pid, ()), grace)
 
     def log_tail(self, max_bytes: int = 2000) -> str:
-        try:
-            with self.log_path.open("rb") as fh:
-                fh.seek(max(0, self.log_path.stat().st_size - max_bytes))
-                return fh.read().decode("utf-8", "replace")
-        except OSError:
-            return ""
+        return process.read_tail(self.log_path, max_bytes)
 
 
 def stop_foreign(info: ProcInfo, grace: float) -> None:
