@@ -359,7 +359,9 @@ class BrokerManager:
             return driver.health(spec, 1.0)
 
         try:
-            process.wait_until(healthy, driver.start_deadline, min(0.25, driver.start_deadline / 400),
+            # Poll fine-grained: Mosquitto listens ~6 ms after spawn, and every poll interval of
+            # slack is added to each deployment (10 s deadline -> every 2 ms; Kafka's 90 s -> 18 ms).
+            process.wait_until(healthy, driver.start_deadline, min(0.25, driver.start_deadline / 5000),
                                what=f"broker {spec.id!r} ({driver.kind}) to answer its health check")
         except ProcessError as exc:
             self._update(b, proc=None, status=BrokerStatus.FAILED, last_error=exc.message)
