@@ -17,6 +17,7 @@ from typing import Any
 
 from engine.agents_config import AgentDirectory
 from engine.derive import derive
+from engine.desired_cache import DesiredCache
 from engine.model import DesiredState, ObservedState, Plan
 from engine.observed import observe as observe_agents
 from engine.observed import write_observed
@@ -30,7 +31,7 @@ from kg.validate import ValidationReport, validate
 class Pipeline:
     """What the stages produced; later fields are None when an earlier stage stopped the run."""
 
-    plant: PlantGraph
+    plant: PlantGraph | None  # None when the desired state came from the cache
     report: ValidationReport
     desired: DesiredState | None = None
     observed: ObservedState | None = None
@@ -64,23 +65,41 @@ def run_pipeline(
     destroy: bool = False,
     reason_engine: str = "auto",
     validate_engine: str = "auto",
+    cache: DesiredCache | None = None,
 ) -> Pipeline:
-    """Run the stages on plant ``files``; ``destroy`` plans the removal of what the plant runs."""
+    """Run the stages on plant ``files``; ``destroy`` plans the removal of what the plant runs.
+
+    With ``cache``, a valid plant whose files did not change since it was last derived skips
+    load/validate/reason/derive (``Pipeline.plant`` is then None and no observed graph is written).
+    """
+    files = list(files)
     timings: dict[str, float] = {}
-    with _timed(timings, "load"):
-        plant = load_plant(files)
-    with _timed(timings, "validate"):
-        report = validate(plant, engine=validate_engine)  # type: ignore[arg-type]
-    result = Pipeline(plant, report, timings=timings)
-    if not report.conforms:
-        return result
-    desired = derive_desired(plant, result, reason_engine)
-    result.desired = desired
+    key = None
+    if cache is not None:
+        with _timed(timings, "cache"):
+            key = cache.key(files, reason_engine=reason_engine, validate_engine=validate_engine)
+            hit = cache.get(key)
+    if cache is not None and hit is not None:
+        result = Pipeline(None, hit[1], desired=hit[0], timings=timings)
+        desired = hit[0]
+    else:
+        with _timed(timings, "load"):
+            plant = load_plant(files)
+        with _timed(timings, "validate"):
+            report = validate(plant, engine=validate_engine)  # type: ignore[arg-type]
+        result = Pipeline(plant, report, timings=timings)
+        if not report.conforms:
+            return result
+        desired = derive_desired(plant, result, reason_engine)
+        result.desired = desired
+        if cache is not None and key is not None:
+            cache.put(key, desired, report)
     if not observe or directory is None:
         return result
     with _timed(timings, "observe"):
         result.observed = observe_agents(directory, result.hosts | set(directory.hosts))
-        write_observed(plant, result.observed)
+        if result.plant is not None:
+            write_observed(result.plant, result.observed)
     with _timed(timings, "plan"):
         result.plan = (destroy_plan if destroy else make_plan)(desired, result.observed)
     return result

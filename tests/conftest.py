@@ -46,3 +46,11 @@ def no_leftover_children(request: pytest.FixtureRequest):
     yield
     left = child_pids() - before
     assert not left, "test left child processes behind:\n" + "\n".join(map(describe, left))
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Keep the desired-state cache of every test run (and of the commands it spawns) in a folder
+    of its own, never in the user's ~/.cache."""
+    import tempfile
+
+    os.environ["PLANTKG_CACHE_DIR"] = tempfile.mkdtemp(prefix="plantkg-test-cache-")

@@ -10,6 +10,7 @@ import click
 
 from engine.agents_config import AgentDirectory
 from engine.errors import EngineError
+from engine.desired_cache import DesiredCache
 from engine.pipeline import Pipeline, run_pipeline
 from kg.render import validation_json, validation_text
 
@@ -42,7 +43,7 @@ def prepare(files: tuple[str, ...], agents_file: Path | None, *, destroy: bool =
     """Run the pipeline; the directory is None when ``observe`` is False."""
     directory = load_directory(agents_file) if observe else None
     seen = len(directory.warnings) if directory else 0
-    result = run_pipeline(files, directory, destroy=destroy, observe=observe)
+    result = run_pipeline(files, directory, destroy=destroy, observe=observe, cache=DesiredCache())
     if directory is not None:
         _warn(directory.warnings[seen:])  # token files read while observing
     return result, directory
@@ -53,7 +54,7 @@ def print_violations(result: Pipeline, fmt: str = "text") -> None:
     if fmt == "json":
         click.echo(validation_json(result.report))
     else:
-        click.echo(validation_text(result.report, result.plant.prefixes))
+        click.echo(validation_text(result.report, result.plant.prefixes if result.plant else {}))
     click.echo(click.style("error: ", fg="red", bold=True)
                + "the plant has violations; nothing was planned, started or stopped", err=True)
 

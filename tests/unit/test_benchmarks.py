@@ -22,3 +22,11 @@ def test_reason_benchmark_runs(tmp_path: Path) -> None:
     assert bench_reason.main(args) == 0
     text = (tmp_path / "reason.md").read_text()
     assert "| 20 |" in text and "| yes |" in text  # HermiT and the fast engine agreed
+
+
+def test_replan_benchmark_runs(tmp_path: Path) -> None:
+    from benchmarks import bench_replan
+
+    assert bench_replan.main(["--sizes", "30", "--repeat", "1", "--out", str(tmp_path)]) == 0
+    (row,) = json.loads((tmp_path / "replan.json").read_text())["rows"]
+    assert row["resources"] == 30  # the benchmark itself asserts the hit and the empty plans

@@ -1,0 +1,93 @@
+"""Benchmark: re-planning a plant that did not change, against planning it from scratch.
+
+For a synthetic plant: ``cold`` = load + validate + reason + derive + plan (what every plan costs
+without the cache); ``warm`` = the same through :class:`engine.desired_cache.DesiredCache` after a
+first run (hash the files, read the cached desired state, plan). The observed state is made equal
+to the desired one, so both plans are empty, and the agents' HTTP round trip (one per machine,
+paid either way) is not included. Each measurement runs in a fresh process.
+
+Usage: ``python -m benchmarks.bench_replan [--sizes 1000 10000] [--repeat 3]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import tempfile
+from pathlib import Path
+
+from benchmarks.common import RESULTS, machine, run_child
+
+_CHILD = r"""
+import json, sys, time
+t0 = time.perf_counter()
+from engine.desired_cache import DesiredCache
+from engine.model import BrokerStatus, ObservedBroker, ObservedState, ObservedTopic
+from engine.pipeline import run_pipeline
+from engine.plan import plan
+t1 = time.perf_counter()
+result = run_pipeline([sys.argv[1]], None, observe=False, cache=DesiredCache(__import__("pathlib").Path(sys.argv[2])))
+d = result.desired
+observed = ObservedState(tuple(
+    ObservedBroker(b, BrokerStatus.RUNNING, tuple(
+        ObservedTopic(t.name, t.partitions, t.replication_factor, t.retention_ms, t.qos, t.retain)
+        for t in d.topics_of(b.id)))
+    for b in d.brokers))
+p = plan(d, observed)
+t2 = time.perf_counter()
+print(json.dumps({"import": t1 - t0, "replan": t2 - t1, "hit": result.plant is None, "pending": len(p.pending)}))
+"""
+
+
+def measure(sizes: list[int], repeat: int) -> dict[str, object]:
+    from benchmarks import synthetic
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for n in sizes:
+            plant = Path(tmp) / f"plant-{n}.ttl"
+            with plant.open("w") as fh:
+                synthetic.write(n, fh)
+            cold, warm = [], []
+            for i in range(repeat):
+                cache = Path(tmp) / f"cache-{n}-{i}"
+                cold.append(run_child(_CHILD, str(plant), str(cache)))
+                warm.append(run_child(_CHILD, str(plant), str(cache)))
+            assert not any(r["hit"] for r in cold) and all(r["hit"] for r in warm)
+            assert all(r["pending"] == 0 for r in cold + warm)
+            c = statistics.median(r["replan"] for r in cold)
+            w = statistics.median(r["replan"] for r in warm)
+            rows.append({"resources": n, "cold_s": c, "warm_s": w, "ratio": w / c})
+            print(json.dumps(rows[-1]), flush=True)
+    return {"benchmark": "replan", "machine": machine(), "repeat": repeat,
+            "command": "python -m benchmarks.bench_replan " + " ".join(sys.argv[1:]), "rows": rows}
+
+
+def to_markdown(data: dict[str, object]) -> str:
+    lines = ["# re-plan of an unchanged plant: cached desired state vs from scratch", "",
+             f"Command: `{data['command']}` · machine: {data['machine']} · median of {data['repeat']}", "",
+             "| resources | from scratch s (load+validate+reason+derive+plan) | cached s (hash+read+plan) | cached / scratch |",
+             "|---|---|---|---|"]
+    for r in data["rows"]:  # type: ignore[union-attr]
+        lines.append(f"| {r['resources']} | {r['cold_s']:.3f} | {r['warm_s']:.3f} | {r['ratio']:.3f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="re-plan benchmark")
+    parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 10000])
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--out", type=Path, default=RESULTS)
+    args = parser.parse_args(argv)
+    data = measure(args.sizes, args.repeat)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "replan.json").write_text(json.dumps(data, indent=2))
+    (args.out / "replan.md").write_text(to_markdown(data))
+    print(to_markdown(data))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

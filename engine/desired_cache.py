@@ -1,0 +1,98 @@
+"""Remember the desired state of a valid plant, so re-planning an unchanged plant is cheap.
+
+Load, validate, reason and derive depend only on the files (plant, ontology, shapes) and on the
+engines chosen, and take about 2 s for a 10k-resource plant; observe and plan must run every time
+because the agents' side changes. The cache keys the desired state (and the validation report)
+by a SHA-256 of everything those stages read — plantkg's version, the engines, every ontology and
+shapes file, every plant file's path and bytes — so any edit misses the cache. Only valid plants
+are stored: an invalid plant is always validated again, so its report is always current.
+
+Entries are JSON files under ``$PLANTKG_CACHE_DIR`` (default ``$XDG_CACHE_HOME/plantkg`` or
+``~/.cache/plantkg``); deleting the folder is always safe.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import asdict
+from importlib import metadata
+from pathlib import Path
+from typing import Iterable
+
+from engine.model import BridgeSpec, BrokerSpec, DesiredState, TopicSpec, to_dict
+from kg import resources
+from kg.validate import ValidationReport, ValidationResult
+
+FORMAT = 1
+
+
+def default_dir() -> Path:
+    if env := os.environ.get("PLANTKG_CACHE_DIR"):
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "plantkg"
+
+
+def _version() -> str:
+    try:
+        return metadata.version("plantkg")
+    except metadata.PackageNotFoundError:  # running from a checkout without install
+        return "dev"
+
+
+class DesiredCache:
+    """A folder of cached desired states, one JSON file per key."""
+
+    def __init__(self, directory: Path | None = None) -> None:
+        self.directory = directory or default_dir()
+
+    def key(self, files: Iterable[Path | str], *, reason_engine: str, validate_engine: str) -> str:
+        """The hash of everything load/validate/reason/derive read for ``files``."""
+        h = hashlib.sha256(f"plantkg {_version()} cache {FORMAT} {reason_engine} {validate_engine}\n".encode())
+        inputs = [*resources.ontology_files(), *resources.shapes_files()]
+        for path in [*sorted(inputs), *(Path(f) for f in files)]:
+            h.update(str(Path(path).resolve()).encode() + b"\0")
+            h.update(Path(path).read_bytes())
+            h.update(b"\0")
+        return h.hexdigest()
+
+    def get(self, key: str) -> tuple[DesiredState, ValidationReport] | None:
+        """The cached desired state and report, or None (missing or unreadable: recompute)."""
+        try:
+            data = json.loads((self.directory / f"{key}.json").read_text(encoding="utf-8"))
+            return desired_from_dict(data["desired"]), report_from_dict(data["report"])
+        except (OSError, ValueError, KeyError, TypeError):
+            return None
+
+    def put(self, key: str, desired: DesiredState, report: ValidationReport) -> None:
+        """Store a valid plant's desired state (best effort: a read-only cache is no error)."""
+        if not report.conforms:
+            return
+        body = json.dumps({"desired": to_dict(desired), "report": {
+            "conforms": report.conforms, "engine": report.engine, "files": list(report.files),
+            "shapes": list(report.shapes), "results": [asdict(r) for r in report.results]}})
+        try:
+            self.directory.mkdir(parents=True, exist_ok=True)
+            tmp = self.directory / f".{key}.{os.getpid()}.tmp"
+            tmp.write_text(body, encoding="utf-8")
+            tmp.replace(self.directory / f"{key}.json")
+        except OSError:
+            return
+
+
+def desired_from_dict(data: dict) -> DesiredState:
+    """The inverse of ``to_dict(desired)``."""
+    return DesiredState(
+        brokers=tuple(BrokerSpec(**b) for b in data["brokers"]),
+        topics=tuple(TopicSpec(**t) for t in data["topics"]),
+        bridges=tuple(BridgeSpec(**{**b, "topics": tuple(b["topics"])}) for b in data["bridges"]),
+    )
+
+
+def report_from_dict(data: dict) -> ValidationReport:
+    return ValidationReport(
+        conforms=data["conforms"], engine=data["engine"], files=tuple(data["files"]),
+        shapes=tuple(data["shapes"]), results=tuple(ValidationResult(**r) for r in data["results"]),
+    )
