@@ -20,7 +20,6 @@ Usage: ``python -m benchmarks.bench_deploy [--runs 50]``
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
 import tempfile
@@ -29,7 +28,7 @@ from pathlib import Path
 
 import paho.mqtt.client as mqtt
 
-from benchmarks.common import RESULTS, machine
+from benchmarks.common import RESULTS, machine, write_results
 from engine import netutil, process
 from engine.agent.local import start_local_agents
 from engine.agents_config import AgentDirectory
@@ -150,10 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
     data = measure(args.runs)
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "deploy.json").write_text(json.dumps(data, indent=2))
-    (args.out / "deploy.md").write_text(to_markdown(data))
-    print(to_markdown(data))
+    write_results(args.out, "deploy", data, to_markdown(data))
     return 0
 
 

@@ -27,7 +27,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from benchmarks.common import RESULTS, machine, run_child
+from benchmarks.common import RESULTS, machine, run_child, write_results
 
 _CHILD = r"""
 import hashlib, json, resource, sys, time
@@ -165,10 +165,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
     data = measure(args.sizes, args.repeat, args.hermit_max, args.timeout, args.hermit_repeat)
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "reason.json").write_text(json.dumps(data, indent=2))
-    (args.out / "reason.md").write_text(to_markdown(data))
-    print(to_markdown(data))
+    write_results(args.out, "reason", data, to_markdown(data))
     return 0
 
 

@@ -18,7 +18,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from benchmarks.common import RESULTS, machine, run_child
+from benchmarks.common import RESULTS, machine, run_child, write_results
 
 _CHILD = r"""
 import json, sys, time
@@ -82,10 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
     data = measure(args.sizes, args.repeat)
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "replan.json").write_text(json.dumps(data, indent=2))
-    (args.out / "replan.md").write_text(to_markdown(data))
-    print(to_markdown(data))
+    write_results(args.out, "replan", data, to_markdown(data))
     return 0
 
 

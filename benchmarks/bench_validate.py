@@ -28,7 +28,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchmarks.common import RESULTS, ROOT, machine, run_child
+from benchmarks.common import RESULTS, ROOT, machine, run_child, write_results
 
 _CHILD = r"""
 import json, resource, sys, time
@@ -148,10 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
     data = measure(args.sizes, args.repeat, args.reference_max)
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "validate.json").write_text(json.dumps(data, indent=2))
-    (args.out / "validate.md").write_text(to_markdown(data))
-    print(to_markdown(data))
+    write_results(args.out, "validate", data, to_markdown(data))
     return 0
 
 

@@ -28,3 +28,11 @@ def machine() -> dict[str, object]:
     """The machine a run happened on (figures drift between machines and loads)."""
     return {"cpus": os.cpu_count(), "python": platform.python_version(),
             "platform": platform.platform(), "load_average": os.getloadavg()}
+
+
+def write_results(out: Path, name: str, data: dict[str, object], markdown: str) -> None:
+    """``<out>/<name>.json`` (raw) and ``<out>/<name>.md`` (the table), and the table on stdout."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{name}.json").write_text(json.dumps(data, indent=2))
+    (out / f"{name}.md").write_text(markdown)
+    print(markdown)
