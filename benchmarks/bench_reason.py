@@ -98,9 +98,7 @@ def measure(sizes: list[int], repeat: int, hermit_max: int, timeout: float,
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for n in sizes:
-            plant = Path(tmp) / f"plant-{n}.ttl"
-            with plant.open("w") as fh:
-                synthetic.write(n, fh)
+            plant = synthetic.write_file(n, Path(tmp))
             fast, hermit = [], []
             for i in range(repeat):  # interleaved, so drift hits both alike
                 fast.append(_child("fast", plant, timeout))

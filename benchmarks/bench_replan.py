@@ -47,9 +47,7 @@ def measure(sizes: list[int], repeat: int) -> dict[str, object]:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for n in sizes:
-            plant = Path(tmp) / f"plant-{n}.ttl"
-            with plant.open("w") as fh:
-                synthetic.write(n, fh)
+            plant = synthetic.write_file(n, Path(tmp))
             cold, warm = [], []
             for i in range(repeat):
                 cache = Path(tmp) / f"cache-{n}-{i}"

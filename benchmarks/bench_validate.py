@@ -92,9 +92,7 @@ def measure(sizes: list[int], repeat: int, reference_max: int) -> dict[str, obje
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for n in sizes:
-            plant = Path(tmp) / f"plant-{n}.ttl"
-            with plant.open("w") as fh:
-                synthetic.write(n, fh)
+            plant = synthetic.write_file(n, Path(tmp))
             row: dict[str, object] = {"resources": n, "bytes": plant.stat().st_size}
             ours, cli, ref = [], [], []
             for _ in range(repeat):  # interleaved, so drift hits both alike

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import Iterator, TextIO
 
 HEADER = """@prefix pk: <https://w3id.org/plantkg/ontology#> .
@@ -54,6 +55,14 @@ def write(n: int, out: TextIO) -> None:
     """Write an N-resource plant to ``out``."""
     for chunk in lines(n):
         out.write(chunk)
+
+
+def write_file(n: int, directory: Path) -> Path:
+    """Write an N-resource plant to ``directory/plant-N.ttl`` and return its path."""
+    path = directory / f"plant-{n}.ttl"
+    with path.open("w") as fh:
+        write(n, fh)
+    return path
 
 
 def main(argv: list[str] | None = None) -> int:

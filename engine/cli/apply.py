@@ -15,14 +15,8 @@ from pathlib import Path
 
 import click
 
-from engine.apply import PlanNotApplicableError, apply
 from engine.cli.common import file_argument
-from engine.cli.progress import Progress, result_lines
-from engine.cli.reconcile import agents_option, confirm, prepare, print_violations, yes_option
-from engine.render_plan import render_plan
-from kg.errors import EXIT_VIOLATIONS
-
-EXIT_NOT_CONVERGED = 3
+from engine.cli.reconcile import agents_option, make_changes, yes_option
 
 
 @click.command("apply")
@@ -38,22 +32,4 @@ def apply_command(files: tuple[str, ...], yes: bool, agents_file: Path | None, p
     Example:
       plantkg apply ontology/examples/robot-cell.ttl --agents agents.toml
     """
-    result, directory = prepare(files, agents_file)
-    if not result.valid:
-        print_violations(result)
-        return EXIT_VIOLATIONS
-    plan, desired = result.plan, result.desired
-    assert plan is not None and desired is not None and directory is not None
-    click.echo(render_plan(plan, color=True))
-    if not plan.applicable:
-        raise PlanNotApplicableError(plan)
-    if plan.empty:
-        return 0
-    confirm("Do you want to perform these actions?", yes=yes, what="apply")
-    click.echo("")
-    with Progress() as progress:
-        outcome = apply(plan, desired, directory, parallelism=parallelism, on_event=progress)
-    click.echo("")
-    for line in result_lines(outcome, verb="Apply"):
-        click.echo(line)
-    return 0 if outcome.ok else EXIT_NOT_CONVERGED
+    return make_changes(files, agents_file, yes=yes, parallelism=parallelism, destroy=False)

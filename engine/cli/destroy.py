@@ -10,14 +10,8 @@ from pathlib import Path
 
 import click
 
-from engine.apply import PlanNotApplicableError, apply
 from engine.cli.common import file_argument
-from engine.cli.progress import Progress, result_lines
-from engine.cli.reconcile import agents_option, confirm, prepare, print_violations, yes_option
-from engine.render_plan import render_plan
-from kg.errors import EXIT_VIOLATIONS
-
-EXIT_NOT_CONVERGED = 3
+from engine.cli.reconcile import agents_option, make_changes, yes_option
 
 
 @click.command("destroy")
@@ -33,25 +27,4 @@ def destroy_command(files: tuple[str, ...], yes: bool, agents_file: Path | None,
     Example:
       plantkg destroy ontology/examples/robot-cell.ttl --agents agents.toml --yes
     """
-    result, directory = prepare(files, agents_file, destroy=True)
-    if not result.valid:
-        print_violations(result)
-        return EXIT_VIOLATIONS
-    plan, desired = result.plan, result.desired
-    assert plan is not None and desired is not None and directory is not None
-    if plan.empty and plan.applicable:
-        click.echo("Nothing to destroy: no broker of this plant runs.")
-        return 0
-    click.echo(render_plan(plan, color=True))
-    if not plan.applicable:
-        raise PlanNotApplicableError(plan)
-    confirm("Do you really want to destroy these brokers? Their data is removed.", yes=yes,
-            what="destroy")
-    click.echo("")
-    with Progress() as progress:
-        outcome = apply(plan, desired, directory, parallelism=parallelism, on_event=progress,
-                        destroy=True)
-    click.echo("")
-    for line in result_lines(outcome, verb="Destroy"):
-        click.echo(line)
-    return 0 if outcome.ok else EXIT_NOT_CONVERGED
+    return make_changes(files, agents_file, yes=yes, parallelism=parallelism, destroy=True)

@@ -9,9 +9,13 @@ from pathlib import Path
 import click
 
 from engine.agents_config import AgentDirectory
+from engine.apply import PlanNotApplicableError, apply
+from engine.cli.progress import Progress, result_lines
+from engine.render_plan import render_plan
 from engine.errors import EngineError
 from engine.desired_cache import DesiredCache
 from engine.pipeline import Pipeline, run_pipeline
+from kg.errors import EXIT_VIOLATIONS
 from kg.render import validation_json, validation_text
 
 agents_option = click.option(
@@ -72,3 +76,42 @@ def confirm(question: str, *, yes: bool, what: str) -> None:
     if answer.strip() != "yes":
         click.echo("Cancelled: nothing was changed.")
         raise click.Abort()
+
+
+EXIT_NOT_CONVERGED = 3  # some changes failed or did not take effect: run again once fixed
+
+
+def make_changes(files: tuple[str, ...], agents_file: Path | None, *, yes: bool, parallelism: int,
+                 destroy: bool) -> int:
+    """What ``apply`` and ``destroy`` share: validate, plan, show, confirm, dispatch, report.
+
+    Exit codes: 0 converged, 1 violations (nothing dispatched), 3 some changes failed or did not
+    take effect; a plan that cannot be applied raises PlanNotApplicableError (exit 2).
+    """
+    result, directory = prepare(files, agents_file, destroy=destroy)
+    if not result.valid:
+        print_violations(result)
+        return EXIT_VIOLATIONS
+    plan, desired = result.plan, result.desired
+    assert plan is not None and desired is not None and directory is not None
+    if destroy and plan.empty and plan.applicable:
+        click.echo("Nothing to destroy: no broker of this plant runs.")
+        return 0
+    click.echo(render_plan(plan, color=True))
+    if not plan.applicable:
+        raise PlanNotApplicableError(plan)
+    if plan.empty:
+        return 0
+    if destroy:
+        confirm("Do you really want to destroy these brokers? Their data is removed.", yes=yes,
+                what="destroy")
+    else:
+        confirm("Do you want to perform these actions?", yes=yes, what="apply")
+    click.echo("")
+    with Progress() as progress:
+        outcome = apply(plan, desired, directory, parallelism=parallelism, on_event=progress,
+                        destroy=destroy)
+    click.echo("")
+    for line in result_lines(outcome, verb="Destroy" if destroy else "Apply"):
+        click.echo(line)
+    return 0 if outcome.ok else EXIT_NOT_CONVERGED
