@@ -273,9 +273,11 @@ def scan_vocabulary(store: ox.Store, graphs: list[ox.NamedNode], where: Callable
     anonymous (blank-node) individuals. One pass over the types, one over all triples."""
     annotations = set(annotation_properties)
     options = dataset_options(store, graphs)
-    rows = store.query(
+    # Results are read whole (list): a check raises mid-loop, and an Oxigraph result left
+    # half-read must not be dropped later on another thread (it is not sendable).
+    rows = list(store.query(
         "SELECT ?c (SUM(IF(isBlank(?s), 1, 0)) AS ?blank) (SAMPLE(?s) AS ?x) "
-        "WHERE { ?s a ?c } GROUP BY ?c", **options)  # type: ignore[arg-type]
+        "WHERE { ?s a ?c } GROUP BY ?c", **options))  # type: ignore[arg-type]
     for row in rows:
         c = row["c"]
         if isinstance(c, ox.BlankNode):
@@ -289,18 +291,18 @@ def scan_vocabulary(store: ox.Store, graphs: list[ox.NamedNode], where: Callable
         elif int(row["blank"].value):
             raise UnsupportedConstructError(f"an anonymous individual (a blank node) of <{c.value}>",
                                             where(row["x"]), hint="give the individual an IRI")
-    rows = store.query(
+    rows = list(store.query(
         "SELECT ?p (SUM(IF(isBlank(?s) || isBlank(?o), 1, 0)) AS ?blank) "
-        "(SAMPLE(?s) AS ?x) WHERE { ?s ?p ?o } GROUP BY ?p", **options)  # type: ignore[arg-type]
+        "(SAMPLE(?s) AS ?x) WHERE { ?s ?p ?o } GROUP BY ?p", **options))  # type: ignore[arg-type]
     for row in rows:
         p = row["p"].value
         if _reserved(p):
             if p not in SUPPORTED_PREDICATES:
                 raise UnsupportedConstructError(_short(row["p"]), where(row["x"]))
         elif int(row["blank"].value) and p not in annotations:
-            sample = next(iter(store.query(
+            sample = list(store.query(
                 f"SELECT ?s WHERE {{ ?s {row['p']} ?o FILTER(isBlank(?s) || isBlank(?o)) }} LIMIT 1",
-                **options)))["s"]  # type: ignore[arg-type]
+                **options))[0]["s"]  # type: ignore[arg-type]
             raise UnsupportedConstructError(
                 f"an anonymous individual (a blank node) used with <{p}>", where(sample),
                 hint="give the individual an IRI; the fast engine reasons over named individuals")
