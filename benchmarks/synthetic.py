@@ -65,6 +65,19 @@ def write_file(n: int, directory: Path) -> Path:
     return path
 
 
+def mosquitto_plant(host: str, ports: list[int]) -> str:
+    """The Turtle text of a plant of ``len(ports)`` Mosquitto brokers on one machine (``host``),
+    each carrying one QoS-1 topic that one resource publishes — the load test's plant."""
+    out = [HEADER]
+    for b, port in enumerate(ports):
+        out.append(f':mqtt{b} a pk:Broker ; pk:id "mqtt-{b}" ; pk:name "Load {b}" ; pk:brokerType "mosquitto" ; '
+                   f'pk:ip "{host}" ; pk:port {port} ; pk:hasTopic :load{b} .\n'
+                   f':load{b} a pk:Topic ; pk:id "load-{b}" ; pk:name "bench/load" ; pk:qos 1 .\n'
+                   f':pub{b} a pk:Resource ; pk:id "pub-{b}" ; pk:name "Publisher {b}" ; pk:isType :type-sensor ; '
+                   f'pk:sendsTo :mqtt{b} ; pk:publishes :load{b} .\n')
+    return "".join(out)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("resources", type=int)

@@ -1,0 +1,312 @@
+"""Benchmark: the first paper's load test (its Fig. 12) and what the paper left open.
+
+For each number of Mosquitto brokers N (default 1, 5, 10, 25, 50, 100), on one machine:
+
+1. **Bring-up.** By hand (baseline): render N configs, spawn N mosquitto at once, wait until every
+   one answers an MQTT CONNECT; stop them all at once. Through plantkg: write an N-broker plant
+   (``benchmarks.synthetic.mosquitto_plant``, free ports) and run one ``apply`` against one local
+   agent (load, validate, reason, derive, observe, plan, dispatch; the agent starts each broker and
+   waits for its health check); later one ``destroy``. Both the same run, interleaved; the ratio is
+   the figure. Also the resident memory (RSS) of each idle broker and of the agent holding N.
+2. **Load.** With the N brokers up, bursts of M messages (default 100…500) sent as simultaneously
+   as one thread can (``benchmarks.mqtt_burst``), ``spread`` and ``one-to-one``: per message the
+   publish → PUBACK and publish → delivery latency; each cell repeated, so the spread between
+   repeats says how much of a difference between cells is noise.
+3. **Message size.** For some N, bursts of ``--size-messages`` messages of 100 B, 10 KB, 1 MB.
+
+Results: ``benchmarks/results/load.{json,md,csv}`` (the CSV has one row per burst) and the plots
+``load.png``, ``load-sizes.png``, ``load-bringup.png``.
+
+Usage: ``python -m benchmarks.bench_load [--brokers 1 5 10 25 50 100] [--messages 100 200 300 400 500]
+[--repeat 3] [--deploy-repeat 3] [--sizes 100 10000 1000000] [--size-brokers 1 10 100]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import signal
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import paho.mqtt.client as mqtt
+
+from benchmarks import plots, synthetic
+from benchmarks.common import RESULTS, command_line, machine, summarize, write_results
+from benchmarks.mqtt_burst import MODES, BurstResult, BurstRig
+from engine import netutil, process
+from engine.agent.local import start_local_agents
+from engine.agents_config import AgentDirectory
+from engine.apply import apply
+from engine.mosquitto_runtime import MosquittoConfig, default_run_as, mosquitto_command, render_mosquitto_conf
+from engine.parts import mosquitto_binary
+from engine.pipeline import run_pipeline
+
+HOST = "127.0.0.2"
+READY_S = 60.0
+
+
+def connack(host: str, port: int, timeout: float = 0.5) -> bool:
+    """True when an MQTT CONNECT to host:port is answered by a CONNACK (the agent's health check)."""
+    client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
+    end = time.monotonic() + timeout
+    try:
+        client.connect(host, port)
+        while not client.is_connected():
+            if time.monotonic() > end or client.loop(timeout=0.01) != mqtt.MQTT_ERR_SUCCESS:
+                return False
+        client.disconnect()
+        return True
+    except OSError:
+        return False
+
+
+def wait_all_ready(brokers: list[tuple[str, int]], deadline: float = READY_S) -> None:
+    """Poll every broker (one pass over those still pending at a time) until all answer."""
+    pending = list(brokers)
+
+    def none_pending() -> bool:
+        pending[:] = [b for b in pending if not connack(*b)]
+        return not pending
+
+    process.wait_until(none_pending, deadline, 0.001, what=f"{len(brokers)} mosquitto to answer")
+
+
+def by_hand(n: int, work: Path) -> tuple[float, float]:
+    """Spawn n mosquitto at once and wait for all; stop all at once. Returns (up s, down s)."""
+    ports = netutil.free_ports(n, HOST)
+    confs = []
+    for i, port in enumerate(ports):
+        conf = work / f"hand-{i}.conf"
+        conf.write_text(render_mosquitto_conf(MosquittoConfig(HOST, port, work / f"hand-{i}.log", default_run_as())))
+        confs.append(conf)
+    children: list[process.Child] = []
+    try:
+        start = time.perf_counter()
+        for i, conf in enumerate(confs):
+            children.append(process.spawn(mosquitto_command(mosquitto_binary(), conf), log_dir=work, name=f"hand-{i}"))
+        wait_all_ready([(HOST, p) for p in ports])
+        up = time.perf_counter() - start
+        start = time.perf_counter()
+        for child in children:
+            os.killpg(child.pid, signal.SIGTERM)
+        for child in children:
+            child.popen.wait(timeout=READY_S)
+        return up, time.perf_counter() - start
+    finally:
+        for child in children:
+            process.stop(child)
+
+
+def through_plantkg(plant: Path, directory: AgentDirectory, destroy: bool = False) -> dict[str, float]:
+    """One ``apply`` (or ``destroy``) of the plant: total seconds and the pipeline's stages."""
+    start = time.perf_counter()
+    result = run_pipeline([plant], directory, destroy=destroy)
+    assert result.plan is not None and result.desired is not None, "the load plant is invalid"
+    planned = time.perf_counter()
+    outcome = apply(result.plan, result.desired, directory, destroy=destroy)
+    if not outcome.ok:
+        raise RuntimeError(f"apply of {plant} failed: {outcome}")
+    end = time.perf_counter()
+    return {"total": end - start, "pipeline": planned - start, "dispatch": end - planned,
+            **{f"stage_{k}": v for k, v in result.timings.items()}}
+
+
+def rss_kb(pid: int) -> int:
+    """Resident memory of a process, from /proc (0 if it is gone)."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1])
+    except OSError:
+        pass
+    return 0
+
+
+def children_of(pid: int) -> list[int]:
+    """Pids whose parent is ``pid``."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def memory(agent_pid: int) -> dict[str, float]:
+    brokers = [rss_kb(p) for p in children_of(agent_pid)]
+    return {"agent_rss_mb": rss_kb(agent_pid) / 1024, "brokers": len(brokers),
+            "broker_rss_mb_mean": statistics.fmean(brokers) / 1024 if brokers else 0.0,
+            "broker_rss_mb_max": max(brokers, default=0) / 1024}
+
+
+def _cell(results: list[BurstResult], study: str) -> dict[str, object]:
+    acks = [x for r in results for x in r.ack_s]
+    deliveries = [x for r in results for x in r.delivery_s]
+    return {"study": study, "brokers": results[0].brokers, "messages": results[0].messages, "size": results[0].size,
+            "mode": results[0].mode, "repeats": len(results), "lost": sum(r.lost for r in results),
+            "send_ms": statistics.fmean(r.send_s for r in results) * 1000,
+            "ack": summarize(acks), "delivery": summarize(deliveries),
+            "ack_mean_of_repeats_stdev": _stdev([statistics.fmean(r.ack_s) * 1000 for r in results if r.ack_s]),
+            "delivery_mean_of_repeats_stdev": _stdev([statistics.fmean(r.delivery_s) * 1000 for r in results
+                                                      if r.delivery_s])}
+
+
+def _stdev(xs: list[float]) -> float:
+    return statistics.stdev(xs) if len(xs) > 1 else 0.0
+
+
+def _bursts(rig: BurstRig, study: str, messages: list[int], sizes: list[int], modes: tuple[str, ...],
+            repeat: int, raw: list[BurstResult]) -> list[dict[str, object]]:
+    cells = []
+    for size in sizes:
+        for mode in modes:
+            for m in messages:
+                runs = [rig.burst(m, size, mode) for _ in range(repeat)]
+                raw.extend(runs)
+                cells.append(_cell(runs, study))
+    return cells
+
+
+def one_size(n: int, args: argparse.Namespace, work: Path, raw: list[BurstResult]) -> dict[str, object]:
+    """Everything measured with N brokers (bring-up both ways, memory, load, sizes)."""
+    agents = start_local_agents([HOST], work / f"agents-{n}")
+    try:
+        directory = AgentDirectory.load(agents.agents_file)
+        agent_pid = agents.agents[HOST].child.pid
+        idle_agent_mb = rss_kb(agent_pid) / 1024
+        ups, downs, hand_ups, hand_downs = [], [], [], []
+        for r in range(args.deploy_repeat):  # interleaved, so drift hits both alike
+            hand_up, hand_down = by_hand(n, work)
+            hand_ups.append(hand_up)
+            hand_downs.append(hand_down)
+            ports = netutil.free_ports(n, HOST)
+            plant = work / f"load-{n}-{r}.ttl"
+            plant.write_text(synthetic.mosquitto_plant(HOST, ports))
+            ups.append(through_plantkg(plant, directory))
+            if r < args.deploy_repeat - 1:
+                downs.append(through_plantkg(plant, directory, destroy=True))
+        mem = memory(agent_pid)
+        brokers = [(HOST, p) for p in ports]
+        cells = []
+        max_m = max([*args.messages, args.size_messages])
+        with BurstRig(brokers, max_m) as rig:
+            rig.burst(min(max_m, 50), 100, "spread")  # warm-up: first packets on fresh connections
+            cells += _bursts(rig, "matrix", args.messages, [args.size], MODES, args.repeat, raw)
+            if n in args.size_brokers:
+                cells += _bursts(rig, "size", [args.size_messages], args.sizes, ("spread",), args.repeat, raw)
+        downs.append(through_plantkg(plant, directory, destroy=True))
+    finally:
+        agents.stop()
+    up_s, hand_up_s = statistics.median(u["total"] for u in ups), statistics.median(hand_ups)
+    down_s, hand_down_s = statistics.median(d["total"] for d in downs), statistics.median(hand_downs)
+    return {"brokers": n, "bringup": {
+        "hand_up_s": hand_up_s, "plantkg_up_s": up_s, "up_ratio": up_s / hand_up_s,
+        "hand_down_s": hand_down_s, "plantkg_down_s": down_s, "down_ratio": down_s / hand_down_s,
+        "plantkg_up_split_s": {k: statistics.median(u[k] for u in ups) for k in ups[0]},
+        "runs": {"hand_up_s": hand_ups, "plantkg_up_s": [u["total"] for u in ups],
+                 "hand_down_s": hand_downs, "plantkg_down_s": [d["total"] for d in downs]}},
+        "memory": {**mem, "agent_idle_rss_mb": idle_agent_mb}, "cells": cells}
+
+
+def measure(args: argparse.Namespace, argv: list[str] | None) -> tuple[dict[str, object], list[BurstResult]]:
+    info = machine()
+    raw: list[BurstResult] = []
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="plantkg-bench-load-") as tmp:
+        for n in args.brokers:
+            rows.append(one_size(n, args, Path(tmp), raw))
+            print(f"{n} brokers: bring-up {rows[-1]['bringup']}", flush=True)
+    return {"benchmark": "load", "machine": info, "command": command_line("benchmarks.bench_load", argv),
+            "repeat": args.repeat, "deploy_repeat": args.deploy_repeat, "size": args.size,
+            "paper": "Fig. 12: 1-100 brokers x 100-500 messages < 1 KB, one machine", "rows": rows}, raw
+
+
+def write_csv(path: Path, raw: list[BurstResult]) -> None:
+    """One row per burst: its shape, send time and the mean/p50/p99 of both latencies (ms)."""
+    with path.open("w", newline="") as fh:
+        out = csv.writer(fh)
+        out.writerow(["brokers", "messages", "size", "mode", "send_ms", "lost",
+                      "ack_mean_ms", "ack_p50_ms", "ack_p99_ms", "delivery_mean_ms", "delivery_p50_ms",
+                      "delivery_p99_ms"])
+        for r in raw:
+            a, d = summarize(list(r.ack_s)), summarize(list(r.delivery_s))
+            out.writerow([r.brokers, r.messages, r.size, r.mode, f"{r.send_s * 1000:.3f}", r.lost,
+                          *(f"{s.get(k, float('nan')):.3f}" for s in (a, d) for k in ("mean", "p50", "p99"))])
+
+
+def to_markdown(data: dict[str, object]) -> str:
+    rows = data["rows"]
+    lines = ["# load: N Mosquitto brokers on one machine, brought up by one apply, then bursts of M messages "
+             "(Fig. 12)", "",
+             f"Command: `{data['command']}` · machine: {data['machine']} · every cell {data['repeat']} bursts, "
+             f"bring-up median of {data['deploy_repeat']}", "",
+             "## Bring-up and memory", "",
+             "| brokers | by hand up s | one apply up s | apply / hand | (of which pipeline s) | by hand down s "
+             "| one destroy s | destroy / hand | RSS per idle broker MB | agent RSS MB (idle → N brokers) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:  # type: ignore[union-attr]
+        b, m = r["bringup"], r["memory"]
+        lines.append(f"| {r['brokers']} | {b['hand_up_s']:.3f} | {b['plantkg_up_s']:.3f} | **{b['up_ratio']:.2f}** | "
+                     f"{b['plantkg_up_split_s']['pipeline']:.3f} | {b['hand_down_s']:.3f} | {b['plantkg_down_s']:.3f} | "
+                     f"{b['down_ratio']:.2f} | {m['broker_rss_mb_mean']:.1f} | "
+                     f"{m['agent_idle_rss_mb']:.0f} → {m['agent_rss_mb']:.0f} |")
+    lines += ["", f"## Latency per message, ms ({data['size']} B payload, QoS 1)", "",
+              "| mode | brokers | messages | send burst ms | ack mean | ack p50 | ack p99 | delivery mean | "
+              "delivery p50 | delivery p99 | stdev of burst means (ack / delivery) | lost |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    cells = [c for r in rows for c in r["cells"]]  # type: ignore[union-attr]
+    for c in sorted((c for c in cells if c["study"] == "matrix"), key=lambda c: (c["mode"], c["brokers"], c["messages"])):
+        lines.append(_cell_line(c))
+    sized = [c for c in cells if c["study"] == "size"]
+    if sized:
+        lines += ["", "## Message size (spread)", "",
+                  "| size B | brokers | messages | send burst ms | ack mean | ack p50 | ack p99 | delivery mean | "
+                  "delivery p50 | delivery p99 | stdev of burst means (ack / delivery) | lost |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+        for c in sorted(sized, key=lambda c: (c["brokers"], c["size"])):
+            lines.append(_cell_line(c, first="size"))
+    return "\n".join(lines) + "\n"
+
+
+def _cell_line(c: dict[str, object], first: str = "mode") -> str:
+    a, d = c["ack"], c["delivery"]
+    return (f"| {c[first]} | {c['brokers']} | {c['messages']} | {c['send_ms']:.1f} | {a['mean']:.1f} | {a['p50']:.1f} | "
+            f"{a['p99']:.1f} | {d['mean']:.1f} | {d['p50']:.1f} | {d['p99']:.1f} | "
+            f"{c['ack_mean_of_repeats_stdev']:.1f} / {c['delivery_mean_of_repeats_stdev']:.1f} | {c['lost']} |")
+
+
+def parse(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description="load test of N Mosquitto brokers (Fig. 12)")
+    parser.add_argument("--brokers", type=int, nargs="+", default=[1, 5, 10, 25, 50, 100])
+    parser.add_argument("--messages", type=int, nargs="+", default=[100, 200, 300, 400, 500])
+    parser.add_argument("--repeat", type=int, default=3, help="bursts per cell")
+    parser.add_argument("--deploy-repeat", type=int, default=3, help="bring-ups per broker count, each way")
+    parser.add_argument("--size", type=int, default=100, help="payload bytes of the main matrix")
+    parser.add_argument("--sizes", type=int, nargs="+", default=[100, 10_000, 1_000_000])
+    parser.add_argument("--size-brokers", type=int, nargs="*", default=[1, 10, 100])
+    parser.add_argument("--size-messages", type=int, default=100)
+    parser.add_argument("--out", type=Path, default=RESULTS)
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse(argv)
+    if args.size < 8 or min(args.sizes) < 8:
+        raise SystemExit("payloads carry an 8-byte index: sizes must be >= 8")
+    data, raw = measure(args, argv)
+    write_results(args.out, "load", data, to_markdown(data))
+    write_csv(args.out / "load.csv", raw)
+    plots.load(data, args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
