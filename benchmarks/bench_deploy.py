@@ -10,26 +10,35 @@ plantkg, each until a QoS-1 publish of a small message is acknowledged.
   the CLI adds an interpreter start (~0.6 s) on top.
 - ``plantkg-dispatch``: the same apply with the plan already made — only the agent round trip
   and broker start — to show where the time goes.
+- ``plantkg-remote-<d>ms``: the same apply against an agent on an emulated remote machine (a
+  network namespace behind a veth pair with ``tc netem`` delaying each packet ``--delay-ms`` each
+  way, ``benchmarks.netns``); the publish crosses that link too. What the paper's "tool + cable"
+  row corresponds to. Skipped, with the reason recorded, where netem is not available.
+- ``kafka-bare`` / ``kafka-plantkg``: the same for one Kafka (KRaft) broker — render
+  server.properties, format storage, start the JVM, until a produce with acks=all is acknowledged;
+  ``--kafka-runs`` runs (each takes seconds), interleaved likewise; ratio to ``kafka-bare``.
 
 Runs are interleaved so drift hits all alike. Results: ``benchmarks/results/deploy.{json,md}``,
 with min, max, mean, standard deviation, p50, p99 and the ratio of means to bare.
 
-Usage: ``python -m benchmarks.bench_deploy [--runs 50]``
+Usage: ``python -m benchmarks.bench_deploy [--runs 50] [--kafka-runs 10] [--delay-ms 5]``
 """
 
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
 import tempfile
 import time
+from contextlib import ExitStack
 from pathlib import Path
 
 import paho.mqtt.client as mqtt
+from confluent_kafka import KafkaException, Producer
 
-from benchmarks.common import RESULTS, machine, write_results
-from engine import netutil, process
+from benchmarks import netns
+from benchmarks.common import RESULTS, command_line, machine, summarize, write_results
+from engine import kafka_runtime, netutil, parts, process
 from engine.agent.local import start_local_agents
 from engine.agents_config import AgentDirectory
 from engine.apply import apply
@@ -47,6 +56,15 @@ PLANT = """@prefix pk: <https://w3id.org/plantkg/ontology#> .
 :t a pk:Topic ; pk:id "t" ; pk:name "bench.t" ; pk:qos 1 .
 :r a pk:Resource ; pk:id "r" ; pk:name "publisher" ; pk:sendsTo :mqtt ; pk:publishes :t .
 """
+
+KAFKA_PLANT = """@prefix pk: <https://w3id.org/plantkg/ontology#> .
+@prefix : <https://w3id.org/plantkg/examples/bench#> .
+:kafka a pk:Broker ; pk:id "kafka" ; pk:name "bench-kafka" ; pk:brokerType "kafka" ;
+    pk:ip "{host}" ; pk:port {port} ; pk:hasTopic :t .
+:t a pk:Topic ; pk:id "t" ; pk:name "bench.t" .
+:r a pk:Resource ; pk:id "r" ; pk:name "producer" ; pk:sendsTo :kafka ; pk:publishes :t .
+"""
+KAFKA_READY_S = 120.0
 
 
 def acked_publish(host: str, port: int, deadline: float = 10.0) -> None:
@@ -70,6 +88,37 @@ def acked_publish(host: str, port: int, deadline: float = 10.0) -> None:
             time.sleep(0.0005)  # poll interval of the readiness check (a deadline bounds it)
 
 
+def acked_produce(host: str, port: int, deadline: float = KAFKA_READY_S) -> None:
+    """Produce PAYLOAD with acks=all until Kafka acknowledges it (the client retries meanwhile)."""
+    producer = Producer({"bootstrap.servers": f"{host}:{port}", "acks": "all", "linger.ms": 0,
+                         "reconnect.backoff.ms": 5, "reconnect.backoff.max.ms": 50, "retry.backoff.ms": 5,
+                         "message.timeout.ms": int(deadline * 1000), "log_level": 0})
+    errors: list[object] = []
+    producer.produce("bench.t", PAYLOAD, on_delivery=lambda err, msg: errors.append(err))
+    if producer.flush(deadline) != 0 or errors != [None]:
+        raise TimeoutError(f"Kafka on {host}:{port} never acknowledged: {errors}")
+
+
+def bare_kafka(work: Path) -> float:
+    """What a person does by hand: write server.properties, format storage, start, produce."""
+    kafka, java = parts.kafka_parts(), parts.java_binary()
+    port, controller = netutil.free_ports(2, HOST)
+    broker_dir = work / f"kafka-bare-{port}"
+    broker_dir.mkdir()
+    cfg = kafka_runtime.KafkaNodeConfig(HOST, port, controller, broker_dir / "data")
+    start = time.perf_counter()
+    properties = broker_dir / "server.properties"
+    properties.write_text(kafka_runtime.render_server_properties(cfg))
+    kafka_runtime.format_storage(cfg, properties, broker_dir, kafka=kafka, java=java)
+    child = process.spawn(kafka_runtime.broker_command(kafka, java, properties, broker_dir / "logs"),
+                          log_dir=broker_dir, name="kafka")
+    try:
+        acked_produce(HOST, port)
+        return time.perf_counter() - start
+    finally:
+        process.stop(child, grace=30.0)
+
+
 def bare(work: Path) -> float:
     port = netutil.free_port(HOST)
     conf = work / "bare.conf"
@@ -83,17 +132,18 @@ def bare(work: Path) -> float:
         process.stop(child)
 
 
-def through_plantkg(work: Path, directory: AgentDirectory, dispatch_only: bool) -> float:
-    port = netutil.free_port(HOST)
+def through_plantkg(work: Path, directory: AgentDirectory, dispatch_only: bool, kind: str = "mosquitto",
+                    host: str = HOST) -> float:
+    port = netutil.free_port(HOST) if host == HOST else 1883  # a fresh namespace has every port free
     plant = work / "plant.ttl"
-    plant.write_text(PLANT.format(host=HOST, port=port))
+    plant.write_text((KAFKA_PLANT if kind == "kafka" else PLANT).format(host=host, port=port))
     prepared = run_pipeline([plant], directory) if dispatch_only else None
     start = time.perf_counter()
     result = prepared or run_pipeline([plant], directory)
     assert result.plan is not None and result.desired is not None
     outcome = apply(result.plan, result.desired, directory)
     assert outcome.ok, outcome
-    acked_publish(HOST, port)
+    (acked_produce if kind == "kafka" else acked_publish)(host, port)
     elapsed = time.perf_counter() - start
     gone = run_pipeline([plant], directory, destroy=True)
     assert gone.plan is not None and gone.desired is not None
@@ -101,54 +151,77 @@ def through_plantkg(work: Path, directory: AgentDirectory, dispatch_only: bool) 
     return elapsed
 
 
-def stats(xs: list[float]) -> dict[str, float]:
-    ms = sorted(x * 1000 for x in xs)
-    return {"n": len(ms), "min": ms[0], "max": ms[-1], "mean": statistics.fmean(ms),
-            "stdev": statistics.stdev(ms) if len(ms) > 1 else 0.0,
-            "p50": ms[len(ms) // 2], "p99": ms[min(len(ms) - 1, int(len(ms) * 0.99))]}
+def _remote(stack: ExitStack, work: Path, delay_ms: float) -> tuple[AgentDirectory | None, str]:
+    """An agent behind a link delayed ``delay_ms`` each way, or (None, why not)."""
+    try:
+        link = stack.enter_context(netns.delayed_link(delay_ms))
+    except netns.LinkUnavailable as exc:
+        return None, str(exc)
+    agent = stack.enter_context(netns.remote_agent(link, work))
+    return AgentDirectory.load(agent.agents_file), link.remote_ip
 
 
-def measure(runs: int) -> dict[str, object]:
-    with tempfile.TemporaryDirectory(prefix="plantkg-bench-") as tmp:
+def measure(runs: int, kafka_runs: int = 0, delay_ms: float | None = None) -> dict[str, object]:
+    info = machine()
+    times: dict[str, list[float]] = {"bare": [], "plantkg": [], "plantkg-dispatch": []}
+    remote_row, remote_note = f"plantkg-remote-{delay_ms:g}ms", ""
+    with tempfile.TemporaryDirectory(prefix="plantkg-bench-") as tmp, ExitStack() as stack:
         work = Path(tmp)
         agents = start_local_agents([HOST], work / "agents")
-        try:
-            directory = AgentDirectory.load(agents.agents_file)
-            times: dict[str, list[float]] = {"bare": [], "plantkg": [], "plantkg-dispatch": []}
-            through_plantkg(work, directory, False)  # warm-up: imports, JIT-free but caches
-            for _ in range(runs):
-                times["bare"].append(bare(work))
-                times["plantkg"].append(through_plantkg(work, directory, False))
-                times["plantkg-dispatch"].append(through_plantkg(work, directory, True))
-        finally:
-            agents.stop()
-    table = {k: stats(v) for k, v in times.items()}
-    base = table["bare"]["mean"]
-    for row in table.values():
-        row["ratio"] = row["mean"] / base
-    return {"benchmark": "deploy", "machine": machine(), "runs": runs,
-            "command": "python -m benchmarks.bench_deploy " + " ".join(sys.argv[1:]), "ms": table,
+        stack.callback(agents.stop)
+        directory = AgentDirectory.load(agents.agents_file)
+        remote, remote_host = _remote(stack, work, delay_ms) if delay_ms is not None else (None, "")
+        if remote is not None:
+            times[remote_row] = []
+            through_plantkg(work, remote, False, host=remote_host)  # warm-up of the remote agent
+        elif delay_ms is not None:
+            remote_note = f"not measured: the delayed link is not available here ({remote_host})"
+        through_plantkg(work, directory, False)  # warm-up: imports, JIT-free but caches
+        for _ in range(runs):
+            times["bare"].append(bare(work))
+            times["plantkg"].append(through_plantkg(work, directory, False))
+            times["plantkg-dispatch"].append(through_plantkg(work, directory, True))
+            if remote is not None:
+                times[remote_row].append(through_plantkg(work, remote, False, host=remote_host))
+        if kafka_runs:
+            times.update({"kafka-bare": [], "kafka-plantkg": []})
+        for _ in range(kafka_runs):
+            times["kafka-bare"].append(bare_kafka(work))
+            times["kafka-plantkg"].append(through_plantkg(work, directory, False, kind="kafka"))
+    table = {k: summarize(v) for k, v in times.items()}
+    for name, row in table.items():
+        row["ratio"] = row["mean"] / table["kafka-bare" if name.startswith("kafka") else "bare"]["mean"]
+    return {"benchmark": "deploy", "machine": info, "runs": runs, "kafka_runs": kafka_runs,
+            "delay_ms": delay_ms, "remote_note": remote_note, "ms": table,
             "paper": {"bare_ms": 23.9, "tool_cable_ms": 80.1, "ratio": 3.35}}
 
 
 def to_markdown(data: dict[str, object]) -> str:
-    lines = ["# deploy: Mosquitto until the first QoS-1 PUBACK, bare vs through plantkg (Table 1)", "",
-             f"Command: `{data['command']}` · machine: {data['machine']} · {data['runs']} runs each, interleaved", "",
-             "| path | min ms | max ms | mean ms | stdev ms | p50 ms | p99 ms | mean / bare |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = ["# deploy: a broker until its first acknowledged message, bare vs through plantkg (Table 1)", "",
+             f"Command: `{data['command']}` · machine: {data['machine']} · Mosquitto {data['runs']} runs each, "
+             f"Kafka {data.get('kafka_runs', 0)} runs each (a run takes seconds), interleaved", "",
+             "| path | runs | min ms | max ms | mean ms | stdev ms | p50 ms | p99 ms | mean / bare |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for name, r in data["ms"].items():  # type: ignore[union-attr]
-        lines.append(f"| {name} | {r['min']:.1f} | {r['max']:.1f} | {r['mean']:.1f} | {r['stdev']:.1f} | "
+        lines.append(f"| {name} | {r['n']} | {r['min']:.1f} | {r['max']:.1f} | {r['mean']:.1f} | {r['stdev']:.1f} | "
                      f"{r['p50']:.1f} | {r['p99']:.1f} | {r['ratio']:.2f} |")
-    lines += ["", "The paper (its hardware, over cable): 23.9 ms bare, 80.1 ms through its tool (3.35x)."]
+    if data.get("remote_note"):
+        lines.append(f"| plantkg-remote-{data['delay_ms']:g}ms | 0 | {data['remote_note']} |||||||")
+    lines += ["", "The paper (its hardware, over cable): 23.9 ms bare, 80.1 ms through its tool (3.35x). "
+              "Kafka rows are divided by kafka-bare, the others by bare."]
     return "\n".join(lines) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="deployment latency benchmark (Table 1)")
     parser.add_argument("--runs", type=int, default=50)
+    parser.add_argument("--kafka-runs", type=int, default=10)
+    parser.add_argument("--delay-ms", type=float, default=5.0,
+                        help="one-way delay of the emulated remote link (netem); a negative value skips the row")
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
-    data = measure(args.runs)
+    data = measure(args.runs, args.kafka_runs, args.delay_ms if args.delay_ms >= 0 else None)
+    data["command"] = command_line("benchmarks.bench_deploy", argv)
     write_results(args.out, "deploy", data, to_markdown(data))
     return 0
 
