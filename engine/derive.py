@@ -10,8 +10,9 @@ run), only what the ontology concluded:
   ``pk:KafkaBroker pk:topicSetting pk:partitions`` (``ontology/plantkg-rules.ttl``). A setting
   property maps to the TopicSpec field of the same name in snake case (``pk:replicationFactor`` →
   ``replication_factor``), so a new setting is Turtle plus a model field, not a branch here;
-- a :class:`BridgeSpec` for every ``pk:requiresBridge(a, c)``, forwarding the topics both brokers
-  must carry, ``asserted`` when the plant states ``pk:bridgesTo``.
+- a :class:`BridgeSpec` for every pair of brokers joined by ``pk:requiresBridge`` (either way),
+  forwarding the topics both brokers must carry, its mechanism chosen from the brokers' inferred
+  classes (:mod:`engine.bridge_pairs`), ``asserted`` when the plant states ``pk:bridgesTo``.
 
 No value is spliced into a query: the only constants are vocabulary IRIs, serialised by Oxigraph.
 A deployed broker or carried topic missing what its spec needs raises :class:`DeriveError` naming
@@ -28,7 +29,8 @@ from typing import Iterable
 import pyoxigraph as ox
 
 from engine.errors import EngineError
-from engine.model import BridgeSpec, BrokerSpec, DesiredState, TopicSpec
+from engine.bridge_pairs import DirectedBridge, TopicOptions, pair_bridges
+from engine.model import BrokerSpec, DesiredState, TopicSpec
 from engine.reason import INFERRED, input_graphs, is_reasoned
 from engine.rules_fast import short_name
 from engine.rules_tbox import dataset_options
@@ -70,10 +72,17 @@ SELECT ?a ?c ?asserted WHERE {
 }"""
 
 SHARED = """
-SELECT DISTINCT ?a ?c ?t WHERE {
+SELECT DISTINCT ?a ?c ?t ?qos ?key WHERE {
     ?a pk:requiresBridge ?c .
     ?a pk:mustCarry ?t .
     ?c pk:mustCarry ?t .
+    OPTIONAL { ?t pk:qos ?qos } OPTIONAL { ?t pk:kafkaKey ?key }
+}"""
+
+CLASSES = """
+SELECT ?b ?class WHERE {
+    ?b a pk:DeployedBroker ; a ?class .
+    FILTER (?class IN (pk:MqttBroker, pk:KafkaBroker))
 }"""
 
 
@@ -108,24 +117,34 @@ def derive(plant: PlantGraph) -> DesiredState:
     brokers = _brokers(plant, select(BROKERS))
     by_iri = {b.iri: b for b in brokers}
     topics = _topics(plant, select(TOPICS), select(SETTINGS), by_iri)
-    names = {(t.iri) : t.name for t in topics}
+    names = {t.iri: t.name for t in topics}
     shared: dict[tuple[str, str], set[str]] = defaultdict(set)
+    topic_options: dict[str, TopicOptions] = {}
     for row in select(SHARED):
         t = row["t"].value
         if t in names:
             shared[(row["a"].value, row["c"].value)].add(names[t])
-    bridges = []
+            topic_options[names[t]] = TopicOptions(
+                qos=int(row["qos"].value) if row["qos"] is not None else None,
+                kafka_key=row["key"].value if row["key"] is not None else None)
+    directed = []
     for row in select(BRIDGES):
         a, c = row["a"].value, row["c"].value
         if a not in by_iri or c not in by_iri:  # both ends are deployed by definition
             raise DeriveError(_name(plant, row["a" if a not in by_iri else "c"]),
                               "is at one end of a required bridge but is not a deployed broker")
-        bridges.append(BridgeSpec(by_iri[a].id, by_iri[c].id, tuple(sorted(shared[(a, c)])),
-                                  asserted=row["asserted"].value == "true"))
+        directed.append(DirectedBridge(by_iri[a].id, by_iri[c].id, frozenset(shared[(a, c)]),
+                                       asserted=row["asserted"].value == "true"))
+    classes: dict[str, set[str]] = defaultdict(set)
+    for row in select(CLASSES):
+        if row["b"].value in by_iri:
+            classes[by_iri[row["b"].value].id].add(short_name(row["class"].value))
+    bridges = pair_bridges(directed, {b.id: b for b in brokers},
+                           {k: frozenset(v) for k, v in classes.items()}, topic_options)
     return DesiredState(
         brokers=tuple(sorted(brokers, key=lambda b: b.address)),
         topics=tuple(sorted(topics, key=lambda t: t.address)),
-        bridges=tuple(sorted(_unique(bridges, "bridge"), key=lambda b: b.address)),
+        bridges=tuple(bridges),
     )
 
 

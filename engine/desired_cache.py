@@ -21,7 +21,17 @@ from importlib import metadata
 from pathlib import Path
 from typing import Iterable
 
-from engine.model import BridgeSpec, BrokerSpec, DesiredState, TopicSpec, to_dict
+from engine.model import (
+    BridgeDirection,
+    BridgeEnd,
+    BridgeMechanism,
+    BridgeRoute,
+    BridgeSpec,
+    BrokerSpec,
+    DesiredState,
+    TopicSpec,
+    to_dict,
+)
 from kg import resources
 from kg.validate import ValidationReport, ValidationResult
 
@@ -87,7 +97,20 @@ def desired_from_dict(data: dict) -> DesiredState:
     return DesiredState(
         brokers=tuple(BrokerSpec(**b) for b in data["brokers"]),
         topics=tuple(TopicSpec(**t) for t in data["topics"]),
-        bridges=tuple(BridgeSpec(**{**b, "topics": tuple(b["topics"])}) for b in data["bridges"]),
+        bridges=tuple(bridge_from_dict(b) for b in data["bridges"]),
+    )
+
+
+def bridge_from_dict(data: dict) -> BridgeSpec:
+    """The inverse of ``to_dict(bridge)`` (trusted data: the cache's own, or an agent's answer
+    already checked by engine.agent.wire)."""
+    return BridgeSpec(
+        local=BridgeEnd(**data["local"]),
+        remote=BridgeEnd(**data["remote"]),
+        mechanism=BridgeMechanism(data["mechanism"]),
+        routes=tuple(BridgeRoute(**{**r, "direction": BridgeDirection(r["direction"])})
+                     for r in data["routes"]),
+        asserted=data["asserted"],
     )
 
 

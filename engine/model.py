@@ -72,18 +72,66 @@ class TopicSpec:
         return f"topic.{self.broker_id}.{self.name}"
 
 
+class BridgeMechanism(str, enum.Enum):
+    """How a bridge runs; chosen from the inferred classes of its two brokers (engine.derive)."""
+
+    MOSQUITTO = "mosquitto"   # Mosquitto's own bridge, in the carrying broker's mosquitto.conf
+    WORKER = "mqtt-kafka"     # a bridge worker process (engine.bridge_worker) run by the carrying agent
+
+
+class BridgeDirection(str, enum.Enum):
+    """Where a bridged topic flows, seen from the carrying (local) broker."""
+
+    OUT = "out"     # local -> remote (for a worker: MQTT -> Kafka)
+    IN = "in"       # remote -> local (for a worker: Kafka -> MQTT)
+    BOTH = "both"
+
+
+class BridgeStatus(str, enum.Enum):
+    """What an agent says about one bridge."""
+
+    RUNNING = "running"        # forwarding: connected to both brokers
+    CONNECTING = "connecting"  # alive, not (yet) connected to both ends; it keeps trying
+    STOPPED = "stopped"        # not running, on purpose (its broker is stopped)
+    CRASHED = "crashed"        # the worker exited unexpectedly; the agent restarts it (backoff)
+    FAILED = "failed"          # could not be started
+
+
+@dataclass(frozen=True)
+class BridgeEnd:
+    """A broker at one end of a bridge: what the bridge needs to reach it."""
+
+    id: str
+    kind: str
+    host: str
+    port: int
+
+
+@dataclass(frozen=True)
+class BridgeRoute:
+    """One topic a bridge forwards. The topic has the same ``pk:name`` on both brokers (the
+    MQTT <-> Kafka topic mapping is the identity); ``key`` is how MQTT -> Kafka records are keyed."""
+
+    topic: str
+    direction: BridgeDirection
+    qos: int = 1                 # MQTT QoS the bridge uses for this topic (pk:qos, default 1)
+    key: str = "mqtt-topic"      # pk:kafkaKey: "mqtt-topic" (order kept per topic) or "none"
+
+
 @dataclass(frozen=True)
 class BridgeSpec:
-    """Forwarding of ``topics`` from broker ``source`` to broker ``target`` (one direction)."""
+    """Forwarding between two brokers, both directions of the pair in one spec, carried by the
+    agent of ``local`` (the source of a one-way Mosquitto bridge, the MQTT end of a worker)."""
 
-    source: str
-    target: str
-    topics: tuple[str, ...]  # sorted topic names both brokers carry
-    asserted: bool = True    # asserted with pk:bridgesTo, or derived by the rules
+    local: BridgeEnd
+    remote: BridgeEnd
+    mechanism: BridgeMechanism
+    routes: tuple[BridgeRoute, ...]   # sorted by topic
+    asserted: bool = True             # some direction asserted with pk:bridgesTo, else derived
 
     @property
     def address(self) -> str:
-        return f"bridge.{self.source}.{self.target}"
+        return f"bridge.{self.local.id}.{self.remote.id}"
 
 
 @dataclass(frozen=True)
@@ -141,11 +189,34 @@ class ObservedBroker:
 
 
 @dataclass(frozen=True)
+class ObservedBridge:
+    """One bridge as the agent of its local broker reports it."""
+
+    spec: BridgeSpec
+    status: BridgeStatus
+    pid: int | None = None              # the worker's (None for a Mosquitto bridge)
+    started_at: float | None = None
+    restarts: int = 0
+    forwarded: int | None = None        # messages forwarded (None: the mechanism does not count)
+    retried: int | None = None
+    last_error: str | None = None
+
+
+@dataclass(frozen=True)
 class ObservedState:
-    """What runs: every broker reported by the agents that answered; ``unreachable`` hosts did not."""
+    """What runs: every broker and bridge reported by the agents that answered; ``unreachable``
+    hosts did not."""
 
     brokers: tuple[ObservedBroker, ...] = ()
     unreachable: tuple[str, ...] = ()
+    bridges: tuple[ObservedBridge, ...] = ()
+
+    def bridge(self, address: str) -> ObservedBridge | None:
+        return self._bridges_by_address.get(address)
+
+    @cached_property
+    def _bridges_by_address(self) -> dict[str, ObservedBridge]:
+        return {b.spec.address: b for b in self.bridges}
 
     def broker(self, broker_id: str) -> ObservedBroker | None:
         return self._by_id.get(broker_id)

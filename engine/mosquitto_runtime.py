@@ -1,17 +1,83 @@
-"""Mosquitto: render a minimal ``mosquitto.conf`` from validated values, and its command line.
+"""Mosquitto: render ``mosquitto.conf`` from validated values, and its command line.
 
-Pure functions over a frozen dataclass, reused by the Mosquitto driver. The broker listens on one
-address and port, keeps nothing on disk (persistence off) and logs to a file. Anonymous clients
-are allowed for now (credentials come with the security issue).
+Pure functions over frozen dataclasses, reused by the Mosquitto driver. The broker listens on one
+address and port and logs to a file. Anonymous clients are allowed for now (credentials come with
+the security issue). Settings that make bridges lose nothing:
+
+- persistence on (with a ``data_dir``): queued messages and sessions survive a clean restart;
+- ``max_queued_messages`` raised from Mosquitto's 1000, past which it silently drops QoS 1
+  messages queued for a disconnected persistent session (a bridge, a bridge worker);
+- ``max_inflight_messages`` raised from 20, so a consumer that acknowledges late (a worker waiting
+  for Kafka's confirmation) is not throttled to 20 messages per round trip.
+
+Each :class:`MosquittoBridge` is one ``connection`` section: Mosquitto's own bridge with a
+persistent session (``cleansession false``), notifications of its state on the local broker
+(retained ``$SYS/broker/connection/<client id>/state``: 1 up, 0 down) and a restart backoff.
 """
 
 from __future__ import annotations
 
 import getpass
+import ipaddress
+import re
+import unicodedata
 from dataclasses import dataclass
 from pathlib import Path
 
+from engine.errors import ConfigValueError
 from engine.values import check_host, check_path, check_port, check_user
+
+
+#: QoS 1/2 messages Mosquitto queues per client beyond those in flight (its default: 1000).
+MAX_QUEUED_MESSAGES = 1_000_000
+#: QoS 1/2 messages in flight to one client at once (its default: 20).
+MAX_INFLIGHT_MESSAGES = 1000
+#: Seconds between saves of the in-memory database to disk (also saved on a clean stop).
+AUTOSAVE_INTERVAL = 60
+#: Bridge reconnection backoff: first delay and cap, in seconds.
+BRIDGE_RESTART_TIMEOUT = (1, 10)
+BRIDGE_DIRECTIONS = ("out", "in", "both")
+
+
+@dataclass(frozen=True)
+class MosquittoBridgeTopic:
+    """One ``topic`` line of a bridge: a topic (no wildcard), its direction, its QoS."""
+
+    pattern: str
+    direction: str   # "out" (local -> remote), "in" (remote -> local) or "both"
+    qos: int = 1
+
+    def __post_init__(self) -> None:
+        _check_token("pattern", self.pattern)
+        if "+" in self.pattern or "#" in self.pattern:
+            raise ConfigValueError("pattern", self.pattern, "a bridged topic is a name, not a filter")
+        if self.direction not in BRIDGE_DIRECTIONS:
+            raise ConfigValueError("direction", self.direction, f"must be one of {BRIDGE_DIRECTIONS}")
+        if isinstance(self.qos, bool) or self.qos not in (0, 1, 2):
+            raise ConfigValueError("qos", self.qos, "must be 0, 1 or 2")
+
+
+@dataclass(frozen=True)
+class MosquittoBridge:
+    """A bridge this broker carries: a connection to ``remote_host:remote_port``."""
+
+    name: str                   # connection name, also the bridge's client id on the remote
+    remote_host: str
+    remote_port: int
+    topics: tuple[MosquittoBridgeTopic, ...]
+
+    def __post_init__(self) -> None:
+        if not _NAME.fullmatch(self.name):
+            raise ConfigValueError("name", self.name, "must be 1 to 300 of A-Z a-z 0-9 _ . -")
+        host = check_host("remote_host", self.remote_host)
+        if ipaddress.ip_address(host).version == 6:
+            raise ConfigValueError("remote_host", self.remote_host,
+                                   "Mosquitto's bridge 'address' takes no IPv6 literal; give the "
+                                   "remote broker an IPv4 address")
+        object.__setattr__(self, "remote_host", host)
+        check_port("remote_port", self.remote_port)
+        if not self.topics:
+            raise ConfigValueError("topics", self.topics, "a bridge needs at least one topic")
 
 
 @dataclass(frozen=True)
@@ -23,13 +89,20 @@ class MosquittoConfig:
     port: int
     log_file: Path
     run_as: str | None = None
+    data_dir: Path | None = None          # persistence on, in this folder; None: off
+    bridges: tuple[MosquittoBridge, ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "host", check_host("host", self.host))
         check_port("port", self.port)
         object.__setattr__(self, "log_file", check_path("log_file", self.log_file, forbid="\t"))
+        if self.data_dir is not None:
+            object.__setattr__(self, "data_dir", check_path("data_dir", self.data_dir, forbid="\t "))
         if self.run_as is not None:
             check_user("run_as", self.run_as)
+        names = [b.name for b in self.bridges]
+        if len(set(names)) != len(names):
+            raise ConfigValueError("bridges", names, "two bridges with the same name")
 
 
 def render_mosquitto_conf(cfg: MosquittoConfig) -> str:
@@ -39,7 +112,9 @@ def render_mosquitto_conf(cfg: MosquittoConfig) -> str:
         "per_listener_settings false",
         f"listener {cfg.port} {cfg.host}",
         "allow_anonymous true",
-        "persistence false",
+        f"max_queued_messages {MAX_QUEUED_MESSAGES}",
+        f"max_inflight_messages {MAX_INFLIGHT_MESSAGES}",
+        *_persistence_lines(cfg.data_dir),
         f"log_dest file {cfg.log_file}",
         "log_type error",
         "log_type warning",
@@ -50,7 +125,54 @@ def render_mosquitto_conf(cfg: MosquittoConfig) -> str:
     ]
     if cfg.run_as is not None:
         lines.append(f"user {cfg.run_as}")
+    for bridge in cfg.bridges:
+        lines += ["", *_bridge_lines(bridge)]
     return "\n".join(lines) + "\n"
+
+
+def _persistence_lines(data_dir: Path | None) -> list[str]:
+    if data_dir is None:
+        return ["persistence false"]
+    return ["persistence true", f"persistence_location {data_dir}/",
+            f"autosave_interval {AUTOSAVE_INTERVAL}"]
+
+
+def _bridge_lines(bridge: MosquittoBridge) -> list[str]:
+    """One ``connection`` section (see mosquitto.conf(5), "Configuring Bridges")."""
+    base, cap = BRIDGE_RESTART_TIMEOUT
+    return [
+        f"connection {bridge.name}",
+        f"address {bridge.remote_host}:{bridge.remote_port}",
+        "bridge_protocol_version mqttv311",
+        f"remote_clientid {bridge.name}",
+        f"local_clientid {bridge.name}.local",
+        "cleansession false",
+        "try_private true",
+        "start_type automatic",
+        f"restart_timeout {base} {cap}",
+        "keepalive_interval 10",
+        "notifications true",
+        "notifications_local_only true",
+        *(f"topic {t.pattern} {t.direction} {t.qos}" for t in bridge.topics),
+    ]
+
+
+def bridge_state_topic(bridge_name: str) -> str:
+    """Where Mosquitto publishes (retained, on the local broker) the bridge's state: 1 up, 0 down."""
+    return f"$SYS/broker/connection/{bridge_name}/state"
+
+
+_NAME = re.compile(r"[A-Za-z0-9_.-]{1,300}")
+
+
+def _check_token(field: str, value: object) -> str:
+    """One word of a config line: text without whitespace, quotes or control characters."""
+    if not isinstance(value, str) or not value:
+        raise ConfigValueError(field, value, "must be a non-empty string")
+    if any(c.isspace() or c == '"' or unicodedata.category(c) == "Cc" for c in value):
+        raise ConfigValueError(field, value, "must not contain whitespace, quotes or control "
+                                             "characters (it is one word of mosquitto.conf)")
+    return value
 
 
 def default_run_as() -> str:

@@ -65,6 +65,8 @@ APT_WANTED=()
 have_mosquitto || APT_WANTED+=(mosquitto)
 have java || APT_WANTED+=(default-jre-headless)
 have mvn || APT_WANTED+=(maven)
+# Debian's Chromium for the dashboard's browser tests (Playwright drives it; no browser download).
+have chromium || APT_WANTED+=(chromium)
 
 if [ "${#APT_WANTED[@]}" -gt 0 ]; then
     have apt-get || die "missing ${APT_WANTED[*]} and no apt-get here; install them with your package manager"

@@ -5,7 +5,9 @@ running broker answers its own protocol, and manages topics. It holds no per-bro
 agent owns the broker folder (``<state-dir>/brokers/<id>/``) and passes it in. The verbs map onto
 the paper's client tool: *start* = ``prepare`` + ``render_config`` + ``command`` (the agent spawns
 it), *config* = ``ensure_topic``/``delete_topic``, *stop*/*restart* are the agent's process
-handling, *connect* (bridges) comes with the bridge issue.
+handling, *connect* = the ``bridges`` a driver renders into its broker's config (a driver that
+carries bridges natively, Mosquitto, also implements :class:`BridgeCarrier`; other bridges run as
+workers, see :mod:`engine.bridge_worker`).
 
 Drivers are found through the entry-point group ``plantkg.drivers`` (see
 :mod:`engine.drivers.registry` and docs/drivers.md).
@@ -20,7 +22,7 @@ from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 from engine.errors import ConfigValueError
-from engine.model import BrokerSpec, ObservedTopic, TopicSpec
+from engine.model import BridgeSpec, BrokerSpec, ObservedTopic, TopicSpec
 
 #: Folder of a broker's logs inside its broker folder; the agent spawns the process with its
 #: stdout/stderr appended to ``logs/<kind>.log`` (see :func:`log_file`).
@@ -51,8 +53,10 @@ class Driver(Protocol):
         """Refuse a spec this driver cannot run (ConfigValueError naming the field) before the
         agent stops anything. Pure."""
 
-    def render_config(self, spec: BrokerSpec, broker_dir: Path) -> dict[str, str]:
-        """File name (relative to ``broker_dir``) -> text. Pure; refuses bad values with
+    def render_config(self, spec: BrokerSpec, broker_dir: Path,
+                      bridges: tuple[BridgeSpec, ...] = ()) -> dict[str, str]:
+        """File name (relative to ``broker_dir``) -> text, with the native ``bridges`` the broker
+        carries (a driver without native bridges refuses any). Pure; refuses bad values with
         :class:`~engine.errors.ConfigValueError` naming the field."""
 
     def command(self, spec: BrokerSpec, broker_dir: Path) -> list[str]:
@@ -76,6 +80,23 @@ class Driver(Protocol):
 
     def essence(self, spec: BrokerSpec) -> dict[str, Any]:
         """The fields of ``spec`` whose change needs a restart of the broker."""
+
+
+@runtime_checkable
+class BridgeCarrier(Protocol):
+    """A driver whose broker runs bridges itself (Mosquitto's ``connection`` sections)."""
+
+    def bridge_states(self, spec: BrokerSpec, bridges: tuple[BridgeSpec, ...],
+                      timeout: float) -> dict[str, bool]:
+        """Bridge address -> connected, as the running broker reports it; a bridge the broker
+        says nothing of is left out. Never raises."""
+
+
+def refuse_bridges(kind: str, bridges: tuple[BridgeSpec, ...]) -> None:
+    """For drivers without native bridges."""
+    if bridges:
+        raise ConfigValueError("bridges", [b.address for b in bridges],
+                               f"a {kind} broker carries no native bridge")
 
 
 def spec_essence(spec: BrokerSpec) -> dict[str, Any]:

@@ -32,6 +32,7 @@ from engine.drivers.base import (
     KAFKA_TOPIC_FIELDS,
     LOGS_DIR,
     check_topic_fields,
+    refuse_bridges,
     spec_essence,
 )
 from engine.errors import (
@@ -42,7 +43,7 @@ from engine.errors import (
     EngineError,
     WaitTimeoutError,
 )
-from engine.model import BrokerSpec, ObservedTopic, TopicSpec
+from engine.model import BridgeSpec, BrokerSpec, ObservedTopic, TopicSpec
 from engine.values import check_host, check_port, host_in_url
 
 PROPERTIES_FILE = "server.properties"
@@ -83,8 +84,11 @@ class KafkaDriver:
         kafka_runtime.KafkaNodeConfig(host=spec.host, port=port, controller_port=1 if port != 1 else 2,
                                       data_dir=Path("/nonexistent/plantkg/broker/data"))
 
-    def render_config(self, spec: BrokerSpec, broker_dir: Path) -> dict[str, str]:
-        """``server.properties``; needs the controller port that :meth:`prepare` stored."""
+    def render_config(self, spec: BrokerSpec, broker_dir: Path,
+                      bridges: tuple[BridgeSpec, ...] = ()) -> dict[str, str]:
+        """``server.properties``; needs the controller port that :meth:`prepare` stored. Kafka
+        carries no native bridge (MQTT <-> Kafka bridges are workers)."""
+        refuse_bridges(self.kind, bridges)
         cfg = self.node_config(spec, broker_dir)
         return {PROPERTIES_FILE: kafka_runtime.render_server_properties(cfg)}
 

@@ -1,6 +1,9 @@
 """The Mosquitto (MQTT) driver: ``mosquitto -c <broker dir>/mosquitto.conf``.
 
-Config and command line come from :mod:`engine.mosquitto_runtime`. MQTT has no topic list: a topic
+Config and command line come from :mod:`engine.mosquitto_runtime`; persistence is on, in
+``<broker dir>/data/``. Bridges to other MQTT brokers are Mosquitto's own (``connection`` sections
+of the config, one per :class:`~engine.model.BridgeSpec` this broker carries); their state is read
+from the retained notifications Mosquitto publishes on the broker. MQTT has no topic list: a topic
 exists as soon as someone publishes to it, so :meth:`MosquittoDriver.ensure_topic` only validates
 the name and settings and the agent records them (``implicit_topics``). Health is a real MQTT
 CONNECT/CONNACK with paho, not just an open port.
@@ -19,9 +22,16 @@ from paho.mqtt import client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
 from engine import mosquitto_runtime, parts
-from engine.drivers.base import MQTT_TOPIC_FIELDS, check_text, check_topic_fields, log_file, spec_essence
+from engine.drivers.base import (
+    DATA_DIR,
+    MQTT_TOPIC_FIELDS,
+    check_text,
+    check_topic_fields,
+    log_file,
+    spec_essence,
+)
 from engine.errors import ConfigValueError
-from engine.model import BrokerSpec, ObservedTopic, TopicSpec
+from engine.model import BridgeMechanism, BridgeSpec, BrokerSpec, ObservedTopic, TopicSpec
 
 CONF_FILE = "mosquitto.conf"
 #: MQTT 3.1.1 section 1.5.3: a topic name is at most 65535 bytes of UTF-8.
@@ -31,7 +41,7 @@ _AUTO = object()
 
 
 class MosquittoDriver:
-    """Mosquitto, one listener on the spec's address and port, no persistence."""
+    """Mosquitto, one listener on the spec's address and port, persistence on."""
 
     kind = "mosquitto"
     implicit_topics = True
@@ -49,12 +59,15 @@ class MosquittoDriver:
     def validate(self, spec: BrokerSpec) -> None:
         self.render_config(spec, Path("/nonexistent/plantkg/broker"))
 
-    def render_config(self, spec: BrokerSpec, broker_dir: Path) -> dict[str, str]:
+    def render_config(self, spec: BrokerSpec, broker_dir: Path,
+                      bridges: tuple[BridgeSpec, ...] = ()) -> dict[str, str]:
         cfg = mosquitto_runtime.MosquittoConfig(
             host=spec.host,
             port=spec.port,
             log_file=log_file(broker_dir, self.kind),
             run_as=self.run_as,
+            data_dir=broker_dir / DATA_DIR,
+            bridges=tuple(native_bridge(spec, b) for b in bridges),
         )
         return {CONF_FILE: mosquitto_runtime.render_mosquitto_conf(cfg)}
 
@@ -63,7 +76,8 @@ class MosquittoDriver:
         return mosquitto_runtime.mosquitto_command(binary, broker_dir / CONF_FILE)
 
     def prepare(self, spec: BrokerSpec, broker_dir: Path) -> None:
-        """Nothing to format: Mosquitto keeps no data (persistence off)."""
+        """The persistence folder (Mosquitto does not create it)."""
+        (broker_dir / DATA_DIR).mkdir(parents=True, exist_ok=True)
 
     def health(self, spec: BrokerSpec, timeout: float) -> bool:
         """An MQTT CONNECT answered by a successful CONNACK within ``timeout`` s."""
@@ -101,6 +115,54 @@ class MosquittoDriver:
 
     def essence(self, spec: BrokerSpec) -> dict[str, Any]:
         return spec_essence(spec)
+
+    def bridge_states(self, spec: BrokerSpec, bridges: tuple[BridgeSpec, ...],
+                      timeout: float) -> dict[str, bool]:
+        """Read the retained ``$SYS/broker/connection/<name>/state`` of each bridge."""
+        wanted = {mosquitto_runtime.bridge_state_topic(bridge_name(b)): b.address for b in bridges}
+        if not wanted:
+            return {}
+        found: dict[str, bool] = {}
+        client = mqtt.Client(CallbackAPIVersion.VERSION2,
+                             client_id=f"plantkg-bridge-state-{secrets.token_hex(4)}")
+        client.on_message = lambda _c, _u, msg: found.__setitem__(
+            wanted[msg.topic], msg.payload == b"1") if msg.topic in wanted else None
+        subscribed: list[float] = []
+        client.on_subscribe = lambda *_args: subscribed.append(time.monotonic())
+        end = time.monotonic() + timeout
+        try:
+            client.connect(spec.host, spec.port, keepalive=max(5, int(timeout) + 1))
+            client.subscribe([(topic, 0) for topic in wanted])
+            # Retained messages follow the SUBACK at once: after it, drain briefly, then stop.
+            while len(found) < len(wanted) and time.monotonic() < end:
+                if subscribed and time.monotonic() - subscribed[0] > 0.1:
+                    break
+                if client.loop(timeout=0.02) != mqtt.MQTT_ERR_SUCCESS:
+                    break
+        except OSError:
+            return found
+        finally:
+            _close(client)
+        return found
+
+
+def bridge_name(bridge: BridgeSpec) -> str:
+    """The Mosquitto connection name (and client id) of a bridge."""
+    return f"plantkg.{bridge.local.id}.{bridge.remote.id}"
+
+
+def native_bridge(spec: BrokerSpec, bridge: BridgeSpec) -> mosquitto_runtime.MosquittoBridge:
+    """The ``connection`` section of ``bridge``, which ``spec`` must carry."""
+    if bridge.mechanism is not BridgeMechanism.MOSQUITTO or bridge.local.id != spec.id:
+        raise ConfigValueError("bridges", bridge.address,
+                               f"not a Mosquitto bridge carried by broker {spec.id!r}")
+    return mosquitto_runtime.MosquittoBridge(
+        name=bridge_name(bridge),
+        remote_host=bridge.remote.host,
+        remote_port=bridge.remote.port,
+        topics=tuple(mosquitto_runtime.MosquittoBridgeTopic(r.topic, r.direction.value, r.qos)
+                     for r in bridge.routes),
+    )
 
 
 def _close(client: mqtt.Client) -> None:

@@ -7,7 +7,16 @@ from pathlib import Path
 import pytest
 
 from engine.derive import DeriveError, NotReasonedError, derive
-from engine.model import BridgeSpec, BrokerSpec, TopicSpec
+from engine.bridge_pairs import BridgeNotSupportedError
+from engine.model import (
+    BridgeDirection,
+    BridgeEnd,
+    BridgeMechanism,
+    BridgeRoute,
+    BridgeSpec,
+    BrokerSpec,
+    TopicSpec,
+)
 from engine.reason import reason
 from kg.load import load_plant
 
@@ -63,7 +72,13 @@ def test_robot_cell() -> None:
                   replication_factor=1, retention_ms=604800000),
         TopicSpec("mosquitto", "robot.abb-irb120.position", RC + "robot-position", qos=1, retain=False),
     )
-    assert state.bridges == (BridgeSpec("mosquitto", "kafka", ("robot.abb-irb120.position",), asserted=True),)
+    # Mosquitto -> Kafka: a worker beside the MQTT broker, the asserted bridge's shared topic
+    assert state.bridges == (BridgeSpec(
+        local=BridgeEnd("mosquitto", "mosquitto", "127.0.0.2", 1883),
+        remote=BridgeEnd("kafka", "kafka", "127.0.0.3", 9092),
+        mechanism=BridgeMechanism.WORKER,
+        routes=(BridgeRoute("robot.abb-irb120.position", BridgeDirection.OUT, qos=1, key="mqtt-topic"),),
+        asserted=True),)
 
 
 def test_derived_bridge_topics_and_settings_by_kind(tmp_path: Path) -> None:
@@ -75,7 +90,9 @@ def test_derived_bridge_topics_and_settings_by_kind(tmp_path: Path) -> None:
         TopicSpec("mq", "cell.robot.position", EX + "pos", qos=1, retain=True),
     )
     # R1 required the bridge; it forwards the topic that caused it, not the Kafka-only one
-    assert state.bridges == (BridgeSpec("mq", "kf", ("cell.robot.position",), asserted=False),)
+    assert [(b.local.id, b.remote.id, b.mechanism, b.asserted) for b in state.bridges] == [
+        ("mq", "kf", BridgeMechanism.WORKER, False)]
+    assert state.bridges[0].routes == (BridgeRoute("cell.robot.position", BridgeDirection.OUT, 1),)
 
 
 def test_settings_that_apply_are_read_from_the_ontology(tmp_path: Path) -> None:
@@ -87,10 +104,26 @@ def test_settings_that_apply_are_read_from_the_ontology(tmp_path: Path) -> None:
 
 def test_a_kind_without_settings_gets_bare_topics(tmp_path: Path) -> None:
     body = PLANT.replace('"kafka" ; pk:ip "127.0.0.3"', '"nats" ; pk:ip "127.0.0.3"')
+    # no consumer on the other broker: no bridge (which a "nats" broker could not have)
+    body = body.replace(":db a pk:Resource ; pk:id \"db\" ; pk:name \"db\" ; pk:sendsTo :kf ; pk:subscribes :pos .",
+                        ":kf pk:hasTopic :pos .")
     state = derive(reasoned(tmp_path, body))
+    assert state.bridges == ()
     assert state.broker("kf").kind == "nats"  # type: ignore[union-attr]
     assert state.topics_of("kf") == (TopicSpec("kf", "archive", EX + "archive"),
                                      TopicSpec("kf", "cell.robot.position", EX + "pos"))
+
+
+def test_a_bridge_to_a_broker_of_no_bridgeable_class_is_refused_by_name(tmp_path: Path) -> None:
+    body = PLANT.replace('"kafka" ; pk:ip "127.0.0.3"', '"nats" ; pk:ip "127.0.0.3"')
+    with pytest.raises(BridgeNotSupportedError, match="bridge mq -> kf"):
+        derive(reasoned(tmp_path, body))
+
+
+def test_a_derived_bridge_between_two_kafka_brokers_is_refused(tmp_path: Path) -> None:
+    body = PLANT.replace('"mosquitto" ; pk:ip "127.0.0.2"', '"kafka" ; pk:ip "127.0.0.2"')
+    with pytest.raises(BridgeNotSupportedError, match="two Kafka brokers is not supported yet"):
+        derive(reasoned(tmp_path, body))
 
 
 def test_deterministic(tmp_path: Path) -> None:

@@ -20,7 +20,16 @@ from engine.drivers.kafka import KafkaDriver, check_kafka_topic_name, read_contr
 from engine.drivers.mosquitto import MosquittoDriver, check_mqtt_topic_name
 from engine.drivers.registry import DriverRegistry
 from engine.errors import ConfigValueError, EngineError, UnknownDriverError
-from engine.model import BrokerSpec, ObservedTopic, TopicSpec
+from engine.model import (
+    BridgeDirection,
+    BridgeEnd,
+    BridgeMechanism,
+    BridgeRoute,
+    BridgeSpec,
+    BrokerSpec,
+    ObservedTopic,
+    TopicSpec,
+)
 
 GOLDEN = Path(__file__).parent / "golden" / "drivers"
 
@@ -57,6 +66,44 @@ def test_mosquitto_golden(tmp_path: Path) -> None:
     files = MosquittoDriver(run_as=None).render_config(mqtt_spec(), tmp_path)
     assert list(files) == ["mosquitto.conf"]
     check_golden("mosquitto.conf", files["mosquitto.conf"], tmp_path)
+
+
+def two_way_bridge(**changes) -> BridgeSpec:
+    values = dict(
+        local=BridgeEnd("m1", "mosquitto", "127.0.0.2", 18830),
+        remote=BridgeEnd("m2", "mosquitto", "127.0.0.4", 18831),
+        mechanism=BridgeMechanism.MOSQUITTO,
+        routes=(BridgeRoute("cell/robot/pose", BridgeDirection.OUT, 1),
+                BridgeRoute("cell/robot/command", BridgeDirection.IN, 2),
+                BridgeRoute("cell.alarms", BridgeDirection.BOTH, 0)))
+    return BridgeSpec(**{**values, **changes})
+
+
+def test_mosquitto_golden_with_a_bridge(tmp_path: Path) -> None:
+    files = MosquittoDriver(run_as=None).render_config(mqtt_spec(), tmp_path, (two_way_bridge(),))
+    check_golden("mosquitto-bridge.conf", files["mosquitto.conf"], tmp_path)
+
+
+@pytest.mark.parametrize("bridge, field", [
+    (two_way_bridge(local=BridgeEnd("other", "mosquitto", "127.0.0.9", 1883)), "bridges"),
+    (two_way_bridge(mechanism=BridgeMechanism.WORKER), "bridges"),
+    (two_way_bridge(remote=BridgeEnd("m2", "mosquitto", "::1", 18831)), "remote_host"),
+    (two_way_bridge(routes=(BridgeRoute("a b", BridgeDirection.OUT),)), "pattern"),
+    (two_way_bridge(routes=(BridgeRoute("a/+", BridgeDirection.OUT),)), "pattern"),
+    (two_way_bridge(routes=(BridgeRoute('a"', BridgeDirection.OUT),)), "pattern"),
+    (two_way_bridge(routes=(BridgeRoute("a\ntopic x out", BridgeDirection.OUT),)), "pattern"),
+    (two_way_bridge(routes=()), "topics"),
+])
+def test_mosquitto_refuses_bridges_it_cannot_render(tmp_path: Path, bridge: BridgeSpec, field: str) -> None:
+    with pytest.raises(ConfigValueError) as caught:
+        MosquittoDriver(run_as=None).render_config(mqtt_spec(), tmp_path, (bridge,))
+    assert caught.value.field == field
+
+
+def test_kafka_carries_no_native_bridge(kafka_dir: Path) -> None:
+    bridge = two_way_bridge(local=BridgeEnd("k1", "kafka", "127.0.0.3", 19092))
+    with pytest.raises(ConfigValueError, match="carries no native bridge"):
+        KafkaDriver().render_config(kafka_spec(), kafka_dir, (bridge,))
 
 
 def test_mosquitto_golden_run_as(tmp_path: Path) -> None:

@@ -17,6 +17,8 @@ MOSQUITTO_GOLDEN = """\
 per_listener_settings false
 listener 18830 127.0.0.2
 allow_anonymous true
+max_queued_messages 1000000
+max_inflight_messages 1000
 persistence false
 log_dest file /var/lib/plantkg/m1/mosquitto.log
 log_type error

@@ -655,6 +655,28 @@ CASES: list[Case] = [
          edits=[("ex:mqtt2 a pk:Broker ;", "ex:mqtt2 a pk:Broker , pk:KafkaBroker ;")],
          expected=[R("ex:mqtt2", "brokerType", "mosquitto", "KafkaBroker-brokerType", "In")]),
     # --- Topic settings ---
+    Case("topic-kafkaKey-none", "a topic keyed 'none' on its way to Kafka (no result)",
+         edits=[("pk:retentionMs 604800000 .", 'pk:retentionMs 604800000 ;\n    pk:kafkaKey "none" .')]),
+    Case("topic-kafkaKey-unknown", "a Kafka key mode that does not exist",
+         edits=[("pk:retentionMs 604800000 .", 'pk:retentionMs 604800000 ;\n    pk:kafkaKey "partition" .')],
+         expected=[R("ex:temperature", "kafkaKey", "partition", "Topic-kafkaKey", "In")]),
+    Case("topic-kafkaKey-language-tagged", "a Kafka key mode with a language tag",
+         edits=[("pk:retentionMs 604800000 .", 'pk:retentionMs 604800000 ;\n    pk:kafkaKey "none"@en .')],
+         expected=[R("ex:temperature", "kafkaKey", "none", "Topic-kafkaKey", "Datatype"),
+                   R("ex:temperature", "kafkaKey", "none", "Topic-kafkaKey", "In")]),
+    Case("topic-kafkaKey-twice", "a topic with two Kafka key modes",
+         edits=[("pk:retentionMs 604800000 .", 'pk:retentionMs 604800000 ;\n    pk:kafkaKey "none" , "mqtt-topic" .')],
+         expected=[R("ex:temperature", "kafkaKey", None, "Topic-kafkaKey", "MaxCount")]),
+    Case("broker-bridge-kafka-to-kafka", "a bridge between two Kafka brokers (MirrorMaker 2 is not run)",
+         add="""ex:kafka2 a pk:Broker ;
+    pk:id "kafka2" ;
+    pk:name "archive-kafka" ;
+    pk:brokerType "kafka" ;
+    pk:ip "127.0.0.5" ;
+    pk:port 9092 ;
+    pk:hasTopic ex:energy .
+ex:kafka1 pk:bridgesTo ex:kafka2 .""",
+         expected=[R("ex:kafka1", "bridgesTo", "ex:kafka2", "Broker-bridgeKafkaToKafka", "SPARQL")]),
     Case("topic-qos-twice", "a topic with two QoS",
          edits=[("pk:qos 2 ;", "pk:qos 2 , 1 ;")],
          expected=[R("ex:command", "qos", None, "Topic-qos", "MaxCount")]),

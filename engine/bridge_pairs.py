@@ -1,0 +1,120 @@
+"""From directed bridge facts to one :class:`~engine.model.BridgeSpec` per pair of brokers (pure).
+
+The ontology says ``requiresBridge(a, c)`` per direction (asserted ``pk:bridgesTo`` or derived by
+rule R1), forwarding the topics both brokers carry. What runs is one bridge per *pair*, because
+both directions of a pair must share one connection or messages loop: two Mosquitto bridges
+A -> C and C -> A on the same topic would hand each message back and forth forever, while one
+``connection`` with ``topic t both`` is loop-free (Mosquitto does not echo a bridge's own
+messages); a worker bridging MQTT and Kafka both ways skips what it wrote itself.
+
+- Mechanism, from the brokers' inferred classes (the ontology decides what a broker is):
+  two ``pk:MqttBroker`` -> Mosquitto's own bridge; an MQTT and a ``pk:KafkaBroker`` -> a bridge
+  worker. Two Kafka brokers would need MirrorMaker 2, which plantkg does not run: refused.
+- Carrier (``local``): a worker runs beside the MQTT broker; a one-way Mosquitto bridge is carried
+  by its source (it pushes); a two-way one by the broker with the smaller id.
+- Each shared topic is a :class:`BridgeRoute` with its direction seen from the carrier, the topic's
+  ``pk:qos`` (default 1: at-least-once) and, for a worker, its ``pk:kafkaKey``.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+from engine.errors import EngineError
+from engine.model import (
+    BridgeDirection,
+    BridgeEnd,
+    BridgeMechanism,
+    BridgeRoute,
+    BridgeSpec,
+    BrokerSpec,
+)
+
+#: The inferred broker classes a bridge mechanism is chosen from (as engine.rules_fast.short_name writes them).
+MQTT_CLASS = "pk:MqttBroker"
+KAFKA_CLASS = "pk:KafkaBroker"
+DEFAULT_QOS = 1
+DEFAULT_KEY = "mqtt-topic"
+
+
+class BridgeNotSupportedError(EngineError):
+    """A bridge between two brokers of classes plantkg cannot bridge (two Kafka brokers)."""
+
+    def __init__(self, a: str, c: str, why: str) -> None:
+        super().__init__(f"bridge {a} -> {c}: {why}",
+                         hint="remove the pk:bridgesTo, or route the topic through an MQTT broker "
+                              "(for a bridge the rules derive: move the publisher or subscriber)")
+
+
+@dataclass(frozen=True)
+class DirectedBridge:
+    """``requiresBridge(source, target)`` with the topic names both carry."""
+
+    source: str
+    target: str
+    topics: frozenset[str]
+    asserted: bool
+
+
+@dataclass(frozen=True)
+class TopicOptions:
+    """What a bridge needs of a topic: its MQTT QoS and Kafka key mode, if the plant sets them."""
+
+    qos: int | None = None
+    kafka_key: str | None = None
+
+
+def pair_bridges(
+    directed: Iterable[DirectedBridge],
+    brokers: Mapping[str, BrokerSpec],
+    classes: Mapping[str, frozenset[str]],
+    options: Mapping[str, TopicOptions],
+) -> list[BridgeSpec]:
+    """One BridgeSpec per unordered broker pair, sorted by address."""
+    pairs: dict[frozenset[str], list[DirectedBridge]] = defaultdict(list)
+    for bridge in directed:
+        pairs[frozenset((bridge.source, bridge.target))].append(bridge)
+    specs = [_pair(sorted(ds, key=lambda d: d.source), brokers, classes, options)
+             for ds in pairs.values()]
+    return sorted(specs, key=lambda s: s.address)
+
+
+def _pair(ds: list[DirectedBridge], brokers: Mapping[str, BrokerSpec],
+          classes: Mapping[str, frozenset[str]], options: Mapping[str, TopicOptions]) -> BridgeSpec:
+    first = ds[0]
+    mechanism, local = _mechanism_and_carrier(first.source, first.target, ds, classes)
+    remote = first.target if local == first.source else first.source
+    out = set().union(*(d.topics for d in ds if d.source == local))
+    into = set().union(*(d.topics for d in ds if d.source == remote))
+    routes = []
+    for topic in sorted(out | into):
+        direction = (BridgeDirection.BOTH if topic in out and topic in into
+                     else BridgeDirection.OUT if topic in out else BridgeDirection.IN)
+        opts = options.get(topic, TopicOptions())
+        key = (opts.kafka_key or DEFAULT_KEY) if mechanism is BridgeMechanism.WORKER else DEFAULT_KEY
+        qos = DEFAULT_QOS if opts.qos is None else opts.qos
+        routes.append(BridgeRoute(topic, direction, qos, key))
+    return BridgeSpec(local=_end(brokers[local]), remote=_end(brokers[remote]), mechanism=mechanism,
+                      routes=tuple(routes), asserted=any(d.asserted for d in ds))
+
+
+def _mechanism_and_carrier(a: str, c: str, ds: list[DirectedBridge],
+                           classes: Mapping[str, frozenset[str]]) -> tuple[BridgeMechanism, str]:
+    mqtt = {b for b in (a, c) if MQTT_CLASS in classes.get(b, frozenset())}
+    kafka = {b for b in (a, c) if KAFKA_CLASS in classes.get(b, frozenset())}
+    if len(mqtt) == 2:
+        sources = {d.source for d in ds}
+        return BridgeMechanism.MOSQUITTO, (min(sources) if len(sources) == 2 else next(iter(sources)))
+    if len(mqtt) == 1 and len(kafka) == 1:
+        return BridgeMechanism.WORKER, next(iter(mqtt))
+    if len(kafka) == 2:
+        raise BridgeNotSupportedError(a, c, "a bridge between two Kafka brokers is not supported "
+                                      "yet (plantkg does not run Kafka MirrorMaker 2)")
+    raise BridgeNotSupportedError(a, c, "plantkg bridges an MQTT broker to an MQTT or a Kafka "
+                                  "broker; these brokers are not both of such classes")
+
+
+def _end(spec: BrokerSpec) -> BridgeEnd:
+    return BridgeEnd(id=spec.id, kind=spec.kind, host=spec.host, port=spec.port)

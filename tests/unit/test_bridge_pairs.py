@@ -1,0 +1,76 @@
+"""engine.bridge_pairs: directed bridge facts -> one BridgeSpec per broker pair (pure)."""
+
+from __future__ import annotations
+
+import pytest
+
+from engine.bridge_pairs import (
+    BridgeNotSupportedError,
+    DirectedBridge,
+    TopicOptions,
+    pair_bridges,
+)
+from engine.model import BridgeDirection, BridgeMechanism, BrokerSpec
+
+MQTT, KAFKA = frozenset({"pk:MqttBroker"}), frozenset({"pk:KafkaBroker"})
+BROKERS = {
+    "a": BrokerSpec("a", "urn:a", "A", "mosquitto", "127.0.0.2", 1883),
+    "b": BrokerSpec("b", "urn:b", "B", "mosquitto", "127.0.0.3", 1884),
+    "k": BrokerSpec("k", "urn:k", "K", "kafka", "127.0.0.4", 9092),
+    "k2": BrokerSpec("k2", "urn:k2", "K2", "kafka", "127.0.0.5", 9092),
+}
+CLASSES = {"a": MQTT, "b": MQTT, "k": KAFKA, "k2": KAFKA}
+
+
+def d(source: str, target: str, *topics: str, asserted: bool = True) -> DirectedBridge:
+    return DirectedBridge(source, target, frozenset(topics), asserted)
+
+
+def routes(spec) -> list[tuple[str, str, int, str]]:
+    return [(r.topic, r.direction.value, r.qos, r.key) for r in spec.routes]
+
+
+def test_one_way_mosquitto_bridge_is_carried_by_its_source() -> None:
+    [spec] = pair_bridges([d("b", "a", "t")], BROKERS, CLASSES, {})
+    assert (spec.local.id, spec.remote.id, spec.mechanism) == ("b", "a", BridgeMechanism.MOSQUITTO)
+    assert (spec.remote.host, spec.remote.port) == ("127.0.0.2", 1883)
+    assert routes(spec) == [("t", "out", 1, "mqtt-topic")]
+    assert spec.address == "bridge.b.a"
+
+
+def test_two_way_mosquitto_bridge_is_one_connection_on_the_smaller_id() -> None:
+    [spec] = pair_bridges([d("b", "a", "both", "b-only"), d("a", "b", "both", "a-only", asserted=False)],
+                          BROKERS, CLASSES, {"both": TopicOptions(qos=2)})
+    assert (spec.local.id, spec.remote.id) == ("a", "b")
+    assert routes(spec) == [("a-only", "out", 1, "mqtt-topic"), ("b-only", "in", 1, "mqtt-topic"),
+                            ("both", "both", 2, "mqtt-topic")]
+    assert spec.asserted  # one direction asserted is enough
+
+
+def test_worker_runs_beside_the_mqtt_broker_whatever_the_direction() -> None:
+    [spec] = pair_bridges([d("k", "a", "cmd", asserted=False)], BROKERS, CLASSES,
+                          {"cmd": TopicOptions(qos=0, kafka_key="none")})
+    assert (spec.local.id, spec.remote.id, spec.mechanism) == ("a", "k", BridgeMechanism.WORKER)
+    assert routes(spec) == [("cmd", "in", 0, "none")]
+    assert not spec.asserted
+
+
+def test_kafka_key_only_matters_to_workers() -> None:
+    [spec] = pair_bridges([d("a", "b", "t")], BROKERS, CLASSES, {"t": TopicOptions(kafka_key="none")})
+    assert spec.routes[0].key == "mqtt-topic"
+
+
+def test_pairs_are_sorted_and_separate() -> None:
+    specs = pair_bridges([d("b", "k", "x"), d("a", "b", "y"), d("a", "k", "z")], BROKERS, CLASSES, {})
+    assert [s.address for s in specs] == ["bridge.a.b", "bridge.a.k", "bridge.b.k"]
+    assert [s.routes[0].direction for s in specs] == [BridgeDirection.OUT] * 3
+
+
+def test_two_kafka_brokers_are_refused_by_name() -> None:
+    with pytest.raises(BridgeNotSupportedError, match="k -> k2: a bridge between two Kafka brokers"):
+        pair_bridges([d("k", "k2", "t")], BROKERS, CLASSES, {})
+
+
+def test_brokers_of_no_known_class_are_refused() -> None:
+    with pytest.raises(BridgeNotSupportedError, match="not both of such classes"):
+        pair_bridges([d("a", "b", "t")], BROKERS, {"a": MQTT}, {})
