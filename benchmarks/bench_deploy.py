@@ -164,7 +164,7 @@ def _remote(stack: ExitStack, work: Path, delay_ms: float) -> tuple[AgentDirecto
 def measure(runs: int, kafka_runs: int = 0, delay_ms: float | None = None) -> dict[str, object]:
     info = machine()
     times: dict[str, list[float]] = {"bare": [], "plantkg": [], "plantkg-dispatch": []}
-    remote_row, remote_note = f"plantkg-remote-{delay_ms:g}ms", ""
+    remote_row, remote_note = f"plantkg-remote-{delay_ms or 0:g}ms", ""
     with tempfile.TemporaryDirectory(prefix="plantkg-bench-") as tmp, ExitStack() as stack:
         work = Path(tmp)
         agents = start_local_agents([HOST], work / "agents")

@@ -6,7 +6,12 @@ first run (hash the files, read the cached desired state, plan). The observed st
 to the desired one, so both plans are empty, and the agents' HTTP round trip (one per machine,
 paid either way) is not included. Each measurement runs in a fresh process.
 
-Usage: ``python -m benchmarks.bench_replan [--sizes 1000 10000] [--repeat 3]``
+Each cold run also reports its stages (load, validate, reason, derive, plan against an empty
+observed state, i.e. everything to create) so the study doubles as the plant-size scaling study:
+``replan.png`` plots every stage against the number of resources on log-log axes, and the fitted
+slope says how it grows (1 = linear, 2 = quadratic).
+
+Usage: ``python -m benchmarks.bench_replan [--sizes 1000 10000 50000] [--repeat 3]``
 """
 
 from __future__ import annotations
@@ -18,13 +23,14 @@ import sys
 import tempfile
 from pathlib import Path
 
-from benchmarks.common import RESULTS, machine, run_child, write_results
+from benchmarks import plots
+from benchmarks.common import RESULTS, command_line, loglog_slope, machine, run_child, write_results
 
 _CHILD = r"""
 import json, sys, time
 t0 = time.perf_counter()
 from engine.desired_cache import DesiredCache
-from engine.model import BrokerStatus, ObservedBroker, ObservedState, ObservedTopic
+from engine.model import BridgeStatus, BrokerStatus, ObservedBridge, ObservedBroker, ObservedState, ObservedTopic
 from engine.pipeline import run_pipeline
 from engine.plan import plan
 t1 = time.perf_counter()
@@ -34,11 +40,15 @@ observed = ObservedState(tuple(
     ObservedBroker(b, BrokerStatus.RUNNING, tuple(
         ObservedTopic(t.name, t.partitions, t.replication_factor, t.retention_ms, t.qos, t.retain)
         for t in d.topics_of(b.id)))
-    for b in d.brokers))
+    for b in d.brokers), bridges=tuple(ObservedBridge(b, BridgeStatus.RUNNING) for b in d.bridges))
 p = plan(d, observed)
 t2 = time.perf_counter()
-print(json.dumps({"import": t1 - t0, "replan": t2 - t1, "hit": result.plant is None, "pending": len(p.pending)}))
+fresh = plan(d, ObservedState(()))
+t3 = time.perf_counter()
+print(json.dumps({"import": t1 - t0, "replan": t2 - t1, "hit": result.plant is None, "pending": len(p.pending),
+                  "stages": {**result.timings, "plan (all new)": t3 - t2}, "changes": len(fresh.changes)}))
 """
+STAGES = ("load", "validate", "reason", "derive", "plan (all new)")
 
 
 def measure(sizes: list[int], repeat: int) -> dict[str, object]:
@@ -57,10 +67,15 @@ def measure(sizes: list[int], repeat: int) -> dict[str, object]:
             assert all(r["pending"] == 0 for r in cold + warm)
             c = statistics.median(r["replan"] for r in cold)
             w = statistics.median(r["replan"] for r in warm)
-            rows.append({"resources": n, "cold_s": c, "warm_s": w, "ratio": w / c})
+            stages = {k: statistics.median(r["stages"][k] for r in cold) for k in STAGES}
+            stages["validate+reason+derive+plan"] = sum(stages[k] for k in STAGES if k != "load")
+            stages["re-plan, no change"] = w
+            rows.append({"resources": n, "cold_s": c, "warm_s": w, "ratio": w / c, "stages_s": stages,
+                         "changes": cold[0]["changes"]})
             print(json.dumps(rows[-1]), flush=True)
-    return {"benchmark": "replan", "machine": machine(), "repeat": repeat,
-            "command": "python -m benchmarks.bench_replan " + " ".join(sys.argv[1:]), "rows": rows}
+    slopes = {k: loglog_slope([r["resources"] for r in rows], [r["stages_s"][k] for r in rows])
+              for k in rows[0]["stages_s"]} if rows else {}
+    return {"benchmark": "replan", "machine": machine(), "repeat": repeat, "rows": rows, "slopes": slopes}
 
 
 def to_markdown(data: dict[str, object]) -> str:
@@ -70,17 +85,28 @@ def to_markdown(data: dict[str, object]) -> str:
              "|---|---|---|---|"]
     for r in data["rows"]:  # type: ignore[union-attr]
         lines.append(f"| {r['resources']} | {r['cold_s']:.3f} | {r['warm_s']:.3f} | {r['ratio']:.3f} |")
+    if data["rows"] and "stages_s" in data["rows"][0]:  # type: ignore[index]
+        names = list(data["rows"][0]["stages_s"])  # type: ignore[index]
+        lines += ["", "## Scaling: each stage against plant size (median s; slope of log time on log size)", "",
+                  "| resources | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+        for r in data["rows"]:  # type: ignore[union-attr]
+            lines.append(f"| {r['resources']} | " + " | ".join(f"{r['stages_s'][k]:.3f}" for k in names) + " |")
+        slopes = data["slopes"]
+        lines.append("| **slope** | " + " | ".join("–" if slopes[k] is None else f"**{slopes[k]:.2f}**"  # type: ignore[index]
+                                                  for k in names) + " |")
     return "\n".join(lines) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="re-plan benchmark")
-    parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 10000])
+    parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 10000, 50000])
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
     data = measure(args.sizes, args.repeat)
+    data["command"] = command_line("benchmarks.bench_replan", argv)
     write_results(args.out, "replan", data, to_markdown(data))
+    plots.scale(data, args.out)
     return 0
 
 

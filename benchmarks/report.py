@@ -1,0 +1,101 @@
+"""``benchmarks/RESULTS.md``: the latest table and plots of every study, the machine and load each
+ran under, the command that produced it, the issue's goals as ratios measured in the same run, and
+the conclusions (``benchmarks/conclusions.md``, written by a person from these data).
+
+Rebuilt from the results folder alone (``plantkg-bench report``), so it never shows a figure no
+result file holds.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from benchmarks.common import ROOT
+
+CONCLUSIONS = ROOT / "benchmarks" / "conclusions.md"
+SECTIONS = (
+    ("deploy", "1. Deployment latency (the paper's Table 1)", ()),
+    ("load", "2. Load test (the paper's Fig. 12), bring-up and memory; message sizes",
+     ("load.png", "load-sizes.png", "load-bringup.png")),
+    ("replan", "3. Plant size scaling and re-planning", ("replan.png",)),
+    ("validate", "Validation against pySHACL", ()),
+    ("reason", "Reasoning against HermiT", ()),
+)
+
+
+def _read(results: Path, name: str) -> dict[str, Any] | None:
+    path = results / f"{name}.json"
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def goals(results: Path) -> list[tuple[str, str, str, str]]:
+    """(goal, measured, target, verdict) for each goal of the issue that the results cover."""
+    out = []
+    deploy, load, replan = (_read(results, n) for n in ("deploy", "load", "replan"))
+    if deploy:
+        ms = deploy["ms"]
+        out.append(("deploy through plantkg / bare local deploy (Mosquitto)",
+                    f"{ms['plantkg']['mean']:.1f} / {ms['bare']['mean']:.1f} ms = {ms['plantkg']['ratio']:.2f}x",
+                    "≤ 1.2x", _verdict(ms["plantkg"]["ratio"] <= 1.2)))
+    if load:
+        big = max(load["rows"], key=lambda r: r["brokers"])
+        b = big["bringup"]
+        out.append((f"one apply of {big['brokers']} Mosquitto / spawning them by hand in parallel",
+                    f"{b['plantkg_up_s']:.2f} / {b['hand_up_s']:.2f} s = {b['up_ratio']:.2f}x", "≤ 2x",
+                    _verdict(b["up_ratio"] <= 2)))
+    for row in (replan or {}).get("rows", []):
+        if row["resources"] != 10000 or "stages_s" not in row:
+            continue
+        total = row["stages_s"]["validate+reason+derive+plan"]
+        out.append(("validate+reason+derive+plan, 10k resources", f"{total:.2f} s", "< 3 s", _verdict(total < 3)))
+        out.append(("re-plan with no change, 10k resources",
+                    f"{row['warm_s']:.3f} s ({row['ratio']:.3f}x of from scratch)", "< 0.3 s",
+                    _verdict(row["warm_s"] < 0.3)))
+    return out
+
+
+def _verdict(ok: bool) -> str:
+    return "met" if ok else "**not met**"
+
+
+def _run_line(data: dict[str, Any]) -> str:
+    m = data.get("machine", {})
+    start = ", ".join(f"{x:.2f}" for x in m.get("load_average", ()))
+    end = ", ".join(f"{x:.2f}" for x in data.get("load_average_end", ()))
+    return (f"Command: `{data.get('command', '?')}` · {m.get('cpus', '?')} CPUs, Python {m.get('python', '?')}, "
+            f"{m.get('platform', '?')} · load average (1, 5, 15 min) at start {start or '?'}, at end {end or '?'}")
+
+
+def _table_of(md: str) -> str:
+    """A study's markdown without its title and command line (the report gives its own)."""
+    lines = md.splitlines()
+    body = ["#" + ln if ln.startswith("## ") else ln for ln in lines[1:] if not ln.startswith("Command:")]
+    return "\n".join(body).strip()
+
+
+def render(results: Path, base: Path) -> str:
+    rel = results.relative_to(base) if results.is_relative_to(base) else results
+    lines = ["# Benchmark results", "",
+             "Rebuilt by `plantkg-bench report` from `benchmarks/results/` (raw JSON and CSV next to each table). "
+             "Re-run everything with `make bench` (or `plantkg-bench`); each section gives the exact command of "
+             "its run, the machine, and the load average at its start and end, to judge the noise. Absolute "
+             "times drift between machines: the ratios to a baseline measured in the same run are the figures.",
+             "", "## Goals", "", "| goal | measured | target | |", "|---|---|---|---|"]
+    lines += [f"| {g} | {m} | {t} | {v} |" for g, m, t, v in goals(results)]
+    if CONCLUSIONS.is_file():
+        lines += ["", CONCLUSIONS.read_text().strip()]
+    for name, title, images in SECTIONS:
+        data = _read(results, name)
+        md = results / f"{name}.md"
+        if data is None or not md.is_file():
+            continue
+        lines += ["", f"## {title}", "", _run_line(data), "", _table_of(md.read_text())]
+        lines += [f"\n![{img}]({rel / img})" for img in images if (results / img).is_file()]
+    return "\n".join(lines) + "\n"
+
+
+def write(results: Path, path: Path) -> Path:
+    path.write_text(render(results, path.parent))
+    return path
