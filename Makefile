@@ -1,13 +1,16 @@
 # plantkg: `make test` installs what is missing (scripts/setup.sh) and runs the whole suite.
 # `make demo` runs the robot cell end to end (DEMO_ARGS, e.g. DEMO_ARGS='--duration 20').
 # Pass pytest options with PYTEST_ARGS, e.g. make test PYTEST_ARGS='-m "not integration"'
+# `make bench` runs the benchmark studies and rebuilds benchmarks/RESULTS.md (BENCH_ARGS, e.g.
+# BENCH_ARGS='load --tiny'; see benchmarks/README.md).
 
 SHELL := /bin/bash
 VENV := .venv
 PYTEST_ARGS ?=
 DEMO_ARGS ?=
+BENCH_ARGS ?=
 
-.PHONY: setup test lint demo
+.PHONY: setup test lint demo bench
 
 setup:
 	bash scripts/setup.sh
@@ -20,3 +23,6 @@ lint: setup
 
 demo: setup
 	$(VENV)/bin/plantkg demo $(DEMO_ARGS)
+
+bench: setup
+	$(VENV)/bin/plantkg-bench $(BENCH_ARGS)

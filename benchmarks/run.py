@@ -35,7 +35,7 @@ TINY: dict[str, list[str]] = {
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="plantkg-bench", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="plantkg-bench", description="Run benchmark studies, then rebuild benchmarks/RESULTS.md.")
     parser.add_argument("studies", nargs="*", metavar="STUDY",
                         help=f"{', '.join(STUDIES)} or report (default: {' '.join(DEFAULT)})")
     parser.add_argument("--tiny", action="store_true", help="each study at a size that takes seconds")

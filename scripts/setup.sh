@@ -67,6 +67,9 @@ have java || APT_WANTED+=(default-jre-headless)
 have mvn || APT_WANTED+=(maven)
 # Debian's Chromium for the dashboard's browser tests (Playwright drives it; no browser download).
 have chromium || APT_WANTED+=(chromium)
+# iproute2 (ip, tc) for the deploy benchmark's emulated remote machine (network namespace + netem).
+have_iproute() { { have ip || [ -x /usr/sbin/ip ]; } && { have tc || [ -x /usr/sbin/tc ]; }; }
+have_iproute || APT_WANTED+=(iproute2)
 
 if [ "${#APT_WANTED[@]}" -gt 0 ]; then
     have apt-get || die "missing ${APT_WANTED[*]} and no apt-get here; install them with your package manager"
