@@ -6,6 +6,7 @@ SELECT answer into a :class:`Table` of plain Python values (IRIs shortened with 
 prefixes, integers, decimals and booleans converted, unbound cells ``None``). A ``Table`` renders
 itself in Jupyter (``_repr_html_``, every cell HTML-escaped) and as aligned text (``str``), so a
 notebook cell needs no code of its own to show an answer, and ``column`` hands a plot its values.
+:func:`select` runs a query on a loaded plant and returns its table in one call.
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ from decimal import Decimal
 import pyoxigraph as ox
 
 from kg.errors import QueryError
-from kg.query import QueryResult, Term
+from kg.load import PlantGraph
+from kg.query import QueryResult, Term, run_query
 from kg.render import Compactor
 
 Value = str | int | float | bool | None
@@ -75,6 +77,12 @@ def table(result: QueryResult, prefixes: Mapping[str, str] | None = None) -> Tab
     short = Compactor(prefixes)
     return Table(tuple(result.variables),
                  tuple(tuple(value(t, short) for t in row) for row in result.rows))
+
+
+def select(plant: PlantGraph, query: str, bindings: Mapping[str, Term] | None = None) -> Table:
+    """Run a SELECT ``query`` on ``plant`` (``bindings`` as in :func:`kg.query.run_query`) and
+    return its answer as a :class:`Table` with the plant's own prefixes."""
+    return table(run_query(plant, query, bindings), plant.prefixes)
 
 
 def from_records(records: Iterable[Mapping[str, Value]], headers: Iterable[str]) -> Table:

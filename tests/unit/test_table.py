@@ -7,7 +7,7 @@ import pytest
 
 from kg.errors import QueryError
 from kg.query import run_query
-from kg.table import Table, from_records, table, value
+from kg.table import Table, from_records, select, table, value
 
 XSD = "http://www.w3.org/2001/XMLSchema#"
 
@@ -72,3 +72,15 @@ def test_table_is_frozen() -> None:
     t = Table(("a",), ((1,),))
     with pytest.raises(AttributeError):
         t.rows = ()  # type: ignore[misc]
+
+
+def test_select_uses_the_plant_prefixes_and_bound_values() -> None:
+    from kg.load import load_plant
+    from kg.resources import examples_dir
+
+    plant = load_plant([examples_dir() / "multi-machine.ttl"])
+    t = select(plant, "SELECT ?broker WHERE { ?b pk:id ?broker ; pk:ip ?ip } ORDER BY ?broker",
+               {"ip": ox.Literal("127.0.0.2")})
+    assert t.column("broker") == ["mosquitto-a"]
+    t = select(plant, "SELECT ?b WHERE { ?b pk:brokerType \"kafka\" }")
+    assert t.column("b") == ["mm:kafka"]
