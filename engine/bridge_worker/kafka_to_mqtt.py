@@ -1,0 +1,231 @@
+"""Kafka -> MQTT: records of the routed Kafka topics are published at QoS 1 on their MQTT topic;
+an offset is committed only after the PUBACK of it and of everything before it in its partition.
+
+Everything here runs on the worker's main thread (paho's callbacks only queue events), so the
+ledgers need no lock. Rules that make it lose nothing:
+
+- The consumer group is ``plantkg-bridge-<bridge id>``, auto-commit off. A partition the group
+  never committed starts at its end, and that position is committed at once: a record produced
+  after the worker became ready is never skipped, even if the worker dies before its first commit.
+- Commits are lazy: only offsets PUBACKed at least ``COMMIT_LAG`` s ago over a connection still
+  up (Mosquitto keeps messages in memory: what it acknowledged just before a SIGKILL may be gone).
+- After an MQTT reconnect every partition is rewound to its committed offset and published again:
+  replays give duplicates, never gaps.
+- Records carrying this bridge's ``plantkg.bridge`` header (its own MQTT -> Kafka records) are
+  skipped, so a topic bridged both ways does not ping-pong.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import time
+
+from confluent_kafka import OFFSET_INVALID, Consumer, KafkaError, KafkaException, Message, TopicPartition
+
+from engine.bridge_worker.config import Direction, Route, WorkerConfig
+from engine.bridge_worker.health import Health
+from engine.bridge_worker.ledgers import PartitionLedger, SentRecord
+from engine.bridge_worker.mqtt_link import MqttLink
+from engine.bridge_worker.mqtt_to_kafka import BRIDGE_HEADER
+
+log = logging.getLogger("plantkg.bridge.kafka-to-mqtt")
+
+COMMIT_LAG = 1.0         # seconds a PUBACK must be old before its offset is committed
+COMMIT_EVERY = 0.2       # seconds between commit passes
+MAX_UNACKED = 5000       # records published and not yet PUBACKed before consuming pauses
+ASSIGN_TIMEOUT = 30.0    # seconds to read (and first commit) the positions of new partitions
+
+Partition = tuple[str, int]
+
+
+def consumer_config(cfg: WorkerConfig, on_error) -> dict[str, object]:
+    return {
+        "bootstrap.servers": cfg.kafka_bootstrap,
+        "client.id": cfg.client_id,
+        "group.id": cfg.group_id,
+        "enable.auto.commit": False,
+        "enable.auto.offset.store": False,
+        "auto.offset.reset": "latest",
+        "fetch.wait.max.ms": 50,
+        "reconnect.backoff.ms": 100,
+        "reconnect.backoff.max.ms": 2000,
+        "error_cb": on_error,
+    }
+
+
+class KafkaToMqtt:
+    def __init__(self, cfg: WorkerConfig, mqtt_link: MqttLink, health: Health) -> None:
+        self.cfg = cfg
+        self.health = health
+        self.link = mqtt_link
+        self.routes: dict[str, Route] = {r.kafka_topic: r for r in cfg.routes_of(Direction.KAFKA_TO_MQTT)}
+        self.consumer = Consumer(consumer_config(cfg, self._kafka_error))
+        self.ledgers: dict[Partition, PartitionLedger] = {}
+        self._by_mid: dict[int, SentRecord] = {}
+        self._events: queue.SimpleQueue[tuple[str, object]] = queue.SimpleQueue()
+        self._connected = False
+        self._paused = False
+        self._last_commit = 0.0
+        self._own = cfg.bridge_id.encode("utf-8")
+        mqtt_link.on_puback = lambda mid: self._events.put(("puback", mid))
+        mqtt_link.on_connection.append(lambda up: self._events.put(("connection", up)))
+
+    def start(self) -> None:
+        self.consumer.subscribe(list(self.routes), on_assign=self._assigned, on_revoke=self._revoked,
+                                on_lost=self._revoked)
+
+    @property
+    def unacked(self) -> int:
+        return len(self._by_mid)
+
+    def step(self, timeout: float) -> None:
+        """One turn of the main loop: apply paho's events, consume a record, commit."""
+        self._drain_events()
+        self._pause_or_resume()
+        msg = self.consumer.poll(timeout if self._paused else min(timeout, 0.01))
+        if msg is not None:
+            self._forward(msg)
+        now = time.monotonic()
+        if self._connected and now - self._last_commit >= COMMIT_EVERY:
+            self._last_commit = now
+            self._commit(now)
+
+    def _drain_events(self) -> None:
+        now = time.monotonic()
+        while True:
+            try:
+                kind, value = self._events.get_nowait()
+            except queue.Empty:
+                return
+            if kind == "puback":
+                record = self._by_mid.pop(value, None)  # type: ignore[arg-type]
+                if record is not None:
+                    PartitionLedger.acked(record, now)
+                    self.health.count("forwarded_kafka_to_mqtt")
+            elif value:
+                self._connected = True
+                self._rewind()
+            else:
+                self._connected = False
+                self._by_mid.clear()
+
+    def _pause_or_resume(self) -> None:
+        want_pause = not self._connected or self.unacked >= MAX_UNACKED
+        if want_pause == self._paused:
+            return
+        assignment = self._assignment()
+        if not assignment:
+            return
+        (self.consumer.pause if want_pause else self.consumer.resume)(assignment)
+        self._paused = want_pause
+
+    def _assignment(self) -> list[TopicPartition]:
+        try:
+            return self.consumer.assignment()
+        except KafkaException:
+            return []
+
+    def _forward(self, msg: Message) -> None:
+        if msg.error():
+            if msg.error().code() != KafkaError._PARTITION_EOF:
+                self.health.error(f"Kafka consumer: {msg.error().str()}")
+            return
+        ledger = self.ledgers.get((msg.topic(), msg.partition()))
+        if ledger is None:  # a record of a partition revoked meanwhile
+            return
+        if (BRIDGE_HEADER, self._own) in (msg.headers() or ()):
+            ledger.skipped(msg.offset())
+            return
+        route = self.routes[msg.topic()]
+        info = self.link.publish(route.mqtt_topic, msg.value() or b"", route.qos)
+        record = ledger.sent(msg.offset())
+        if route.qos == 0:
+            PartitionLedger.acked(record, time.monotonic())
+            self.health.count("forwarded_kafka_to_mqtt")
+        else:
+            self._by_mid[info.mid] = record
+
+    def _commit(self, now: float) -> None:
+        offsets = []
+        for (topic, partition), ledger in self.ledgers.items():
+            position = ledger.commit_position(now, COMMIT_LAG)
+            if position is not None:
+                offsets.append(TopicPartition(topic, partition, position))
+        if not offsets:
+            return
+        try:
+            done = self.consumer.commit(offsets=offsets, asynchronous=False)
+        except KafkaException as exc:  # Kafka down: a later pass commits further; replays at worst
+            self.health.error(f"Kafka commit failed: {exc}")
+            return
+        for tp in done or offsets:
+            ledger = self.ledgers.get((tp.topic, tp.partition))
+            if ledger is not None and tp.error is None and tp.offset >= 0:
+                ledger.committed = tp.offset
+
+    def _rewind(self) -> None:
+        """After an MQTT (re)connect: publish again everything not committed."""
+        self._by_mid.clear()
+        for (topic, partition), ledger in self.ledgers.items():
+            position = ledger.rewind()
+            try:
+                self.consumer.seek(TopicPartition(topic, partition, position))
+            except KafkaException as exc:
+                self.health.error(f"Kafka seek {topic}[{partition}] to {position} failed: {exc}")
+        if self.ledgers:
+            log.info("rewound %d partitions to their committed offsets", len(self.ledgers))
+
+    # rebalance callbacks (called from consumer.poll on the main thread)
+    def _assigned(self, consumer: Consumer, partitions: list[TopicPartition]) -> None:
+        positions = self._starting_positions(partitions)
+        for tp in positions:
+            self.ledgers[(tp.topic, tp.partition)] = PartitionLedger(committed=tp.offset)
+        consumer.assign(positions)
+        if self._paused or not self._connected:
+            consumer.pause(positions)
+            self._paused = True
+        log.info("assigned %s", ", ".join(f"{t.topic}[{t.partition}]@{t.offset}" for t in positions))
+        self.health.set(assigned=True)
+
+    def _starting_positions(self, partitions: list[TopicPartition]) -> list[TopicPartition]:
+        """Committed offsets; for a partition never committed, its end, committed now."""
+        deadline = time.monotonic() + ASSIGN_TIMEOUT
+        while True:
+            try:
+                known = self.consumer.committed(partitions, timeout=5)
+                fresh = [TopicPartition(tp.topic, tp.partition,
+                                        self.consumer.get_watermark_offsets(tp, timeout=5)[1])
+                         for tp in known if tp.offset == OFFSET_INVALID]
+                if fresh:
+                    self.consumer.commit(offsets=fresh, asynchronous=False)
+                ends = {(tp.topic, tp.partition): tp.offset for tp in fresh}
+                return [TopicPartition(tp.topic, tp.partition, ends.get((tp.topic, tp.partition), tp.offset))
+                        for tp in known]
+            except KafkaException as exc:
+                if time.monotonic() > deadline:
+                    raise
+                self.health.error(f"Kafka: reading committed offsets failed: {exc}; retrying")
+
+    def _revoked(self, _consumer: Consumer, partitions: list[TopicPartition]) -> None:
+        for tp in partitions:
+            self.ledgers.pop((tp.topic, tp.partition), None)
+        self._by_mid.clear()  # PUBACKs still due only delay commits that a new owner redoes
+        if not self.ledgers:
+            self.health.set(assigned=False)
+
+    def _kafka_error(self, err: KafkaError) -> None:
+        self.health.error(f"Kafka consumer: {err.str()}")
+
+    def stop(self, deadline: float) -> None:
+        """Stop consuming; wait (until the monotonic ``deadline``) for the PUBACKs in flight and
+        their commit lag; commit; leave the group."""
+        assignment = self._assignment()
+        if assignment:
+            self.consumer.pause(assignment)
+        self._paused = True
+        while time.monotonic() < deadline and self._connected and any(l.records for l in self.ledgers.values()):
+            self._drain_events()
+            self._commit(time.monotonic())
+            time.sleep(0.05)  # bounded by the deadline; PUBACKs arrive on paho's thread
+        self.consumer.close()

@@ -1,0 +1,158 @@
+"""MQTT -> Kafka: every message of a subscribed topic becomes one Kafka record; the MQTT message
+is acknowledged only after Kafka confirmed the write.
+
+The producer is idempotent with ``acks=all`` and no delivery timeout: librdkafka retries a write
+that did not go through (Kafka down, a leader moving) itself, in order, for as long as it takes.
+A delivery that fails anyway (a permanent error: topic missing, not authorised) is produced again
+after a short backoff and counted in ``retried``; its MQTT message stays unacknowledged meanwhile.
+
+The record: value = the payload untouched; key = the MQTT topic (all of a topic's messages in one
+partition, in order) or none; headers ``mqtt.topic``, ``mqtt.qos``, ``mqtt.received_at`` (ms since
+the epoch) and ``plantkg.bridge`` (the bridge id, so the Kafka -> MQTT half skips its own
+records); the record timestamp is the receive time.
+"""
+
+from __future__ import annotations
+
+import heapq
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import partial
+
+import paho.mqtt.client as mqtt
+from confluent_kafka import KafkaError, Message, Producer
+
+from engine.bridge_worker.config import Direction, KeyMode, Route, WorkerConfig
+from engine.bridge_worker.health import Health
+from engine.bridge_worker.ledgers import InOrderAcks, PendingAck
+from engine.bridge_worker.mqtt_link import MqttLink
+
+log = logging.getLogger("plantkg.bridge.mqtt-to-kafka")
+
+RETRY_BACKOFF = 1.0   # seconds before a failed delivery is produced again
+BRIDGE_HEADER = "plantkg.bridge"
+
+
+def producer_config(cfg: WorkerConfig, on_error: Callable[[KafkaError], None]) -> dict[str, object]:
+    return {
+        "bootstrap.servers": cfg.kafka_bootstrap,
+        "client.id": cfg.client_id,
+        "enable.idempotence": True,
+        "acks": "all",
+        "message.timeout.ms": 0,          # never give up: librdkafka retries in order
+        "linger.ms": 2,
+        "reconnect.backoff.ms": 100,
+        "reconnect.backoff.max.ms": 2000,
+        "error_cb": on_error,
+    }
+
+
+@dataclass(order=True)
+class _Retry:
+    due: float
+    seq: int
+    args: tuple = field(compare=False)
+
+
+class MqttToKafka:
+    """Subscribed MQTT messages -> Kafka records. Messages arrive on paho's thread; deliveries are
+    confirmed on this half's own polling thread."""
+
+    def __init__(self, cfg: WorkerConfig, mqtt_link: MqttLink, health: Health) -> None:
+        self.cfg = cfg
+        self.health = health
+        self.routes: dict[str, Route] = {r.mqtt_topic: r for r in cfg.routes_of(Direction.MQTT_TO_KAFKA)}
+        self.link = mqtt_link
+        self.acks = InOrderAcks(mqtt_link.ack)
+        self.producer = Producer(producer_config(cfg, self._kafka_error))
+        self._stopping = threading.Event()
+        self._done = threading.Event()
+        self._retries: list[_Retry] = []
+        self._retry_lock = threading.Lock()
+        self._seq = 0
+        self._thread = threading.Thread(target=self._poll_loop, name="kafka-producer", daemon=True)
+        mqtt_link.on_message = self.on_message
+        mqtt_link.on_connection.append(self._connection_changed)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def on_message(self, msg: mqtt.MQTTMessage) -> None:
+        """paho's thread: one PUBLISH received."""
+        if self._stopping.is_set():
+            return  # not acknowledged: the broker sends it again to the next worker session
+        route = self.routes.get(msg.topic)
+        if route is None:  # a subscription left in the session by an earlier configuration
+            log.warning("dropping a message on %r: no route (unsubscribing)", msg.topic)
+            self.link.client.unsubscribe(msg.topic)
+            self.link.ack(msg.mid, msg.qos)
+            return
+        entry = self.acks.add(msg.mid, msg.qos) if msg.qos > 0 else None
+        received_ms = int(time.time() * 1000)
+        key = msg.topic.encode("utf-8") if route.key is KeyMode.MQTT_TOPIC else None
+        headers = [("mqtt.topic", msg.topic.encode("utf-8")), ("mqtt.qos", str(msg.qos).encode()),
+                   ("mqtt.received_at", str(received_ms).encode()),
+                   (BRIDGE_HEADER, self.cfg.bridge_id.encode("utf-8"))]
+        self._produce(route.kafka_topic, bytes(msg.payload), key, headers, received_ms, entry)
+
+    def _produce(self, topic: str, value: bytes, key: bytes | None, headers: list, ts: int,
+                 entry: PendingAck | None) -> None:
+        args = (topic, value, key, headers, ts, entry)
+        while True:
+            try:
+                self.producer.produce(topic, value=value, key=key, headers=headers, timestamp=ts,
+                                      on_delivery=partial(self._delivered, args))
+                return
+            except BufferError:  # librdkafka's queue is full: let deliveries drain it
+                self.producer.poll(0.05)
+
+    def _delivered(self, args: tuple, err: KafkaError | None, _msg: Message) -> None:
+        """The producer thread: Kafka's answer about one record."""
+        entry = args[-1]
+        if err is None:
+            self.health.count("forwarded_mqtt_to_kafka")
+            if entry is not None:
+                self.acks.confirm(entry)
+            return
+        self.health.count("retried")
+        self.health.error(f"Kafka delivery to {args[0]!r} failed: {err.str()}; retrying")
+        with self._retry_lock:
+            self._seq += 1
+            heapq.heappush(self._retries, _Retry(time.monotonic() + RETRY_BACKOFF, self._seq, args))
+
+    def _poll_loop(self) -> None:
+        while not self._done.is_set():
+            self.producer.poll(0.05)
+            self._resend_due()
+
+    def _resend_due(self) -> None:
+        now = time.monotonic()
+        due = []
+        with self._retry_lock:
+            while self._retries and self._retries[0].due <= now:
+                due.append(heapq.heappop(self._retries).args)
+        for args in due:
+            self._produce(*args)
+
+    def _connection_changed(self, up: bool) -> None:
+        if not up:
+            dropped = self.acks.connection_lost()
+            if dropped:
+                log.info("%d messages unacknowledged at disconnect; the broker will send them again", dropped)
+
+    def _kafka_error(self, err: KafkaError) -> None:
+        self.health.error(f"Kafka producer: {err.str()}")
+
+    def stop(self, deadline: float) -> None:
+        """Take no new message; wait (until the monotonic ``deadline``) for the writes in flight
+        and their PUBACKs; then stop the polling thread."""
+        self._stopping.set()
+        while len(self.acks) and time.monotonic() < deadline:
+            self.producer.flush(min(0.2, max(0.0, deadline - time.monotonic())))
+        if len(self.acks):
+            log.warning("%d messages still unconfirmed at stop: the broker sends them again", len(self.acks))
+        self._done.set()
+        self._thread.join(timeout=5)

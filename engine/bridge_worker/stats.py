@@ -1,0 +1,56 @@
+"""The worker's health and counters, as a file its agent reads (``<state_dir>/stats.json``).
+
+The worker rewrites the file atomically (write a temporary file, rename it over the old one) every
+``stats_interval`` seconds and whenever a connection comes up or goes down, so a reader never sees
+half a file. The agent turns it into the bridge's observed state: RUNNING when ``ready``, CONNECTING
+while the worker is alive but not ready; ``updated_at`` tells a stale file (a hung worker) apart.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+STATS_FILE = "stats.json"
+
+
+@dataclass(frozen=True)
+class WorkerStats:
+    """One snapshot. ``kafka_connected`` is None before the first probe of the Kafka cluster."""
+
+    bridge_id: str
+    pid: int
+    ready: bool
+    mqtt_connected: bool
+    kafka_connected: bool | None
+    forwarded_mqtt_to_kafka: int
+    forwarded_kafka_to_mqtt: int
+    retried: int
+    last_error: str | None
+    updated_at: float
+
+    @property
+    def forwarded(self) -> int:
+        return self.forwarded_mqtt_to_kafka + self.forwarded_kafka_to_mqtt
+
+
+def write_stats(state_dir: Path, stats: WorkerStats) -> None:
+    """Replace ``state_dir/stats.json`` atomically."""
+    path = state_dir / STATS_FILE
+    tmp = path.with_name(f".{STATS_FILE}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(asdict(stats)), encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def read_stats(state_dir: Path) -> WorkerStats | None:
+    """The last snapshot, or None if there is none yet or it cannot be read as one."""
+    try:
+        data = json.loads((state_dir / STATS_FILE).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    names = {f.name for f in fields(WorkerStats)}
+    if not isinstance(data, dict) or set(data) != names:
+        return None
+    return WorkerStats(**data)
