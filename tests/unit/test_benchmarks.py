@@ -30,3 +30,69 @@ def test_replan_benchmark_runs(tmp_path: Path) -> None:
     assert bench_replan.main(["--sizes", "30", "--repeat", "1", "--out", str(tmp_path)]) == 0
     (row,) = json.loads((tmp_path / "replan.json").read_text())["rows"]
     assert row["resources"] == 30  # the benchmark itself asserts the hit and the empty plans
+
+
+def test_replan_benchmark_reports_stages_and_slopes(tmp_path: Path) -> None:
+    from benchmarks import bench_replan
+
+    assert bench_replan.main(["--sizes", "20", "40", "--repeat", "1", "--out", str(tmp_path)]) == 0
+    data = json.loads((tmp_path / "replan.json").read_text())
+    assert [r["resources"] for r in data["rows"]] == [20, 40]
+    assert all(r["changes"] > 0 and r["stages_s"]["validate"] > 0 for r in data["rows"])  # the full plan creates
+    assert set(data["slopes"]) >= {"validate", "reason", "derive", "plan (all new)", "re-plan, no change"}
+    assert "**slope**" in (tmp_path / "replan.md").read_text()
+    assert (tmp_path / "replan.png").stat().st_size < 200_000
+
+
+def test_summaries_and_slopes() -> None:
+    from benchmarks.common import loglog_slope, percentile, summarize
+
+    s = summarize([0.001 * i for i in range(1, 101)])  # 1..100 ms
+    assert (s["n"], s["min"], s["max"], s["p50"], s["p99"]) == (100, 1.0, 100.0, 50.0, 99.0)
+    assert abs(s["mean"] - 50.5) < 1e-9
+    assert percentile([3.0], 99) == 3.0
+    assert summarize([]) == {"n": 0}
+    assert abs(loglog_slope([10, 100, 1000], [1, 10, 100]) - 1.0) < 1e-9  # linear
+    assert abs(loglog_slope([10, 100], [1, 100]) - 2.0) < 1e-9  # quadratic
+    assert loglog_slope([10, 10], [1, 2]) is None
+
+
+def _write(results: Path, name: str, data: dict[str, object]) -> None:
+    results.mkdir(parents=True, exist_ok=True)
+    (results / f"{name}.json").write_text(json.dumps(data))
+    (results / f"{name}.md").write_text(f"# {name}\n\nCommand: `x`\n\n## table\n\n| a |\n|---|\n| 1 |\n")
+
+
+def test_report_states_goals_from_the_results(tmp_path: Path) -> None:
+    from benchmarks import report
+
+    results = tmp_path / "results"
+    _write(results, "deploy", {"command": "python -m benchmarks.bench_deploy --runs 3", "machine": {"cpus": 2},
+                               "ms": {"bare": {"mean": 10.0, "ratio": 1.0}, "plantkg": {"mean": 11.0, "ratio": 1.1}}})
+    _write(results, "replan", {"rows": [{"resources": 10000, "warm_s": 0.5, "ratio": 0.2,
+                                         "stages_s": {"validate+reason+derive+plan": 2.5}}]})
+    rows = {g: (m, v) for g, m, _, v in report.goals(results)}
+    assert rows["deploy through plantkg / bare local deploy (Mosquitto)"] == ("11.0 / 10.0 ms = 1.10x", "met")
+    assert rows["validate+reason+derive+plan, 10k resources"] == ("2.50 s", "met")
+    assert rows["re-plan with no change, 10k resources"][1] == "**not met**"
+    text = report.write(results, tmp_path / "RESULTS.md").read_text()
+    assert "Command: `python -m benchmarks.bench_deploy --runs 3`" in text
+    assert "### table" in text and "## 1. Deployment latency" in text
+
+
+def test_runner_refuses_an_unknown_study(capsys: object) -> None:
+    import pytest
+
+    from benchmarks import run
+
+    with pytest.raises(SystemExit) as exc:
+        run.main(["deplyo"])
+    assert exc.value.code == 2
+
+
+def test_runner_runs_a_study_and_writes_the_report(tmp_path: Path) -> None:
+    from benchmarks import run
+
+    assert run.main(["scale", "--tiny", "--out", str(tmp_path / "results")]) == 0
+    text = (tmp_path / "RESULTS.md").read_text()
+    assert "## 3. Plant size scaling" in text and "results/replan.png" in text

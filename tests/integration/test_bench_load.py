@@ -1,0 +1,54 @@
+"""The load benchmark (the paper's Fig. 12) runs tiny against real Mosquitto brokers brought up by
+one apply, and every message of every burst is acknowledged and delivered."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+from benchmarks import bench_load
+from benchmarks.mqtt_burst import BurstRig
+
+pytestmark = pytest.mark.integration
+
+
+def test_load_benchmark_runs(tmp_path: Path) -> None:
+    args = ["--brokers", "1", "2", "--messages", "4", "6", "--repeat", "1", "--deploy-repeat", "1",
+            "--sizes", "100", "20000", "--size-brokers", "2", "--size-messages", "3", "--out", str(tmp_path)]
+    assert bench_load.main(args) == 0
+    data = json.loads((tmp_path / "load.json").read_text())
+    assert [r["brokers"] for r in data["rows"]] == [1, 2]
+    two = data["rows"][1]
+    assert two["memory"]["brokers"] == 2 and two["memory"]["broker_rss_mb_mean"] > 0
+    assert two["bringup"]["up_ratio"] > 0 and two["bringup"]["down_ratio"] > 0
+    cells = [c for r in data["rows"] for c in r["cells"]]
+    assert {(c["study"], c["mode"]) for c in cells} == {("matrix", "spread"), ("matrix", "one-to-one"),
+                                                        ("size", "spread")}
+    assert all(c["lost"] == 0 and c["ack"]["n"] == c["delivery"]["n"] == c["messages"] for c in cells)
+    assert {c["size"] for c in cells if c["study"] == "size"} == {100, 20000}
+    with (tmp_path / "load.csv").open() as fh:
+        assert len(list(csv.DictReader(fh))) == len(cells)  # one row per burst (repeat 1)
+    for png in ("load.png", "load-sizes.png", "load-bringup.png"):
+        assert 0 < (tmp_path / png).stat().st_size < 200_000
+
+
+def test_burst_refuses_more_one_to_one_messages_than_publishers(tmp_path: Path) -> None:
+    from engine import netutil, process
+    from engine.mosquitto_runtime import MosquittoConfig, default_run_as, mosquitto_command, render_mosquitto_conf
+    from engine.parts import mosquitto_binary
+
+    port = netutil.free_port()
+    conf = tmp_path / "m.conf"
+    conf.write_text(render_mosquitto_conf(MosquittoConfig("127.0.0.1", port, tmp_path / "m.log", default_run_as())))
+    child = process.spawn(mosquitto_command(mosquitto_binary(), conf), log_dir=tmp_path, name="m")
+    try:
+        bench_load.wait_all_ready([("127.0.0.1", port)], 10)
+        with BurstRig([("127.0.0.1", port)], 2) as rig:
+            assert rig.burst(5, 64, "spread").lost == 0
+            with pytest.raises(ValueError, match="one-to-one publishers"):
+                rig.burst(3, 64, "one-to-one")
+    finally:
+        process.stop(child)
