@@ -18,6 +18,7 @@ from engine.cli.apply import apply_command
 from engine.cli.destroy import destroy_command
 from engine.cli.plan import plan_command
 from engine.cli.query import query_command
+from engine.cli.serve import serve_command
 from engine.cli.status import status_command
 from engine.cli.validate import validate_command
 
@@ -39,6 +40,7 @@ cli.add_command(destroy_command)
 cli.add_command(status_command)
 cli.add_command(agent_command)
 cli.add_command(demo_command)
+cli.add_command(serve_command)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,55 @@
+"""``plantkg serve FILE...``: dashboard, SPARQL endpoint and JSON API of a running plant (docs/web.md)."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+
+from engine.agent.server import parse_listen
+from engine.cli.common import file_argument
+from engine.cli.reconcile import agents_option
+
+DEFAULT_PORT = 8080
+
+
+@click.command("serve")
+@file_argument
+@click.option("--listen", default=f"127.0.0.1:{DEFAULT_PORT}", show_default=True, metavar="ADDRESS[:PORT]",
+              help="Address to serve on (loopback unless --allow-remote).")
+@agents_option
+@click.option("--auto-apply", is_flag=True, help="Apply the plan after every change of the files.")
+@click.option("--token-file", type=click.Path(dir_okay=False, path_type=Path),
+              help="Login token file; created with a random token if missing.  "
+                   "[default: $XDG_STATE_HOME/plantkg/web-token]")
+@click.option("--allow-remote", is_flag=True, help="Allow a --listen address other than loopback.")
+@click.option("--observe-interval", type=click.FloatRange(0.2, 3600), default=5.0, show_default=True,
+              help="Seconds between two questions to the agents.")
+@click.option("--query-timeout", type=click.FloatRange(0.1, 3600), default=10.0, show_default=True,
+              help="Seconds a SPARQL query may run.")
+@click.option("--max-results", type=click.IntRange(1), default=10_000, show_default=True,
+              help="Rows (or triples) a SPARQL answer may hold.")
+@click.option("-v", "--verbose", is_flag=True, help="Log every request.")
+def serve_command(files: tuple[str, ...], listen: str, agents_file: Path | None, auto_apply: bool,
+                  token_file: Path | None, allow_remote: bool, observe_interval: float,
+                  query_timeout: float, max_results: int, verbose: bool) -> int:
+    """Serve a dashboard, a SPARQL endpoint and a JSON API for the plant in FILE(s).
+
+    The files are re-read when they change (validate, then plan); the agents are asked what runs
+    every few seconds. Nothing is applied unless a logged-in person presses Apply, or --auto-apply.
+
+    \b
+    Example:
+      plantkg serve ontology/examples/robot-cell.ttl --agents agents.toml
+    """
+    # Imported here: the web layer imports engine.cli.progress, and other commands need no Flask app.
+    from engine.web.server import run_server  # noqa: PLC0415
+    from engine.web.sparql_protocol import Limits  # noqa: PLC0415
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.getLogger("werkzeug").setLevel(logging.INFO if verbose else logging.WARNING)
+    address = parse_listen(listen, allow_remote=allow_remote)
+    return run_server(list(files), address, agents_file=agents_file, token_file=token_file,
+                      auto_apply=auto_apply, limits=Limits(timeout_s=query_timeout, max_rows=max_results),
+                      observe_interval=observe_interval)

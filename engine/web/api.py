@@ -1,0 +1,78 @@
+"""``/api``: the JSON the dashboard uses, documented in ``/api/openapi.json`` (engine.web.openapi).
+
+Reads are open (the server binds loopback by default); writes (``apply``, ``refresh``) need a
+logged-in session with its CSRF token, or ``Authorization: Bearer <token>``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from flask import Blueprint, Response, current_app, jsonify, request
+
+from engine.render_plan import plan_dict, render_plan
+from engine.web.auth import login_required
+from engine.web.openapi import openapi_document
+from engine.web.plant_state import ApplyRefused, PlantState
+
+bp = Blueprint("api", __name__, url_prefix="/api")
+
+
+def _state() -> PlantState:
+    return current_app.config["PLANTKG_STATE"]
+
+
+@bp.get("/status")
+def status() -> Any:
+    """The status document; ``If-None-Match`` with the last ETag answers 304 when nothing changed."""
+    snap = _state().snapshot
+    etag = f'"{snap.version}"'
+    if etag in request.headers.get("If-None-Match", ""):
+        return Response(status=304, headers={"ETag": etag})
+    return Response(snap.status_json, mimetype="application/json", headers={"ETag": etag,
+                                                                               "Cache-Control": "no-cache"})
+
+
+@bp.get("/plan")
+def plan() -> Any:
+    snap = _state().snapshot
+    if snap.plan is None:
+        return jsonify(plan=None, fingerprint=None, text=None, error=snap.error,
+                       valid=snap.report.conforms if snap.report else None)
+    return jsonify(plan=plan_dict(snap.plan), fingerprint=snap.fingerprint, text=render_plan(snap.plan),
+                   error=snap.error, valid=True)
+
+
+@bp.get("/validation")
+def validation() -> Any:
+    snap = _state().snapshot
+    return jsonify(report=snap.report.to_dict() if snap.report else None, error=snap.error)
+
+
+@bp.post("/apply")
+@login_required
+def apply() -> Any:
+    """Start applying the plan named by ``fingerprint`` (JSON body or form field); 202 when started."""
+    body = request.get_json(silent=True) if request.is_json else request.form
+    fingerprint = (body or {}).get("fingerprint")
+    if not isinstance(fingerprint, str) or not fingerprint:
+        return jsonify(error="name the plan to apply: {\"fingerprint\": \"...\"} from /api/plan",
+                       hint="the fingerprint makes sure the plan applied is the plan you saw"), 400
+    try:
+        job = _state().start_apply(fingerprint, by="dashboard")
+    except ApplyRefused as exc:
+        return jsonify(error=exc.message, hint=exc.hint), 409
+    return jsonify(state=job.state, fingerprint=job.fingerprint, started_at=job.started_at), 202
+
+
+@bp.post("/refresh")
+@login_required
+def refresh() -> Any:
+    """Ask the agents again now (otherwise they are asked every few seconds)."""
+    snap = _state().refresh()
+    return jsonify(version=snap.version, observed_at=snap.observed_at, error=snap.error)
+
+
+@bp.get("/openapi.json")
+def openapi() -> Any:
+    return jsonify(openapi_document())

@@ -1,0 +1,274 @@
+"""The plant a ``plantkg serve`` process keeps: its files, graph, observed state, plan — and apply.
+
+:class:`PlantState` owns one immutable :class:`Snapshot` at a time and replaces it whole, so a
+request reads one consistent version (``version`` numbers them; the API sends it as an ETag).
+A watcher thread re-reads the files when their size or mtime changes (load → validate → reason
+→ derive, then observe → plan) and asks the agents again every ``observe_interval`` seconds.
+Apply runs in a thread of its own, only on request (or after each re-read with ``auto_apply``),
+and only the plan the person saw: the caller names the plan's fingerprint and a different current
+plan is refused. A file that cannot be loaded leaves the last good plant shown, with the error,
+and nothing can be applied until it is fixed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import click
+
+from engine.agents_config import AgentDirectory
+from engine.apply import ApplyEvent, apply
+from engine.cli.progress import result_lines
+from engine.errors import EngineError
+from engine.model import DesiredState, ObservedState, Plan
+from engine.observed import observe, write_observed
+from engine.pipeline import run_pipeline
+from engine.plan import plan as make_plan
+from engine.render_plan import plan_json
+from engine.web import views
+from engine.web.rwlock import ReadWriteLock
+from kg.errors import PlantKGError
+from kg.load import PlantGraph
+from kg.query import run_query
+from kg.validate import ValidationReport
+
+_RESOURCES = """SELECT ?id ?name ?bid WHERE {
+  ?r pk:sendsTo ?b ; pk:id ?id . ?b pk:id ?bid . OPTIONAL { ?r pk:name ?name } } ORDER BY ?id ?bid"""
+_MAX_PROGRESS = 200
+
+
+class ApplyRefused(EngineError):
+    """Apply was asked for a plan that is not the current one, or while another apply runs."""
+
+
+@dataclass(frozen=True)
+class ApplyJob:
+    """The last apply: ``state`` is idle, running, done (converged) or failed."""
+
+    state: str = "idle"
+    fingerprint: str | None = None
+    started_at: float | None = None
+    finished_at: float | None = None
+    progress: tuple[str, ...] = ()
+    summary: tuple[str, ...] = ()
+    by: str = ""
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """One consistent view of the plant; later fields are None when a stage did not run."""
+
+    version: int = 0
+    files: tuple[str, ...] = ()
+    loaded_at: float | None = None
+    observed_at: float | None = None
+    plant: PlantGraph | None = None
+    report: ValidationReport | None = None
+    desired: DesiredState | None = None
+    observed: ObservedState | None = None
+    plan: Plan | None = None
+    fingerprint: str | None = None
+    error: str | None = None
+    resources: tuple[views.ResourceLink, ...] = ()
+    agent_urls: tuple[tuple[str, str], ...] = ()
+    apply: ApplyJob = field(default_factory=ApplyJob)
+
+    @cached_property
+    def status(self) -> dict[str, Any]:
+        """The dashboard's status document (made once per snapshot)."""
+        brokers = views.broker_rows(self.desired, self.observed)
+        bridges = views.bridge_rows(self.desired, self.observed)
+        return {
+            "version": self.version, "files": list(self.files), "loaded_at": self.loaded_at,
+            "observed_at": self.observed_at, "error": self.error,
+            "validation": views.report_summary(self.report),
+            "machines": views.machine_rows(brokers, self.observed, dict(self.agent_urls)),
+            "brokers": brokers, **views.topic_section(self.desired, self.observed),
+            "bridges": bridges,
+            "graph": views.graph_elements(brokers, bridges, self.resources),
+            "plan": views.plan_summary(self.plan, self.fingerprint),
+            "apply": {"state": self.apply.state, "fingerprint": self.apply.fingerprint,
+                      "started_at": self.apply.started_at, "finished_at": self.apply.finished_at,
+                      "progress": list(self.apply.progress), "summary": list(self.apply.summary)},
+        }
+
+
+    @cached_property
+    def status_json(self) -> bytes:
+        return json.dumps(self.status, separators=(",", ":")).encode()
+
+
+def plan_fingerprint(plan: Plan) -> str:
+    """A short digest naming one plan (what a person saw and agreed to)."""
+    return hashlib.sha256(plan_json(plan, indent=None).encode()).hexdigest()[:16]
+
+
+def _signature(files: tuple[str, ...]) -> tuple[tuple[int, int] | None, ...]:
+    out = []
+    for name in files:
+        try:
+            st = Path(name).stat()
+            out.append((st.st_mtime_ns, st.st_size))
+        except OSError:
+            out.append(None)
+    return tuple(out)
+
+
+class PlantState:
+    """Holds the current :class:`Snapshot`; see the module docstring."""
+
+    def __init__(self, files: list[str], agents_file: Path | None = None, *, auto_apply: bool = False,
+                 observe_interval: float = 5.0, poll_interval: float = 0.5,
+                 directory_loader: Callable[[Path | None], AgentDirectory] = AgentDirectory.load) -> None:
+        self.files = tuple(str(Path(f)) for f in files)
+        self.agents_file = agents_file
+        self.auto_apply = auto_apply
+        self.observe_interval = observe_interval
+        self.poll_interval = poll_interval
+        self.store_lock = ReadWriteLock()
+        self._load_directory = directory_loader
+        self._snap = Snapshot(files=self.files)
+        self._publish_lock = threading.Lock()
+        self._work_lock = threading.Lock()     # one reload or refresh at a time
+        self._signature: tuple[Any, ...] | None = None
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+
+    @property
+    def snapshot(self) -> Snapshot:
+        return self._snap
+
+    def _publish(self, **changes: Any) -> Snapshot:
+        with self._publish_lock:
+            self._snap = replace(self._snap, version=self._snap.version + 1, **changes)
+            return self._snap
+
+    # ------------------------------------------------------------------------------ reading
+
+    def reload(self) -> Snapshot:
+        """Re-read the files (and then the agents); auto-apply afterwards if asked to."""
+        with self._work_lock:
+            self._signature = _signature(self.files)
+            try:
+                result = run_pipeline(self.files, None, observe=False)
+            except PlantKGError as exc:
+                return self._publish(error=f"the files cannot be loaded: {exc}", plan=None, fingerprint=None)
+            plant = result.plant
+            assert plant is not None
+            resources = tuple(views.ResourceLink(r[0].value, r[1].value if r[1] else "", r[2].value)
+                              for r in run_query(plant, _RESOURCES).rows)
+            snap = self._publish(plant=plant, report=result.report, desired=result.desired,
+                                 loaded_at=time.time(), resources=resources, error=None,
+                                 observed=None, plan=None, fingerprint=None)
+            if result.desired is not None:
+                snap = self._observe_locked()
+        if self.auto_apply and snap.plan is not None and not snap.plan.empty and snap.plan.applicable:
+            try:
+                self.start_apply(snap.fingerprint, by="auto-apply")
+            except ApplyRefused:
+                pass  # an apply is running; the next re-read applies what is left
+        return self._snap
+
+    def refresh(self) -> Snapshot:
+        """Ask the agents again and plan again (the files are not re-read)."""
+        with self._work_lock:
+            return self._observe_locked()
+
+    def _observe_locked(self) -> Snapshot:
+        snap = self._snap
+        if snap.desired is None or snap.plant is None:
+            return snap
+        try:
+            directory = self._load_directory(self.agents_file)
+            hosts = {b.host for b in snap.desired.brokers} | set(directory.hosts)
+            observed = observe(directory, hosts)
+        except PlantKGError as exc:
+            return self._publish(error=f"the agents cannot be asked: {exc}", observed=None, plan=None,
+                                 fingerprint=None, observed_at=time.time())
+        with self.store_lock.writing():
+            write_observed(snap.plant, observed)
+        plan = make_plan(snap.desired, observed)
+        urls = tuple((h, directory.url_for(h)) for h in sorted(hosts))
+        return self._publish(observed=observed, plan=plan, fingerprint=plan_fingerprint(plan), error=None,
+                             observed_at=time.time(), agent_urls=urls)
+
+    def tick(self) -> None:
+        """One look of the watcher: re-read changed files, or re-observe when it is time."""
+        if _signature(self.files) != self._signature:
+            self.reload()
+            return
+        last = self._snap.observed_at
+        if last is None or time.time() - last >= self.observe_interval:
+            self.refresh()
+
+    # ------------------------------------------------------------------------------ applying
+
+    def start_apply(self, fingerprint: str | None, *, by: str = "") -> ApplyJob:
+        """Start applying the current plan if its fingerprint is ``fingerprint``."""
+        with self._publish_lock:
+            snap = self._snap
+            if snap.apply.state == "running":
+                raise ApplyRefused("an apply is already running", hint="wait for it to finish")
+            if snap.plan is None or snap.desired is None or fingerprint != snap.fingerprint:
+                raise ApplyRefused("the plan changed since it was shown (or there is none)",
+                                   hint="look at the current plan, then apply it")
+            if not snap.plan.applicable:
+                raise ApplyRefused("this plan cannot be applied (refusals or unreachable agents)",
+                                   hint="change the plant or start the agents, then plan again")
+            job = ApplyJob("running", fingerprint, time.time(), by=by)
+            self._snap = replace(snap, version=snap.version + 1, apply=job)
+        thread = threading.Thread(target=self._run_apply, args=(snap.plan, snap.desired),
+                                  name="plantkg-web-apply", daemon=True)
+        self._threads.append(thread)
+        thread.start()
+        return job
+
+    def _run_apply(self, plan: Plan, desired: DesiredState) -> None:
+        def on_event(event: ApplyEvent) -> None:
+            line = f"{event.kind.value} {event.address}" + (f": {event.message}" if event.message else "")
+            job = self._snap.apply
+            self._publish(apply=replace(job, progress=(job.progress + (line,))[-_MAX_PROGRESS:]))
+
+        try:
+            directory = self._load_directory(self.agents_file)
+            result = apply(plan, desired, directory, on_event=on_event)
+            summary = tuple(click.unstyle(line) for line in result_lines(result))
+            state = "done" if result.ok else "failed"
+        except PlantKGError as exc:
+            summary, state = (f"Apply failed: {exc}",), "failed"
+        except Exception as exc:  # noqa: BLE001 - an apply must never stay "running" forever
+            summary, state = (f"Apply failed with an internal error: {exc!r}",), "failed"
+        job = self._snap.apply
+        self._publish(apply=replace(job, state=state, finished_at=time.time(),
+                                    summary=summary))
+        self.refresh()
+
+    # ------------------------------------------------------------------------------ watcher
+
+    def start(self) -> None:
+        """Load once now, then watch in a thread until :meth:`close`."""
+        self.reload()
+        thread = threading.Thread(target=self._watch, name="plantkg-web-watch", daemon=True)
+        self._threads.append(thread)
+        thread.start()
+
+    def _watch(self) -> None:
+        while not self._stop.wait(self.poll_interval):
+            try:
+                self.tick()
+            except Exception as exc:  # noqa: BLE001 - keep watching; the error is shown on the page
+                self._publish(error=f"internal error while refreshing: {exc!r}")
+
+    def close(self, timeout: float = 60.0) -> None:
+        """Stop the watcher and wait for a running apply to finish."""
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(timeout)

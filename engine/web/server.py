@@ -1,0 +1,88 @@
+"""Running ``plantkg serve``: token file, the plant's watcher, werkzeug's threaded server, signals.
+
+As for the agent (engine/agent/server.py, whose listen parsing, token file and signal wait this
+reuses): werkzeug's threaded WSGI server is enough for a handful of people and programs on a
+plant network, and needs nothing beyond Flask.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO
+
+from werkzeug.serving import BaseWSGIServer, make_server
+
+from engine.agent.server import ListenAddress, load_or_create_token, wait_for_signal
+from engine.agents_config import AgentDirectory
+from engine.errors import EngineError
+from engine.web.app import WebConfig, create_app
+from engine.web.plant_state import PlantState
+from engine.web.sparql_protocol import Limits
+
+log = logging.getLogger(__name__)
+
+
+def default_token_file() -> Path:
+    """``$XDG_STATE_HOME/plantkg/web-token`` (``~/.local/state/plantkg/web-token``)."""
+    base = os.environ.get("XDG_STATE_HOME") or str(Path("~/.local/state").expanduser())
+    return Path(base) / "plantkg" / "web-token"
+
+
+@dataclass
+class RunningServer:
+    """A started server: stop it with :meth:`shutdown`."""
+
+    address: ListenAddress
+    server: BaseWSGIServer
+    thread: threading.Thread
+    state: PlantState
+
+    def shutdown(self) -> None:
+        self.server.shutdown()
+        self.thread.join()
+        self.server.server_close()
+        self.state.close()
+
+
+def start_server(listen: ListenAddress, state: PlantState, token: str, limits: Limits) -> RunningServer:
+    """Load the plant once, then serve the app in a thread and watch the files in another."""
+    app = create_app(WebConfig(state=state, token=token, limits=limits))
+    try:
+        server = make_server(listen.host, listen.port, app, threaded=True)
+    except (OSError, SystemExit) as exc:  # werkzeug exits when the port is taken
+        raise EngineError(f"cannot listen on {listen.url}: {exc}",
+                          hint="pick another --listen port, or stop what uses it") from None
+    state.start()
+    thread = threading.Thread(target=server.serve_forever, name="plantkg-web-http", daemon=True)
+    thread.start()
+    return RunningServer(ListenAddress(listen.host, server.server_port), server, thread, state)
+
+
+def run_server(files: list[str], listen: ListenAddress, *, agents_file: Path | None, token_file: Path | None,
+               auto_apply: bool, limits: Limits, observe_interval: float, out: IO[str] = sys.stderr) -> int:
+    """The ``plantkg serve`` command: start, print where things are, serve until a signal."""
+    AgentDirectory.load(agents_file)  # a wrong agents file is a start-up error, not a page
+    token_path = (token_file or default_token_file()).expanduser().resolve()
+    token_path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
+    token, created = load_or_create_token(token_path)
+    state = PlantState(files, agents_file, auto_apply=auto_apply, observe_interval=observe_interval)
+    running = start_server(listen, state, token, limits)
+
+    def ready() -> None:
+        snap = state.snapshot
+        print(f"plantkg serve listening on {running.address.url}", file=out)
+        print(f"  plant:  {', '.join(files)}" + (f" (error: {snap.error})" if snap.error else ""), file=out)
+        print(f"  token:  {token_path}" + (" (new)" if created else "") + "  (log in with it to apply)", file=out)
+        print(f"  SPARQL: {running.address.url}/sparql", file=out)
+        print(f"  apply:  {'automatic after each change of the files' if auto_apply else 'on request'}", file=out)
+        out.flush()
+
+    got = wait_for_signal(on_ready=ready)
+    log.info("%s received; shutting down", got.name)
+    running.shutdown()
+    return 0
