@@ -123,7 +123,7 @@ def test_explore_notebook_shows_the_plant(tmp_path: Path, monkeypatch: pytest.Mo
                for b in plant.subjects(PK.brokerType, None)}
     plotted = {row[0]: (int(row[1]), int(row[2])) for row in table_rows(text(nb, "plot"))}
     assert plotted == {b: (senders[b], topics[b]) for b in brokers}
-    assert re.search(r"bridge\s+mosquitto -> kafka: robot\.abb-irb120\.position", text(nb, "robot-cell-desired"))
+    assert re.search(r"^bridge\.mosquitto\.kafka\s+asserted$", text(nb, "robot-cell-desired"), re.M)
     assert (tmp_path / "01-explore-plant.ipynb").is_file()
 
 
