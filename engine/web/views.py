@@ -5,8 +5,8 @@ and the live updates, so the browser renders from one source. Uptimes are not co
 document carries ``started_at`` and the page counts from it, so the document only changes when
 the plant or what runs changes.
 
-Bridges follow the contract of engine.model (``BridgeSpec.local/remote/mechanism/routes``,
-``ObservedState.bridges``); an older ``BridgeSpec(source, target, topics)`` is shown too.
+Bridges are shown as the plant asks for them (``DesiredState.bridges``) with what their agent
+reports (``ObservedState.bridges``): status, forwarded and retried messages, restarts.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from engine.model import BrokerStatus, DesiredState, ObservedState, Plan
+from engine.model import BridgeSpec, BrokerStatus, DesiredState, ObservedBridge, ObservedState, Plan
 from engine.render_plan import plan_dict, summary_line
 from kg.validate import ValidationReport
 
@@ -92,28 +92,15 @@ def topic_section(desired: DesiredState | None, observed: ObservedState | None) 
     return {"topics": rows[:TOPIC_ROWS_SHOWN], "topics_total": len(rows)}
 
 
-def _bridge_ends(spec: Any) -> tuple[str, str]:
-    if hasattr(spec, "local"):
-        return spec.local.id, spec.remote.id
-    return spec.source, spec.target
-
-
-def _bridge_base(spec: Any) -> dict[str, Any]:
-    local, remote = _bridge_ends(spec)
-    if hasattr(spec, "routes"):
-        topics = [{"topic": r.topic, "direction": getattr(r.direction, "value", r.direction), "qos": r.qos}
-                  for r in spec.routes]
-        mechanism = getattr(spec.mechanism, "value", spec.mechanism)
-    else:
-        topics = [{"topic": name, "direction": "out", "qos": None} for name in spec.topics]
-        mechanism = None
-    return {"address": spec.address, "local": local, "remote": remote, "mechanism": mechanism,
-            "routes": topics, "asserted": spec.asserted}
+def _bridge_base(spec: BridgeSpec) -> dict[str, Any]:
+    return {"address": spec.address, "local": spec.local.id, "remote": spec.remote.id,
+            "mechanism": spec.mechanism.value, "asserted": spec.asserted,
+            "routes": [{"topic": r.topic, "direction": r.direction.value, "qos": r.qos} for r in spec.routes]}
 
 
 def bridge_rows(desired: DesiredState | None, observed: ObservedState | None) -> list[dict[str, Any]]:
     """One row per bridge the plant asks for or an agent runs, with its status and counters."""
-    running = {b.spec.address: b for b in getattr(observed, "bridges", ()) or ()}
+    running = {b.spec.address: b for b in observed.bridges} if observed else {}
     rows, seen = [], set()
     for spec in desired.bridges if desired else ():
         seen.add(spec.address)
@@ -124,13 +111,12 @@ def bridge_rows(desired: DesiredState | None, observed: ObservedState | None) ->
     return rows
 
 
-def _bridge_observed(have: Any) -> dict[str, Any]:
+def _bridge_observed(have: ObservedBridge | None) -> dict[str, Any]:
     if have is None:
         return {"status": "absent", "forwarded": None, "retried": None, "restarts": None,
                 "started_at": None, "last_error": None}
-    return {"status": getattr(have.status, "value", have.status), "forwarded": have.forwarded,
-            "retried": have.retried, "restarts": have.restarts, "started_at": have.started_at,
-            "last_error": have.last_error}
+    return {"status": have.status.value, "forwarded": have.forwarded, "retried": have.retried,
+            "restarts": have.restarts, "started_at": have.started_at, "last_error": have.last_error}
 
 
 def machine_rows(brokers: list[dict[str, Any]], observed: ObservedState | None,
