@@ -224,7 +224,7 @@ def validate(
     if engine not in ENGINES:
         raise ShapesError(f"unknown validation engine {engine!r}", hint=f"use one of {', '.join(ENGINES)}")
     if shapes is None:
-        shapes = load_shapes(resources.shapes_files())
+        shapes = load_default_shapes()
     used = "pyshacl" if engine == "pyshacl" else "oxigraph"
     if engine == "auto":
         try:
@@ -248,7 +248,18 @@ def validate(
 
 
 def load_default_shapes() -> ShapesGraph:
-    """The project's shapes; a ShapesError here means shapes/*.ttl needs pySHACL."""
-    return load_shapes(resources.shapes_files())
+    """The project's shapes; a ShapesError here means shapes/*.ttl needs pySHACL.
+
+    Parsed (and compiled, on first use) once per process for as long as the files keep their
+    size and modification time: re-reading them was two thirds of validating a small plant
+    (``benchmarks/RESULTS.md``, deployment latency). The object is shared: read it, never change it.
+    """
+    files = [Path(f) for f in resources.shapes_files()]
+    return _shapes_once(tuple((str(f), f.stat().st_mtime_ns, f.stat().st_size) for f in files))
+
+
+@lru_cache(maxsize=4)
+def _shapes_once(stamps: tuple[tuple[str, int, int], ...]) -> ShapesGraph:
+    return load_shapes(Path(name) for name, _, _ in stamps)
 
 
