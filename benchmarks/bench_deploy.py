@@ -14,6 +14,9 @@ plantkg, each until a QoS-1 publish of a small message is acknowledged.
   network namespace behind a veth pair with ``tc netem`` delaying each packet ``--delay-ms`` each
   way, ``benchmarks.netns``); the publish crosses that link too. What the paper's "tool + cable"
   row corresponds to. Skipped, with the reason recorded, where netem is not available.
+- ``plantkg-proxy-<d>ms``: the same through a user-space TCP forwarder delaying each direction
+  ``--delay-ms`` (``benchmarks.delay_proxy``: orders to a second local agent, and the publish, go
+  through it) — the delayed network where netem is missing, and a cross-check where it is not.
 - ``kafka-bare`` / ``kafka-plantkg``: the same for one Kafka (KRaft) broker — render
   server.properties, format storage, start the JVM, until a produce with acks=all is acknowledged;
   ``--kafka-runs`` runs (each takes seconds), interleaved likewise; ratio to ``kafka-bare``.
@@ -27,16 +30,19 @@ Usage: ``python -m benchmarks.bench_deploy [--runs 50] [--kafka-runs 10] [--dela
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import tempfile
 import time
-from contextlib import ExitStack
+from contextlib import ExitStack, nullcontext
+from dataclasses import dataclass
 from pathlib import Path
 
 import paho.mqtt.client as mqtt
 from confluent_kafka import KafkaException, Producer
 
 from benchmarks import netns
+from benchmarks.delay_proxy import DelayProxy
 from benchmarks.common import RESULTS, command_line, machine, summarize, write_results
 from engine import kafka_runtime, netutil, parts, process
 from engine.agent.local import start_local_agents
@@ -47,6 +53,7 @@ from engine.parts import mosquitto_binary
 from engine.pipeline import run_pipeline
 
 HOST = "127.0.0.2"
+PROXIED_HOST = "127.0.0.3"
 PAYLOAD = b"x" * 512
 
 PLANT = """@prefix pk: <https://w3id.org/plantkg/ontology#> .
@@ -133,56 +140,92 @@ def bare(work: Path) -> float:
 
 
 def through_plantkg(work: Path, directory: AgentDirectory, dispatch_only: bool, kind: str = "mosquitto",
-                    host: str = HOST) -> float:
-    port = netutil.free_port(HOST) if host == HOST else 1883  # a fresh namespace has every port free
+                    host: str = HOST, publish_delay_s: float = 0.0) -> float:
+    """Apply a one-broker plant until its first acknowledged message; ``publish_delay_s``: the
+    publish goes through a :class:`DelayProxy` delaying that much each way."""
+    port = netutil.free_port(host) if host.startswith("127.") else 1883  # a fresh namespace has every port free
     plant = work / "plant.ttl"
     plant.write_text((KAFKA_PLANT if kind == "kafka" else PLANT).format(host=host, port=port))
     prepared = run_pipeline([plant], directory) if dispatch_only else None
-    start = time.perf_counter()
-    result = prepared or run_pipeline([plant], directory)
-    assert result.plan is not None and result.desired is not None
-    outcome = apply(result.plan, result.desired, directory)
-    assert outcome.ok, outcome
-    (acked_produce if kind == "kafka" else acked_publish)(host, port)
-    elapsed = time.perf_counter() - start
+    with DelayProxy(host, port, publish_delay_s) if publish_delay_s else nullcontext() as proxy:
+        start = time.perf_counter()
+        result = prepared or run_pipeline([plant], directory)
+        assert result.plan is not None and result.desired is not None
+        outcome = apply(result.plan, result.desired, directory)
+        assert outcome.ok, outcome
+        reach = ("127.0.0.1", proxy.port) if proxy else (host, port)
+        (acked_produce if kind == "kafka" else acked_publish)(*reach)
+        elapsed = time.perf_counter() - start
     gone = run_pipeline([plant], directory, destroy=True)
     assert gone.plan is not None and gone.desired is not None
     assert apply(gone.plan, gone.desired, directory, destroy=True).ok
     return elapsed
 
 
-def _remote(stack: ExitStack, work: Path, delay_ms: float) -> tuple[AgentDirectory | None, str]:
-    """An agent behind a link delayed ``delay_ms`` each way, or (None, why not)."""
+@dataclass(frozen=True)
+class Remote:
+    """An agent reached over a delayed network: which row it fills and how to reach it."""
+
+    row: str
+    directory: AgentDirectory
+    host: str
+    publish_delay_s: float = 0.0
+
+
+def _netem_remote(stack: ExitStack, work: Path, delay_ms: float) -> Remote | str:
+    """An agent in a network namespace behind a netem-delayed link, or why there is none."""
     try:
         link = stack.enter_context(netns.delayed_link(delay_ms))
     except netns.LinkUnavailable as exc:
-        return None, str(exc)
+        return str(exc)
     agent = stack.enter_context(netns.remote_agent(link, work))
-    return AgentDirectory.load(agent.agents_file), link.remote_ip
+    return Remote(f"plantkg-remote-{delay_ms:g}ms", AgentDirectory.load(agent.agents_file), link.remote_ip)
+
+
+def _proxy_remote(stack: ExitStack, work: Path, delay_ms: float) -> Remote:
+    """A second local agent whose orders (and publishes) go through a user-space delay proxy."""
+    agents = start_local_agents([PROXIED_HOST], work / "proxied")
+    stack.callback(agents.stop)
+    agent = agents.agents[PROXIED_HOST]
+    host, port = agent.url.removeprefix("http://").rsplit(":", 1)
+    proxy = stack.enter_context(DelayProxy(host, int(port), delay_ms / 1000))
+    agents_file = work / "agents-proxied.toml"
+    agents_file.write_text(f'[agents."{PROXIED_HOST}"]\nurl = "http://127.0.0.1:{proxy.port}"\n'
+                           f'token_file = "{agent.state_dir / "token"}"\n')
+    os.chmod(agents_file, 0o600)
+    return Remote(f"plantkg-proxy-{delay_ms:g}ms", AgentDirectory.load(agents_file), PROXIED_HOST, delay_ms / 1000)
 
 
 def measure(runs: int, kafka_runs: int = 0, delay_ms: float | None = None) -> dict[str, object]:
     info = machine()
     times: dict[str, list[float]] = {"bare": [], "plantkg": [], "plantkg-dispatch": []}
-    remote_row, remote_note = f"plantkg-remote-{delay_ms or 0:g}ms", ""
+    remotes: list[Remote] = []
+    remote_note = ""
     with tempfile.TemporaryDirectory(prefix="plantkg-bench-") as tmp, ExitStack() as stack:
         work = Path(tmp)
         agents = start_local_agents([HOST], work / "agents")
         stack.callback(agents.stop)
         directory = AgentDirectory.load(agents.agents_file)
-        remote, remote_host = _remote(stack, work, delay_ms) if delay_ms is not None else (None, "")
-        if remote is not None:
-            times[remote_row] = []
-            through_plantkg(work, remote, False, host=remote_host)  # warm-up of the remote agent
-        elif delay_ms is not None:
-            remote_note = f"not measured: the delayed link is not available here ({remote_host})"
+        if delay_ms is not None:
+            netem = _netem_remote(stack, work, delay_ms)
+            if isinstance(netem, str):
+                remote_note = f"not measured: the delayed link is not available here ({netem})"
+            else:
+                remotes.append(netem)
+            if delay_ms > 0:
+                remotes.append(_proxy_remote(stack, work, delay_ms))
+        for remote in remotes:
+            times[remote.row] = []
+            through_plantkg(work, remote.directory, False, host=remote.host,
+                            publish_delay_s=remote.publish_delay_s)  # warm-up of that agent
         through_plantkg(work, directory, False)  # warm-up: imports, JIT-free but caches
         for _ in range(runs):
             times["bare"].append(bare(work))
             times["plantkg"].append(through_plantkg(work, directory, False))
             times["plantkg-dispatch"].append(through_plantkg(work, directory, True))
-            if remote is not None:
-                times[remote_row].append(through_plantkg(work, remote, False, host=remote_host))
+            for remote in remotes:
+                times[remote.row].append(through_plantkg(work, remote.directory, False, host=remote.host,
+                                                         publish_delay_s=remote.publish_delay_s))
         if kafka_runs:
             times.update({"kafka-bare": [], "kafka-plantkg": []})
         for _ in range(kafka_runs):
