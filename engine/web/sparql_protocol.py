@@ -15,6 +15,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import re
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -138,8 +139,8 @@ def _run(store: ox.Store, query: str, dataset: Dataset, limits: Limits, cancel: 
         options["named_graphs"] = [ox.NamedNode(g) for g in dataset.named_graphs]
     try:
         answer = store.query(query, **options)  # type: ignore[arg-type]
-    except SyntaxError:
-        raise _syntax_error(store, query) from None
+    except SyntaxError as exc:
+        raise _syntax_error(query, exc) from None
     except (OSError, ValueError) as exc:
         raise SparqlError(500, f"the query failed while running: {exc}") from None
     if isinstance(answer, ox.QueryBoolean):
@@ -179,14 +180,26 @@ def _bounded(items, limits: Limits, deadline: float, cancel: threading.Event):  
         raise SparqlError(500, f"the query failed while running: {exc}") from None
 
 
-def _syntax_error(store: ox.Store, query: str) -> SparqlError:
-    """kg.query words parse errors (position, caret, updates refused); reuse its message."""
+_PROLOGUE = re.compile(r"(?is)^(?:\s+|#[^\n]*\n?|PREFIX\s+[\w.-]*:\s*<[^>]*>|BASE\s*<[^>]*>)*")
+_UPDATE_VERBS = re.compile(r"(?i)(INSERT|DELETE|LOAD|CLEAR|DROP|CREATE|ADD|MOVE|COPY|WITH)\b")
+
+
+def is_update(text: str) -> bool:
+    """Whether ``text`` is a SPARQL Update request (its first keyword after the prologue)."""
+    return bool(_UPDATE_VERBS.match(text, _PROLOGUE.match(text).end()))  # type: ignore[union-attr]
+
+
+def _syntax_error(query: str, exc: SyntaxError) -> SparqlError:
+    """An update is refused (403); else kg.query words the parse error (position and caret)."""
+    if is_update(query):
+        return SparqlError(403, "SPARQL updates are not allowed: this endpoint is read-only",
+                           "edit the plant's Turtle files instead; the server re-reads them")
     try:
         run_query(ox.Store(), query)
-    except QueryError as exc:
-        status = 403 if "updates are not allowed" in exc.message else 400
-        return SparqlError(status, exc.message, exc.hint)
-    return SparqlError(400, "malformed SPARQL query")
+    except QueryError as error:
+        if "updates are not allowed" not in error.message:
+            return SparqlError(400, error.message, error.hint)
+    return SparqlError(400, f"malformed SPARQL query: {exc.msg or exc}", "check the query syntax")
 
 
 # --------------------------------------------------------------------------- content negotiation

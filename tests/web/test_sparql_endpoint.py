@@ -100,6 +100,7 @@ def test_named_graphs_and_their_union(client: FlaskClient) -> None:
     ({"data": "DELETE WHERE { ?s ?p ?o }", "content_type": "application/sparql-update"}, 403, "read-only"),
     ({"data": "DROP ALL", "content_type": "application/sparql-query"}, 403, "updates are not allowed"),
     ({"data": {"query": "SELEC ?x"}}, 400, "malformed SPARQL query at line 1"),
+    ({"data": {"query": "SELEC nonsense"}}, 400, "malformed SPARQL query"),
     ({"data": {"default-graph-uri": "urn:x"}}, 400, "no query given"),
 ])
 def test_bad_posts(client: FlaskClient, kwargs: dict, status: int, words: str) -> None:
