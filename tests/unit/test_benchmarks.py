@@ -96,3 +96,12 @@ def test_runner_runs_a_study_and_writes_the_report(tmp_path: Path) -> None:
     assert run.main(["scale", "--tiny", "--out", str(tmp_path / "results")]) == 0
     text = (tmp_path / "RESULTS.md").read_text()
     assert "## 3. Plant size scaling" in text and "results/replan.png" in text
+
+
+def test_web_benchmark_runs(tmp_path: Path) -> None:
+    from benchmarks import bench_web
+
+    assert bench_web.main(["--sizes", "40", "--threads", "2", "--requests", "5", "--out", str(tmp_path)]) == 0
+    (row,) = json.loads((tmp_path / "web.json").read_text())["rows"]
+    assert row["resources"] == 40 and row["sparql"]["requests"] == row["status"]["requests"] == 10
+    assert row["status"]["bytes"] > 1000 and "| 40 |" in (tmp_path / "web.md").read_text()
