@@ -13,9 +13,12 @@ For each number of Mosquitto brokers N (default 1, 5, 10, 25, 50, 100), on one m
    publish → PUBACK and publish → delivery latency; each cell repeated, so the spread between
    repeats says how much of a difference between cells is noise.
 3. **Message size.** For some N, bursts of ``--size-messages`` messages of 100 B, 10 KB, 1 MB.
+4. **TCP_NODELAY.** For some N (``--nagle-brokers``), the matrix (spread) against brokers spawned
+   by hand with the agent's config, as is and with ``set_tcp_nodelay true``: a PUBACK held back by
+   Nagle's algorithm until the client's delayed ACK (~40 ms on Linux) shows as a stall.
 
 Results: ``benchmarks/results/load.{json,md,csv}`` (the CSV has one row per burst) and the plots
-``load.png``, ``load-sizes.png``, ``load-bringup.png``.
+``load.png``, ``load-nodelay.png``, ``load-sizes.png``, ``load-bringup.png``.
 
 Usage: ``python -m benchmarks.bench_load [--brokers 1 5 10 25 50 100] [--messages 100 200 300 400 500]
 [--repeat 3] [--deploy-repeat 3] [--sizes 100 10000 1000000] [--size-brokers 1 10 100]``
@@ -76,19 +79,30 @@ def wait_all_ready(brokers: list[tuple[str, int]], deadline: float = READY_S) ->
     process.wait_until(none_pending, deadline, 0.001, what=f"{len(brokers)} mosquitto to answer")
 
 
-def by_hand(n: int, work: Path) -> tuple[float, float]:
-    """Spawn n mosquitto at once and wait for all; stop all at once. Returns (up s, down s)."""
+def _hand_confs(n: int, work: Path, extra: str = "") -> tuple[list[int], list[Path]]:
+    """n configs as the agent renders them (plus ``extra`` lines), on free ports."""
     ports = netutil.free_ports(n, HOST)
     confs = []
     for i, port in enumerate(ports):
         conf = work / f"hand-{i}.conf"
-        conf.write_text(render_mosquitto_conf(MosquittoConfig(HOST, port, work / f"hand-{i}.log", default_run_as())))
+        conf.write_text(render_mosquitto_conf(MosquittoConfig(HOST, port, work / f"hand-{i}.log", default_run_as()))
+                        + extra)
         confs.append(conf)
+    return ports, confs
+
+
+def _spawn_all(confs: list[Path], work: Path, children: list[process.Child]) -> None:
+    for i, conf in enumerate(confs):
+        children.append(process.spawn(mosquitto_command(mosquitto_binary(), conf), log_dir=work, name=f"hand-{i}"))
+
+
+def by_hand(n: int, work: Path) -> tuple[float, float]:
+    """Spawn n mosquitto at once and wait for all; stop all at once. Returns (up s, down s)."""
+    ports, confs = _hand_confs(n, work)
     children: list[process.Child] = []
     try:
         start = time.perf_counter()
-        for i, conf in enumerate(confs):
-            children.append(process.spawn(mosquitto_command(mosquitto_binary(), conf), log_dir=work, name=f"hand-{i}"))
+        _spawn_all(confs, work, children)
         wait_all_ready([(HOST, p) for p in ports])
         up = time.perf_counter() - start
         start = time.perf_counter()
@@ -216,6 +230,25 @@ def one_size(n: int, args: argparse.Namespace, work: Path, raw: list[BurstResult
         "memory": {**mem, "agent_idle_rss_mb": idle_agent_mb}, "cells": cells}
 
 
+def nagle_arm(n: int, args: argparse.Namespace, work: Path, raw: list[BurstResult]) -> list[dict[str, object]]:
+    """The matrix (spread) against n brokers spawned by hand, as rendered and with
+    ``set_tcp_nodelay true``: do Nagle's algorithm and delayed ACKs explain stalls?"""
+    cells = []
+    for label, extra in (("tcp-default", ""), ("tcp-nodelay", "set_tcp_nodelay true\n")):
+        ports, confs = _hand_confs(n, work, extra)
+        children: list[process.Child] = []
+        try:
+            _spawn_all(confs, work, children)
+            wait_all_ready([(HOST, p) for p in ports])
+            with BurstRig([(HOST, p) for p in ports], 0) as rig:
+                rig.burst(min(max(args.messages), 50), args.size, "spread")  # warm-up
+                cells += _bursts(rig, label, args.messages, [args.size], ("spread",), args.repeat, raw)
+        finally:
+            for child in children:
+                process.stop(child)
+    return cells
+
+
 def measure(args: argparse.Namespace, argv: list[str] | None) -> tuple[dict[str, object], list[BurstResult]]:
     info = machine()
     raw: list[BurstResult] = []
@@ -224,6 +257,8 @@ def measure(args: argparse.Namespace, argv: list[str] | None) -> tuple[dict[str,
         for n in args.brokers:
             rows.append(one_size(n, args, Path(tmp), raw))
             print(f"{n} brokers: bring-up {rows[-1]['bringup']}", flush=True)
+            if n in args.nagle_brokers:
+                rows[-1]["cells"] += nagle_arm(n, args, Path(tmp), raw)
     return {"benchmark": "load", "machine": info, "command": command_line("benchmarks.bench_load", argv),
             "repeat": args.repeat, "deploy_repeat": args.deploy_repeat, "size": args.size,
             "paper": "Fig. 12: 1-100 brokers x 100-500 messages < 1 KB, one machine", "rows": rows}, raw
@@ -265,6 +300,14 @@ def to_markdown(data: dict[str, object]) -> str:
     cells = [c for r in rows for c in r["cells"]]  # type: ignore[union-attr]
     for c in sorted((c for c in cells if c["study"] == "matrix"), key=lambda c: (c["mode"], c["brokers"], c["messages"])):
         lines.append(_cell_line(c))
+    nagle = [c for c in cells if c["study"].startswith("tcp-")]
+    if nagle:
+        lines += ["", "## TCP_NODELAY on the brokers (spread, brokers spawned by hand)", "",
+                  "| broker sockets | brokers | messages | send burst ms | ack mean | ack p50 | ack p99 | delivery mean | "
+                  "delivery p50 | delivery p99 | stdev of burst means (ack / delivery) | lost |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+        for c in sorted(nagle, key=lambda c: (c["brokers"], c["messages"], c["study"])):
+            lines.append(_cell_line(c, first="study"))
     sized = [c for c in cells if c["study"] == "size"]
     if sized:
         lines += ["", "## Message size (spread)", "",
@@ -293,6 +336,8 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--sizes", type=int, nargs="+", default=[100, 10_000, 1_000_000])
     parser.add_argument("--size-brokers", type=int, nargs="*", default=[1, 10, 100])
     parser.add_argument("--size-messages", type=int, default=100)
+    parser.add_argument("--nagle-brokers", type=int, nargs="*", default=[10],
+                        help="broker counts also measured by hand with and without set_tcp_nodelay")
     parser.add_argument("--out", type=Path, default=RESULTS)
     return parser.parse_args(argv)
 

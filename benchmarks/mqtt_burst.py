@@ -28,6 +28,7 @@ import paho.mqtt.client as mqtt
 
 MODES = ("spread", "one-to-one")
 TOPIC = "bench/load"
+MISC_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -53,6 +54,7 @@ class _Clients:
 
     selector: selectors.DefaultSelector = field(default_factory=selectors.DefaultSelector)
     clients: list[mqtt.Client] = field(default_factory=list)
+    _misc_due: float = 0.0
 
     def add(self, host: str, port: int, client_id: str) -> mqtt.Client:
         client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id)
@@ -64,14 +66,18 @@ class _Clients:
         return client
 
     def pump(self, timeout: float) -> None:
-        """Write what is pending, read what arrived (within ``timeout`` s), run keep-alives."""
+        """Write what is pending, read what arrived (within ``timeout`` s), run keep-alives (at
+        most every MISC_S: with hundreds of clients, doing it on every read would cost more than
+        the reads)."""
         for client in self.clients:
             if client.want_write():
                 client.loop_write()
         for key, _ in self.selector.select(timeout):
             key.data.loop_read()
-        for client in self.clients:
-            client.loop_misc()
+        if time.monotonic() >= self._misc_due:
+            for client in self.clients:
+                client.loop_misc()
+            self._misc_due = time.monotonic() + MISC_S
 
     def until(self, done: Callable[[], bool], deadline: float, what: str) -> bool:
         """Pump until ``done()``; False when ``deadline`` s pass first (``what`` is for errors)."""

@@ -29,8 +29,28 @@ def load(data: dict[str, Any], out: Path) -> list[Path]:
     paths = [_latency_matrix(cells, out / "load.png")]
     if any(c["study"] == "size" for c in cells):
         paths.append(_sizes(cells, out / "load-sizes.png"))
+    if any(c["study"].startswith("tcp-") for c in cells):
+        paths.append(_nodelay(cells, out / "load-nodelay.png"))
     paths.append(_bringup(data["rows"], out / "load-bringup.png"))
     return paths
+
+
+def _nodelay(cells: list[dict[str, Any]], path: Path) -> Path:
+    arms = [c for c in cells if c["study"].startswith("tcp-")]
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.2))
+    for ax, kind in zip(axes, ("ack", "delivery")):
+        for study, style in (("tcp-default", "--"), ("tcp-nodelay", "-")):
+            for n in sorted({c["brokers"] for c in arms}):
+                pts = sorted((c["messages"], c[kind]["mean"], c[kind]["p99"]) for c in arms
+                             if c["study"] == study and c["brokers"] == n)
+                ax.plot([p[0] for p in pts], [p[1] for p in pts], style, marker="o", ms=3, label=f"{study}, {n}, mean")
+                ax.plot([p[0] for p in pts], [p[2] for p in pts], style, marker="x", ms=3, label=f"{study}, {n}, p99")
+        ax.set_title(f"publish → {'PUBACK' if kind == 'ack' else 'delivery'}", fontsize=10)
+        ax.set_xlabel("messages in the burst")
+        ax.set_ylabel("latency, ms")
+        ax.grid(alpha=0.3)
+    axes[1].legend(fontsize=6)
+    return _save(fig, path)
 
 
 def _latency_matrix(cells: list[dict[str, Any]], path: Path) -> Path:

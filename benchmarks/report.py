@@ -18,7 +18,7 @@ CONCLUSIONS = ROOT / "benchmarks" / "conclusions.md"
 SECTIONS = (
     ("deploy", "1. Deployment latency (the paper's Table 1)", ()),
     ("load", "2. Load test (the paper's Fig. 12), bring-up and memory; message sizes",
-     ("load.png", "load-sizes.png", "load-bringup.png")),
+     ("load.png", "load-nodelay.png", "load-sizes.png", "load-bringup.png")),
     ("replan", "3. Plant size scaling and re-planning", ("replan.png",)),
     ("validate", "Validation against pySHACL", ()),
     ("reason", "Reasoning against HermiT", ()),

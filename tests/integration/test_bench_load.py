@@ -17,7 +17,8 @@ pytestmark = pytest.mark.integration
 
 def test_load_benchmark_runs(tmp_path: Path) -> None:
     args = ["--brokers", "1", "2", "--messages", "4", "6", "--repeat", "1", "--deploy-repeat", "1",
-            "--sizes", "100", "20000", "--size-brokers", "2", "--size-messages", "3", "--out", str(tmp_path)]
+            "--sizes", "100", "20000", "--size-brokers", "2", "--size-messages", "3", "--nagle-brokers", "1",
+            "--out", str(tmp_path)]
     assert bench_load.main(args) == 0
     data = json.loads((tmp_path / "load.json").read_text())
     assert [r["brokers"] for r in data["rows"]] == [1, 2]
@@ -26,12 +27,13 @@ def test_load_benchmark_runs(tmp_path: Path) -> None:
     assert two["bringup"]["up_ratio"] > 0 and two["bringup"]["down_ratio"] > 0
     cells = [c for r in data["rows"] for c in r["cells"]]
     assert {(c["study"], c["mode"]) for c in cells} == {("matrix", "spread"), ("matrix", "one-to-one"),
-                                                        ("size", "spread")}
+                                                        ("size", "spread"), ("tcp-default", "spread"),
+                                                        ("tcp-nodelay", "spread")}
     assert all(c["lost"] == 0 and c["ack"]["n"] == c["delivery"]["n"] == c["messages"] for c in cells)
     assert {c["size"] for c in cells if c["study"] == "size"} == {100, 20000}
     with (tmp_path / "load.csv").open() as fh:
         assert len(list(csv.DictReader(fh))) == len(cells)  # one row per burst (repeat 1)
-    for png in ("load.png", "load-sizes.png", "load-bringup.png"):
+    for png in ("load.png", "load-sizes.png", "load-bringup.png", "load-nodelay.png"):
         assert 0 < (tmp_path / png).stat().st_size < 200_000
 
 
