@@ -27,9 +27,21 @@ def run_child(script: str, *args: str, timeout: float | None = None) -> dict[str
 
 
 def machine() -> dict[str, object]:
-    """The machine a run happened on (figures drift between machines and loads)."""
+    """The machine a run happened on (figures drift between machines and loads), and the code."""
     return {"cpus": os.cpu_count(), "python": platform.python_version(),
-            "platform": platform.platform(), "load_average": os.getloadavg()}
+            "platform": platform.platform(), "load_average": os.getloadavg(), "commit": commit()}
+
+
+def commit() -> str:
+    """The checked-out commit, with ``+changes`` when the working tree differs from it."""
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                              cwd=ROOT, timeout=10).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
+                               text=True, cwd=ROOT, timeout=10).stdout.strip()
+    except (OSError, subprocess.TimeoutExpired):
+        return "unknown"
+    return f"{head or 'unknown'}{'+changes' if dirty else ''}"
 
 
 def summarize(seconds: list[float]) -> dict[str, float]:

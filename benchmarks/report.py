@@ -65,7 +65,7 @@ def _run_line(data: dict[str, Any]) -> str:
     start = ", ".join(f"{x:.2f}" for x in m.get("load_average", ()))
     end = ", ".join(f"{x:.2f}" for x in data.get("load_average_end", ()))
     return (f"Command: `{data.get('command', '?')}` · {m.get('cpus', '?')} CPUs, Python {m.get('python', '?')}, "
-            f"{m.get('platform', '?')} · load average (1, 5, 15 min) at start {start or '?'}, at end {end or '?'}")
+            f"{m.get('platform', '?')}, commit {m.get('commit', '?')} · load average (1, 5, 15 min) at start {start or '?'}, at end {end or '?'}")
 
 
 def _table_of(md: str) -> str:
