@@ -56,6 +56,41 @@ def goals(results: Path) -> list[tuple[str, str, str, str]]:
     return out
 
 
+def load_effects(load: dict[str, Any]) -> list[str]:
+    """Markdown: how much the number of messages and the number of brokers each move the mean
+    latency of the load matrix (ms, same run), and each broker count's mean over all burst sizes
+    with the spread between repeats — the figures the conclusions about Fig. 12 rest on."""
+    cells = [c for r in load["rows"] for c in r["cells"] if c["study"] == "matrix"]
+    if not cells:
+        return []
+    ns, ms = sorted({c["brokers"] for c in cells}), sorted({c["messages"] for c in cells})
+    lines = ["| mode | latency | + messages (" f"{ms[0]} → {ms[-1]}" ", mean over broker counts) | + brokers ("
+             f"{ns[0]} → {ns[-1]}, mean over message counts) | " + " | ".join(f"{n} brokers: mean ± stdev of repeats"
+                                                                           for n in ns) + " |",
+             "|---|---|---|---|" + "---|" * len(ns)]
+    for mode in sorted({c["mode"] for c in cells}, reverse=True):
+        for kind in ("ack", "delivery"):
+            at = {(c["brokers"], c["messages"]): c for c in cells if c["mode"] == mode}
+
+            def mean(key: tuple[int, int]) -> float:
+                return float(at[key][kind]["mean"])
+
+            by_m = [mean((n, ms[-1])) - mean((n, ms[0])) for n in ns if (n, ms[0]) in at and (n, ms[-1]) in at]
+            by_n = [mean((ns[-1], m)) - mean((ns[0], m)) for m in ms if (ns[0], m) in at and (ns[-1], m) in at]
+            per_n = []
+            for n in ns:
+                row = [at[(n, m)] for m in ms if (n, m) in at]
+                avg = sum(c[kind]["mean"] for c in row) / len(row)
+                spread = sum(c[f"{kind}_mean_of_repeats_stdev"] for c in row) / len(row)
+                per_n.append(f"{avg:.1f} ± {spread:.1f}")
+            lines.append(f"| {mode} | {kind} | {_avg(by_m):+.1f} ms | {_avg(by_n):+.1f} ms | " + " | ".join(per_n) + " |")
+    return lines
+
+
+def _avg(xs: list[float]) -> float:
+    return sum(xs) / len(xs) if xs else float("nan")
+
+
 def _verdict(ok: bool) -> str:
     return "met" if ok else "**not met**"
 
@@ -84,6 +119,10 @@ def render(results: Path, base: Path) -> str:
              "times drift between machines: the ratios to a baseline measured in the same run are the figures.",
              "", "## Goals", "", "| goal | measured | target | |", "|---|---|---|---|"]
     lines += [f"| {g} | {m} | {t} | {v} |" for g, m, t, v in goals(results)]
+    load = _read(results, "load")
+    effects = load_effects(load) if load else []
+    if effects:
+        lines += ["", "### What moves the load test's latency (from `results/load.json`)", "", *effects]
     if CONCLUSIONS.is_file():
         lines += ["", CONCLUSIONS.read_text().strip()]
     for name, title, images in SECTIONS:

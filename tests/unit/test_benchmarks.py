@@ -105,3 +105,16 @@ def test_web_benchmark_runs(tmp_path: Path) -> None:
     (row,) = json.loads((tmp_path / "web.json").read_text())["rows"]
     assert row["resources"] == 40 and row["sparql"]["requests"] == row["status"]["requests"] == 10
     assert row["status"]["bytes"] > 1000 and "| 40 |" in (tmp_path / "web.md").read_text()
+
+
+def test_load_effects_separate_messages_from_brokers() -> None:
+    from benchmarks import report
+
+    def cell(n: int, m: int) -> dict[str, object]:
+        lat = {"mean": 1.0 + m / 100 + n / 10}  # +4 ms from 100 to 500 messages, +0.9 ms from 1 to 10 brokers
+        return {"study": "matrix", "mode": "spread", "brokers": n, "messages": m, "ack": lat, "delivery": lat,
+                "ack_mean_of_repeats_stdev": 0.5, "delivery_mean_of_repeats_stdev": 0.5}
+
+    load = {"rows": [{"cells": [cell(n, m) for m in (100, 500)]} for n in (1, 10)]}
+    lines = report.load_effects(load)
+    assert lines[2].startswith("| spread | ack | +4.0 ms | +0.9 ms | 4.1 ± 0.5 | 5.0 ± 0.5 |")
