@@ -16,6 +16,9 @@ For each number of Mosquitto brokers N (default 1, 5, 10, 25, 50, 100), on one m
 4. **TCP_NODELAY.** For some N (``--nagle-brokers``), the matrix (spread) against brokers spawned
    by hand with the agent's config, as is and with ``set_tcp_nodelay true``: a PUBACK held back by
    Nagle's algorithm until the client's delayed ACK (~40 ms on Linux) shows as a stall.
+5. **Another broker.** One Kafka broker brought up by one apply, bursts of ``--kafka-messages``
+   (produce → acknowledged with acks=all, produce → consumed; ``benchmarks.kafka_burst``) and the
+   same message sizes; the JVM's RSS.
 
 Results: ``benchmarks/results/load.{json,md,csv}`` (the CSV has one row per burst) and the plots
 ``load.png``, ``load-nodelay.png``, ``load-sizes.png``, ``load-bringup.png``.
@@ -39,6 +42,8 @@ from pathlib import Path
 import paho.mqtt.client as mqtt
 
 from benchmarks import plots, synthetic
+from benchmarks.bench_deploy import KAFKA_PLANT
+from benchmarks.kafka_burst import KafkaRig
 from benchmarks.common import RESULTS, command_line, machine, summarize, write_results
 from benchmarks.mqtt_burst import MODES, BurstResult, BurstRig
 from engine import netutil, process
@@ -249,6 +254,31 @@ def nagle_arm(n: int, args: argparse.Namespace, work: Path, raw: list[BurstResul
     return cells
 
 
+def kafka_arm(args: argparse.Namespace, work: Path, raw: list[BurstResult]) -> dict[str, object]:
+    """One Kafka broker through one apply; bursts of each size of ``--kafka-messages``, then sizes."""
+    agents = start_local_agents([HOST], work / "agents-kafka")
+    try:
+        directory = AgentDirectory.load(agents.agents_file)
+        port = netutil.free_port(HOST)
+        plant = work / "kafka.ttl"
+        plant.write_text(KAFKA_PLANT.format(host=HOST, port=port))
+        up = through_plantkg(plant, directory)
+        cells = []
+        with KafkaRig(f"{HOST}:{port}", "bench.t") as rig:
+            for study, sizes, counts in (("kafka", [args.size], args.kafka_messages),
+                                         ("kafka-size", args.sizes, [args.size_messages])):
+                for size in sizes:
+                    for m in counts:
+                        runs = [rig.burst(m, size) for _ in range(args.repeat)]
+                        raw.extend(runs)
+                        cells.append(_cell(runs, study))
+        mem = memory(agents.agents[HOST].child.pid)
+        down = through_plantkg(plant, directory, destroy=True)
+    finally:
+        agents.stop()
+    return {"up_s": up["total"], "down_s": down["total"], "memory": mem, "cells": cells}
+
+
 def measure(args: argparse.Namespace, argv: list[str] | None) -> tuple[dict[str, object], list[BurstResult]]:
     info = machine()
     raw: list[BurstResult] = []
@@ -259,7 +289,8 @@ def measure(args: argparse.Namespace, argv: list[str] | None) -> tuple[dict[str,
             print(f"{n} brokers: bring-up {rows[-1]['bringup']}", flush=True)
             if n in args.nagle_brokers:
                 rows[-1]["cells"] += nagle_arm(n, args, Path(tmp), raw)
-    return {"benchmark": "load", "machine": info, "command": command_line("benchmarks.bench_load", argv),
+        kafka = kafka_arm(args, Path(tmp), raw) if args.kafka_messages else None
+    return {"kafka": kafka, "benchmark": "load", "machine": info, "command": command_line("benchmarks.bench_load", argv),
             "repeat": args.repeat, "deploy_repeat": args.deploy_repeat, "size": args.size,
             "paper": "Fig. 12: 1-100 brokers x 100-500 messages < 1 KB, one machine", "rows": rows}, raw
 
@@ -308,6 +339,16 @@ def to_markdown(data: dict[str, object]) -> str:
                   "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for c in sorted(nagle, key=lambda c: (c["brokers"], c["messages"], c["study"])):
             lines.append(_cell_line(c, first="study"))
+    kafka = data.get("kafka")
+    if kafka:
+        lines += ["", "## Kafka (one broker, acks=all; ack = delivery report, delivery = consumed)", "",
+                  f"One apply brought it up in {kafka['up_s']:.2f} s, one destroy took {kafka['down_s']:.2f} s; "
+                  f"JVM RSS {kafka['memory']['broker_rss_mb_mean']:.0f} MB, agent {kafka['memory']['agent_rss_mb']:.0f} MB.",
+                  "", "| study: size B | brokers | messages | send burst ms | ack mean | ack p50 | ack p99 | "
+                  "delivery mean | delivery p50 | delivery p99 | stdev of burst means (ack / delivery) | lost |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+        for c in sorted(kafka["cells"], key=lambda c: (c["study"], c["size"], c["messages"])):
+            lines.append(_cell_line({**c, "label": f"{c['study']}: {c['size']}"}, first="label"))
     sized = [c for c in cells if c["study"] == "size"]
     if sized:
         lines += ["", "## Message size (spread)", "",
@@ -336,6 +377,8 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--sizes", type=int, nargs="+", default=[100, 10_000, 1_000_000])
     parser.add_argument("--size-brokers", type=int, nargs="*", default=[1, 10, 100])
     parser.add_argument("--size-messages", type=int, default=100)
+    parser.add_argument("--kafka-messages", type=int, nargs="*", default=[100, 300, 500],
+                        help="burst sizes against one Kafka broker (none: no Kafka arm)")
     parser.add_argument("--nagle-brokers", type=int, nargs="*", default=[10],
                         help="broker counts also measured by hand with and without set_tcp_nodelay")
     parser.add_argument("--out", type=Path, default=RESULTS)

@@ -18,7 +18,7 @@ pytestmark = pytest.mark.integration
 def test_load_benchmark_runs(tmp_path: Path) -> None:
     args = ["--brokers", "1", "2", "--messages", "4", "6", "--repeat", "1", "--deploy-repeat", "1",
             "--sizes", "100", "20000", "--size-brokers", "2", "--size-messages", "3", "--nagle-brokers", "1",
-            "--out", str(tmp_path)]
+            "--kafka-messages", "--out", str(tmp_path)]
     assert bench_load.main(args) == 0
     data = json.loads((tmp_path / "load.json").read_text())
     assert [r["brokers"] for r in data["rows"]] == [1, 2]
@@ -35,6 +35,19 @@ def test_load_benchmark_runs(tmp_path: Path) -> None:
         assert len(list(csv.DictReader(fh))) == len(cells)  # one row per burst (repeat 1)
     for png in ("load.png", "load-sizes.png", "load-bringup.png", "load-nodelay.png"):
         assert 0 < (tmp_path / png).stat().st_size < 200_000
+
+
+def test_load_benchmark_kafka_arm(tmp_path: Path) -> None:
+    args = ["--brokers", "1", "--messages", "3", "--repeat", "1", "--deploy-repeat", "1", "--sizes", "100", "5000",
+            "--size-brokers", "--size-messages", "2", "--nagle-brokers", "--kafka-messages", "4",
+            "--out", str(tmp_path)]
+    assert bench_load.main(args) == 0
+    kafka = json.loads((tmp_path / "load.json").read_text())["kafka"]
+    assert kafka["up_s"] > 0 and kafka["memory"]["brokers"] == 1  # the JVM is the agent's one child
+    assert {(c["study"], c["size"], c["messages"]) for c in kafka["cells"]} == {
+        ("kafka", 100, 4), ("kafka-size", 100, 2), ("kafka-size", 5000, 2)}
+    assert all(c["lost"] == 0 and c["ack"]["n"] == c["delivery"]["n"] == c["messages"] for c in kafka["cells"])
+    assert "## Kafka" in (tmp_path / "load.md").read_text()
 
 
 def test_burst_refuses_more_one_to_one_messages_than_publishers(tmp_path: Path) -> None:
