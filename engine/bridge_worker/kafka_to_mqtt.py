@@ -31,7 +31,11 @@ from engine.bridge_worker.mqtt_to_kafka import BRIDGE_HEADER
 
 log = logging.getLogger("plantkg.bridge.kafka-to-mqtt")
 
-COMMIT_LAG = 1.0         # seconds a PUBACK must be old before its offset is committed
+#: Seconds a PUBACK must be old before its offset is committed: Mosquitto may still hold the
+#: message in memory, queued for a subscriber that lags; 1 s lost messages in tests on a loaded
+#: 2-core machine, so a margin. A larger lag costs only duplicates after a Mosquitto crash.
+COMMIT_LAG = 5.0
+STOP_COMMIT_LAG = 1.0    # at a clean stop (Mosquitto is up) wait at most this for commits
 COMMIT_EVERY = 0.2       # seconds between commit passes
 MAX_UNACKED = 5000       # records published and not yet PUBACKed before consuming pauses
 ASSIGN_TIMEOUT = 30.0    # seconds to read (and first commit) the positions of new partitions
@@ -48,6 +52,10 @@ def consumer_config(cfg: WorkerConfig, on_error) -> dict[str, object]:
         "enable.auto.offset.store": False,
         "auto.offset.reset": "latest",
         "fetch.wait.max.ms": 50,
+        # A worker killed and restarted by its agent rejoins the group: the dead member's
+        # partitions are free after this (Kafka's minimum), not after the default 45 s.
+        "session.timeout.ms": 6000,
+        "heartbeat.interval.ms": 2000,
         "reconnect.backoff.ms": 100,
         "reconnect.backoff.max.ms": 2000,
         "error_cb": on_error,
@@ -65,11 +73,12 @@ class KafkaToMqtt:
         self._by_mid: dict[int, SentRecord] = {}
         self._events: queue.SimpleQueue[tuple[str, object]] = queue.SimpleQueue()
         self._connected = False
+        self._generation = -1
         self._paused = False
         self._last_commit = 0.0
         self._own = cfg.bridge_id.encode("utf-8")
         mqtt_link.on_puback = lambda mid: self._events.put(("puback", mid))
-        mqtt_link.on_connection.append(lambda up: self._events.put(("connection", up)))
+        mqtt_link.on_connection.append(lambda up, gen: self._events.put(("connection", (up, gen))))
 
     def start(self) -> None:
         self.consumer.subscribe(list(self.routes), on_assign=self._assigned, on_revoke=self._revoked,
@@ -103,12 +112,11 @@ class KafkaToMqtt:
                 if record is not None:
                     PartitionLedger.acked(record, now)
                     self.health.count("forwarded_kafka_to_mqtt")
-            elif value:
-                self._connected = True
-                self._rewind()
             else:
-                self._connected = False
+                self._connected, self._generation = value  # type: ignore[misc]
                 self._by_mid.clear()
+                if self._connected:
+                    self._rewind()
 
     def _pause_or_resume(self) -> None:
         want_pause = not self._connected or self.unacked >= MAX_UNACKED
@@ -138,7 +146,9 @@ class KafkaToMqtt:
             ledger.skipped(msg.offset())
             return
         route = self.routes[msg.topic()]
-        info = self.link.publish(route.mqtt_topic, msg.value() or b"", route.qos)
+        info = self.link.publish(self._generation, route.mqtt_topic, msg.value() or b"", route.qos)
+        if info is None:  # the connection changed: the rewind that follows publishes it again
+            return
         record = ledger.sent(msg.offset())
         if route.qos == 0:
             PartitionLedger.acked(record, time.monotonic())
@@ -146,10 +156,10 @@ class KafkaToMqtt:
         else:
             self._by_mid[info.mid] = record
 
-    def _commit(self, now: float) -> None:
+    def _commit(self, now: float, lag: float = COMMIT_LAG) -> None:
         offsets = []
         for (topic, partition), ledger in self.ledgers.items():
-            position = ledger.commit_position(now, COMMIT_LAG)
+            position = ledger.commit_position(now, lag)
             if position is not None:
                 offsets.append(TopicPartition(topic, partition, position))
         if not offsets:
@@ -166,7 +176,6 @@ class KafkaToMqtt:
 
     def _rewind(self) -> None:
         """After an MQTT (re)connect: publish again everything not committed."""
-        self._by_mid.clear()
         for (topic, partition), ledger in self.ledgers.items():
             position = ledger.rewind()
             try:
@@ -226,6 +235,6 @@ class KafkaToMqtt:
         self._paused = True
         while time.monotonic() < deadline and self._connected and any(l.records for l in self.ledgers.values()):
             self._drain_events()
-            self._commit(time.monotonic())
+            self._commit(time.monotonic(), STOP_COMMIT_LAG)
             time.sleep(0.05)  # bounded by the deadline; PUBACKs arrive on paho's thread
         self.consumer.close()

@@ -5,11 +5,18 @@ subscriptions carry ``no_local``: a topic bridged both ways never comes back to 
 published it. The session outlives the worker (``clean_start`` false, a week of session expiry), so
 Mosquitto queues the subscribed topics while the worker is down or restarting. paho's own thread
 reconnects forever with a capped backoff; a broker down at start is simply reached later.
+
+Publishing is tied to a connection: each (dis)connect starts a new ``generation``, and
+:meth:`MqttLink.publish` refuses a message meant for an older one. On connect, the messages paho
+still holds from the previous connection are dropped instead of being sent again: they are newer
+than what the broker may have lost in a crash, and the Kafka -> MQTT half publishes everything
+again from its last commit, in order (paho 2 has no public call for this; see ``_drop_unsent``).
 """
 
 from __future__ import annotations
 
 import logging
+import threading
 from collections.abc import Callable
 from typing import Any
 
@@ -38,7 +45,9 @@ class MqttLink:
         self.health = health
         self.on_message: Callable[[mqtt.MQTTMessage], None] = lambda msg: None
         self.on_puback: Callable[[int], None] = lambda mid: None
-        self.on_connection: list[Callable[[bool], None]] = []
+        self.on_connection: list[Callable[[bool, int], None]] = []
+        self.generation = 0
+        self._publish_lock = threading.Lock()
         self._subscriptions = [
             (r.mqtt_topic, SubscribeOptions(qos=r.qos, noLocal=True))
             for r in cfg.routes_of(Direction.MQTT_TO_KAFKA)
@@ -55,6 +64,8 @@ class MqttLink:
         client.on_message = lambda _c, _u, msg: self.on_message(msg)
         client.on_publish = lambda _c, _u, mid, _rc, _p: self.on_puback(mid)
         self.client = client
+        if not all(hasattr(client, a) for a in ("_out_messages", "_out_message_mutex", "_inflight_messages")):
+            raise RuntimeError("this paho-mqtt has no _out_messages: pin paho-mqtt 2.x (see _drop_unsent)")
 
     def start(self) -> None:
         props = Properties(PacketTypes.CONNECT)
@@ -73,8 +84,21 @@ class MqttLink:
     def ack(self, mid: int, qos: int) -> None:
         self.client.ack(mid, qos)
 
-    def publish(self, topic: str, payload: bytes, qos: int) -> mqtt.MQTTMessageInfo:
-        return self.client.publish(topic, payload, qos=qos)
+    def publish(self, generation: int, topic: str, payload: bytes, qos: int) -> mqtt.MQTTMessageInfo | None:
+        """Publish on connection ``generation``; None (nothing sent) if it is not the current one."""
+        with self._publish_lock:
+            if generation != self.generation or not self.health.mqtt_connected:
+                return None
+            return self.client.publish(topic, payload, qos=qos)
+
+    def _drop_unsent(self) -> None:
+        """Forget the QoS>0 messages paho would send again on this new connection."""
+        with self.client._out_message_mutex:
+            dropped = len(self.client._out_messages)
+            self.client._out_messages.clear()
+            self.client._inflight_messages = 0
+        if dropped:
+            log.info("dropped %d messages unacknowledged by the previous connection", dropped)
 
     # paho callbacks (paho's thread)
     def _connected(self, client: mqtt.Client, _u: Any, flags: Any, reason: Any, props: Any) -> None:
@@ -89,21 +113,26 @@ class MqttLink:
                  flags.session_present)
         if self._subscriptions:
             client.subscribe(self._subscriptions)
-        self.health.set(mqtt_connected=True)
-        for hook in self.on_connection:
-            hook(True)
+        with self._publish_lock:  # paho sends its leftovers right after this callback returns
+            self._drop_unsent()
+            self.generation += 1
+            self.health.set(mqtt_connected=True)
+            for hook in self.on_connection:
+                hook(True, self.generation)
 
     def _connect_failed(self, _c: mqtt.Client, _u: Any) -> None:
         self.health.error(f"MQTT {self.cfg.mqtt_host}:{self.cfg.mqtt_port} unreachable; retrying")
 
     def _disconnected(self, _c: mqtt.Client, _u: Any, _f: Any, reason: Any, _p: Any) -> None:
-        was_up = self.health.mqtt_connected
-        self.health.set(mqtt_connected=False, subscribed=False)
+        with self._publish_lock:
+            was_up = self.health.mqtt_connected
+            self.generation += 1
+            self.health.set(mqtt_connected=False, subscribed=False)
         if was_up and reason.value != 0:  # 0: our own disconnect at stop
             self.health.error(f"MQTT {self.cfg.mqtt_host}:{self.cfg.mqtt_port} connection lost: {reason}")
         if was_up:
             for hook in self.on_connection:
-                hook(False)
+                hook(False, self.generation)
 
     def _subscribed(self, _c: mqtt.Client, _u: Any, _mid: int, reasons: list[Any], _p: Any) -> None:
         refused = [str(r) for r in reasons if r.is_failure]

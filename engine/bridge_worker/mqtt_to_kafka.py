@@ -137,7 +137,7 @@ class MqttToKafka:
         for args in due:
             self._produce(*args)
 
-    def _connection_changed(self, up: bool) -> None:
+    def _connection_changed(self, up: bool, _generation: int) -> None:
         if not up:
             dropped = self.acks.connection_lost()
             if dropped:
