@@ -172,7 +172,7 @@ class Operation:
 
 
 def operations(plan: Plan, desired: DesiredState) -> list[Operation]:
-    """The agent calls of each pending change (bridges are not dispatched yet)."""
+    """The agent calls of each pending change."""
     deleted_hosts = {
         broker_of(c): str(c.before["host"])
         for c in plan.pending
@@ -195,6 +195,8 @@ def operations(plan: Plan, desired: DesiredState) -> list[Operation]:
             out.append(Operation(change, _broker_calls(change, desired)))
         elif kind == "topic":
             out.append(Operation(change, _topic_calls(change, desired, host_of)))
+        else:
+            out.append(Operation(change, _bridge_calls(change, desired)))
     return out
 
 
@@ -229,6 +231,19 @@ def _topic_calls(change: Change, desired: DesiredState, host_of: Callable[[str],
     applicable = topic_settings(broker.kind)
     spec = replace(spec, **{f: None for f in ALL_TOPIC_SETTINGS if f not in applicable})
     return (Call(host_of(broker_id), "put_topic", (spec,)),)
+
+
+def _bridge_calls(change: Change, desired: DesiredState) -> tuple[Call, ...]:
+    """A bridge is PUT to (or deleted from) the agent of its local broker."""
+    if change.action is Action.DELETE:
+        assert change.before is not None
+        local, remote = change.before["local"], change.before["remote"]
+        return (Call(str(local["host"]), "delete_bridge", (str(local["id"]), str(remote["id"]))),)
+    spec = next((b for b in desired.bridges if b.address == change.address), None)
+    if spec is None:
+        raise EngineError(f"the plan creates {change.address}, which the plant does not describe",
+                          hint="make the plan again from the same plant")
+    return (Call(spec.local.host, "put_bridge", (spec,)),)
 
 
 def lanes(ops: Sequence[Operation]) -> list[list[Operation]]:

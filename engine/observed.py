@@ -23,9 +23,9 @@ import pyoxigraph as ox
 
 from engine.agents_config import AgentDirectory
 from engine.errors import AgentAuthError, EngineError, PermanentDispatchError, TemporaryDispatchError
-from engine.model import BrokerStatus, ObservedBroker, ObservedState
+from engine.model import BrokerStatus, ObservedBridge, ObservedBroker, ObservedState
 from kg.load import PlantGraph
-from kg.namespaces import GRAPH_OBSERVED, PK, XSD
+from kg.namespaces import GRAPH_OBSERVED, PK, RDF, XSD
 from kg.query import run_query
 
 #: pk: individual per status, plus the two the engine adds (not observed, agent unreachable).
@@ -53,9 +53,10 @@ def observe(directory: AgentDirectory, hosts: Iterable[str], *, parallelism: int
         return ObservedState()
     clients = {url: directory.client_for(hosts_[0]) for url, hosts_ in by_url.items()}
 
-    def ask(url: str) -> list[ObservedBroker] | None:
+    def ask(url: str) -> tuple[list[ObservedBroker], list[ObservedBridge]] | None:
         try:
-            return clients[url].list_brokers()
+            client = clients[url]
+            return client.list_brokers(), client.list_bridges()
         except TemporaryDispatchError:
             return None
         except AgentAuthError as exc:
@@ -70,16 +71,20 @@ def observe(directory: AgentDirectory, hosts: Iterable[str], *, parallelism: int
                             thread_name_prefix="observe") as pool:
         answers = dict(zip(by_url, pool.map(ask, by_url)))
     brokers: dict[str, ObservedBroker] = {}
+    bridges: dict[str, ObservedBridge] = {}
     unreachable: list[str] = []
     for url, answer in answers.items():
         if answer is None:
             unreachable.extend(by_url[url])
             continue
-        for broker in answer:
+        for broker in answer[0]:
             brokers.setdefault(broker.spec.id, broker)
+        for bridge in answer[1]:
+            bridges.setdefault(bridge.spec.address, bridge)
     return ObservedState(
         brokers=tuple(sorted(brokers.values(), key=lambda b: b.spec.id)),
         unreachable=tuple(sorted(unreachable)),
+        bridges=tuple(sorted(bridges.values(), key=lambda b: b.spec.address)),
     )
 
 
@@ -133,6 +138,22 @@ def observed_quads(
             add(node, "lastError", ox.Literal(broker.last_error))
         for topic in broker.topics:
             add(node, "topicPresent", ox.Literal(topic.name))
+    iris = {b.spec.id: b.spec.iri for b in observed.brokers if b.spec.iri in seen}
+    for bridge in observed.bridges:
+        carrier = iris.get(bridge.spec.local.id)
+        if carrier is None:
+            continue
+        node = ox.NamedNode(f"{GRAPH_OBSERVED}/bridge/{bridge.spec.local.id}/{bridge.spec.remote.id}")
+        quads.append(ox.Quad(node, ox.NamedNode(str(RDF.type)), _p("BridgeObservation"), graph))
+        add(ox.NamedNode(carrier), "carriesBridge", node)
+        add(node, "bridgeRemote", ox.Literal(bridge.spec.remote.id))
+        add(node, "bridgeMechanism", ox.Literal(bridge.spec.mechanism.value))
+        add(node, "bridgeStatus", ox.Literal(bridge.status.value))
+        for prop, value in (("forwarded", bridge.forwarded), ("retried", bridge.retried)):
+            if value is not None:
+                add(node, prop, _lit(value, "integer"))
+        if bridge.last_error:
+            add(node, "bridgeError", ox.Literal(bridge.last_error))
     unreachable = set(observed.unreachable)
     for iri, ip in plant_brokers:
         if iri not in seen:

@@ -5,20 +5,25 @@
 and, for a topic, the settings that apply to its broker's kind and that the plant sets — so pids,
 start times and restart counts never show as drift (kopf's "essence", Terraform's plan).
 
-Change kinds, per address (``broker.<id>``, ``topic.<broker>.<name>``, ``bridge.<a>.<c>``):
+Change kinds, per address (``broker.<id>``, ``topic.<broker>.<name>``, ``bridge.<local>.<remote>``):
 
 - create: desired, not observed.
 - update: changeable in place (a topic's retention or QoS, more partitions, a broker's name), or a
   broker whose essence matches but that is crashed, failed or stopped ("restart").
 - replace: a broker's port, host or kind changed; the agent restarts it (a new host or kind means
   a new broker: its topics are created again).
-- delete: observed, not desired (a broker's topics are listed before the broker).
+- delete: observed, not desired (a broker's bridges and topics are listed before the broker).
 - no-op: nothing to do (kept in ``Plan.changes`` so a plan accounts for every object).
 
-Order: brokers, topics, bridges, then deletes (topics before their broker). Changes a broker cannot
-make (fewer Kafka partitions, another replication factor) are :class:`Refusal` s, and brokers on
-a host whose agent did not answer are left out and the host listed (what runs there is unknown,
-so nothing there can be planned): either makes the plan not applicable. Bridges are listed as no-ops until the agents can run them (issue 4).
+A bridge is compared on its essence (both ends' addresses, mechanism, routes), so moving its remote
+broker or changing a bridged topic updates the bridge, which the agent of its local broker applies
+(a Mosquitto bridge by re-rendering and restarting that broker only, a worker by restarting the
+worker). A bridge whose local broker starts anew is created again, like its topics.
+
+Order: brokers, topics, bridges, then deletes (bridges and topics before their broker). Changes a
+broker cannot make (fewer Kafka partitions, another replication factor) are :class:`Refusal` s,
+and brokers on a host whose agent did not answer are left out and the host listed (what runs there
+is unknown, so nothing there can be planned): either makes the plan not applicable.
 """
 
 from __future__ import annotations
@@ -30,16 +35,20 @@ from typing import Any
 
 from engine.model import (
     Action,
+    BridgeSpec,
+    BridgeStatus,
     BrokerSpec,
     BrokerStatus,
     Change,
     DesiredState,
+    ObservedBridge,
     ObservedBroker,
     ObservedState,
     ObservedTopic,
     Plan,
     Refusal,
     TopicSpec,
+    to_dict,
 )
 
 #: Broker fields whose change needs a new broker process (the agent restarts it): Terraform's
@@ -63,7 +72,13 @@ RESTART_STATUSES: frozenset[BrokerStatus] = frozenset(
     {BrokerStatus.CRASHED, BrokerStatus.FAILED, BrokerStatus.STOPPED}
 )
 
+#: Bridge statuses after which a bridge whose essence matches is started again.
+BRIDGE_RESTART_STATUSES: frozenset[BridgeStatus] = frozenset(
+    {BridgeStatus.CRASHED, BridgeStatus.FAILED, BridgeStatus.STOPPED}
+)
+
 _ORDER = {"broker": 0, "topic": 1, "bridge": 2}
+_DELETE_ORDER = {"bridge": 0, "topic": 1, "broker": 2}
 
 
 # ------------------------------------------------------------------------------------- essences
@@ -71,6 +86,13 @@ _ORDER = {"broker": 0, "topic": 1, "bridge": 2}
 def broker_essence(spec: BrokerSpec) -> dict[str, Any]:
     """The fields of a broker the plan compares (all of BrokerSpec)."""
     return {f.name: getattr(spec, f.name) for f in fields(spec)}
+
+
+def bridge_essence(spec: BridgeSpec) -> dict[str, Any]:
+    """The fields of a bridge the plan compares: all but ``asserted`` (which is for people)."""
+    data = to_dict(spec)
+    data.pop("asserted")
+    return data
 
 
 def topic_settings(kind: str) -> tuple[str, ...]:
@@ -96,6 +118,7 @@ def plan(desired: DesiredState, observed: ObservedState) -> Plan:
     changes: list[Change] = []
     refusals: list[Refusal] = []
     deletes: list[Change] = []
+    fresh_brokers: set[str] = set()
     for spec in desired.brokers:
         if spec.host in unreachable:
             continue  # its state is unknown: no change is planned, the host is listed
@@ -105,6 +128,8 @@ def plan(desired: DesiredState, observed: ObservedState) -> Plan:
         fresh = broker_change.action is Action.CREATE or (
             broker_change.action is Action.REPLACE and _starts_empty(broker_change)
         )
+        if fresh:
+            fresh_brokers.add(spec.id)
         topics, refused, removed = _topic_changes(spec, desired.topics_of(spec.id), have, fresh)
         changes.extend(topics)
         refusals.extend(refused)
@@ -113,10 +138,15 @@ def plan(desired: DesiredState, observed: ObservedState) -> Plan:
     for have in observed.brokers:
         if have.spec.id not in wanted:
             deletes.extend(_broker_delete(have))
+    hosts = {b.id: b.host for b in desired.brokers}
     for bridge in desired.bridges:
-        changes.append(Change(bridge.address, Action.NOOP, None, {
-            "source": bridge.source, "target": bridge.target, "topics": list(bridge.topics),
-        }, "listed only: agents run bridges from issue 4 on"))
+        if hosts.get(bridge.local.id) in unreachable:
+            continue
+        have = None if bridge.local.id in fresh_brokers else observed.bridge(bridge.address)
+        changes.append(_bridge_change(bridge, have))
+    wanted_bridges = {b.address for b in desired.bridges}
+    deletes.extend(_bridge_delete(b.spec) for b in observed.bridges
+                   if b.spec.address not in wanted_bridges)
     changes.sort(key=_sort_key)
     deletes.sort(key=_delete_key)
     return Plan(
@@ -135,6 +165,7 @@ def destroy_plan(desired: DesiredState, observed: ObservedState) -> Plan:
     mine = ObservedState(
         brokers=tuple(b for b in observed.brokers if b.spec.id in ours),
         unreachable=observed.unreachable,
+        bridges=tuple(b for b in observed.bridges if b.spec.local.id in ours),
     )
     result = plan(DesiredState(), mine)
     return Plan(tuple(replace(c, reason="destroy: the plant names it") for c in result.changes),
@@ -166,6 +197,28 @@ def _broker_change(spec: BrokerSpec, have: ObservedBroker | None) -> Change:
                       {**after, "status": BrokerStatus.RUNNING.value},
                       f"restart: the broker is {have.status.value}{detail}")
     return Change(spec.address, Action.NOOP, before, after)
+
+
+def _bridge_change(spec: BridgeSpec, have: ObservedBridge | None) -> Change:
+    after = bridge_essence(spec)
+    if have is None:
+        return Change(spec.address, Action.CREATE, None, after, "not running on its broker's agent")
+    before = bridge_essence(have.spec)
+    if before != after:
+        changed = ", ".join(k for k in after if before.get(k) != after[k])
+        how = ("its broker restarts with the new bridge" if spec.mechanism.value == "mosquitto"
+               else "its worker restarts")
+        return Change(spec.address, Action.UPDATE, before, after, f"{changed} changed ({how})")
+    if have.status in BRIDGE_RESTART_STATUSES:
+        detail = f": {have.last_error}" if have.last_error else ""
+        return Change(spec.address, Action.UPDATE, {**before, "status": have.status.value},
+                      {**after, "status": BridgeStatus.RUNNING.value},
+                      f"restart: the bridge is {have.status.value}{detail}")
+    return Change(spec.address, Action.NOOP, before, after)
+
+
+def _bridge_delete(spec: BridgeSpec) -> Change:
+    return Change(spec.address, Action.DELETE, bridge_essence(spec), None, "not in the plant")
 
 
 def _starts_empty(change: Change) -> bool:
@@ -245,23 +298,17 @@ def _sort_key(change: Change) -> tuple[int, str]:
 
 
 def _delete_key(change: Change) -> tuple[str, int, str]:
-    """Deletes grouped by broker, a broker's topics before the broker itself."""
-    kind, rest = change.address.split(".", 1)
-    broker = rest if kind == "broker" else _topic_broker(change)
-    return broker, 0 if kind == "topic" else 1, change.address
-
-
-def _topic_broker(change: Change) -> str:
-    data = change.before or change.after or {}
-    return str(data.get("broker_id", ""))
+    """Deletes grouped by broker, a broker's bridges, then topics, before the broker itself."""
+    kind = change.address.split(".", 1)[0]
+    return broker_of(change), _DELETE_ORDER[kind], change.address
 
 
 def broker_of(change: Change) -> str:
-    """The broker id a change belongs to (a bridge belongs to its source)."""
+    """The broker id a change belongs to (a bridge belongs to its local, carrying broker)."""
     kind, rest = change.address.split(".", 1)
     if kind == "broker":
         return rest
     data = change.before or change.after or {}
     if kind == "topic":
         return str(data["broker_id"])
-    return str(data.get("source", rest.split(".", 1)[0]))
+    return str(data["local"]["id"])

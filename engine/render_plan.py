@@ -66,13 +66,6 @@ def render_plan(plan: Plan, *, color: bool = False) -> str:
         lines.append("")
         for change in plan.pending:
             lines.extend(_change_block(change, paint))
-    bridges = [c for c in plan.changes if c.address.startswith("bridge.")]
-    if bridges:
-        lines.append("Bridges the plant asks for (listed only; agents run bridges from issue 4 on):")
-        for change in bridges:
-            topics = ", ".join((change.after or {}).get("topics", ())) or "(no shared topic)"
-            lines.append(f"  = {change.address}: {topics}")
-        lines.append("")
     if plan.refusals:
         lines.append(paint("Refused (the brokers cannot make these changes):", Action.DELETE, True))
         for refusal in plan.refusals:

@@ -30,9 +30,21 @@ from flask import Blueprint, Flask, Response, current_app, jsonify, request
 from werkzeug.exceptions import HTTPException
 from werkzeug.routing import PathConverter
 
-from engine.agent.manager import BrokerManager, BrokerNotFoundError, BrokerNotRunningError
+from engine.agent.manager import (
+    BridgeConflictError,
+    BrokerManager,
+    BrokerNotFoundError,
+    BrokerNotRunningError,
+)
 from engine.agent.openapi import openapi_document
-from engine.agent.wire import BROKER_ID, WireError, broker_spec_from_json, topic_spec_from_json
+from engine.agent.wire import (
+    BROKER_ID,
+    WireError,
+    bridge_spec_from_json,
+    broker_spec_from_json,
+    topic_spec_from_json,
+)
+from engine.agent.workers import WorkerManager
 from engine.errors import (
     BrokerUnavailableError,
     ConfigValueError,
@@ -40,7 +52,7 @@ from engine.errors import (
     EngineError,
     UnknownDriverError,
 )
-from engine.model import to_dict
+from engine.model import BridgeMechanism, to_dict
 
 log = logging.getLogger(__name__)
 
@@ -50,11 +62,13 @@ EXTENSION = "plantkg_agent"
 
 @dataclass(frozen=True)
 class AgentState:
-    """What the app serves: the brokers, the token clients must present, the agent's name."""
+    """What the app serves: the brokers, the token clients must present, the agent's name, and
+    the bridge workers (None: this agent refuses worker bridges)."""
 
     brokers: BrokerManager
     token: str
     name: str = "plantkg-agent"
+    workers: WorkerManager | None = None
 
 
 class TopicName(PathConverter):
@@ -141,7 +155,50 @@ def put_broker(broker_id: str) -> Response:
 
 @v1.delete("/brokers/<broker_id>")
 def delete_broker(broker_id: str) -> tuple[str, int]:
-    _state().brokers.delete(_broker_id(broker_id))
+    """Stop the broker; the bridge workers it carries go with it."""
+    state = _state()
+    state.brokers.delete(_broker_id(broker_id))
+    if state.workers is not None:
+        for bridge in state.workers.list():
+            if bridge.spec.local.id == broker_id:
+                state.workers.delete(broker_id, bridge.spec.remote.id)
+    return "", 204
+
+
+@v1.get("/bridges")
+def list_bridges() -> Response:
+    state = _state()
+    found = state.brokers.native_bridges() + (state.workers.list() if state.workers else [])
+    return jsonify({"bridges": to_dict(sorted(found, key=lambda b: b.spec.address))})
+
+
+@v1.put("/brokers/<broker_id>/bridges/<remote_id>")
+def put_bridge(broker_id: str, remote_id: str) -> Response:
+    """Make the bridge run: in the broker's own config (Mosquitto) or as a worker."""
+    spec = bridge_spec_from_json(_body())
+    if (spec.local.id, spec.remote.id) != (_broker_id(broker_id), _broker_id(remote_id)):
+        raise WireError("local", f"the bridge {spec.local.id} -> {spec.remote.id} differs from the "
+                        f"URL ({broker_id} -> {remote_id})")
+    state = _state()
+    if spec.mechanism is BridgeMechanism.MOSQUITTO:
+        return jsonify(to_dict(state.brokers.put_native_bridge(spec)))
+    local = state.brokers.get(broker_id)
+    if local is None:
+        raise BrokerNotFoundError(broker_id)
+    if (local.spec.host, local.spec.port) != (spec.local.host, spec.local.port):
+        raise BridgeConflictError(f"{spec.address}: its local end is not broker {broker_id!r} here",
+                                  hint="PUT the broker first, then its bridges")
+    if state.workers is None:
+        raise EngineError("this agent runs no bridge workers", hint="start it with `plantkg agent`")
+    return jsonify(to_dict(state.workers.put(spec)))
+
+
+@v1.delete("/brokers/<broker_id>/bridges/<remote_id>")
+def delete_bridge(broker_id: str, remote_id: str) -> tuple[str, int]:
+    state = _state()
+    local, remote = _broker_id(broker_id), _broker_id(remote_id)
+    if not state.brokers.delete_native_bridge(local, remote) and state.workers is not None:
+        state.workers.delete(local, remote)
     return "", 204
 
 
@@ -228,6 +285,7 @@ _STATUS: tuple[tuple[type[BaseException], int], ...] = (
     (ConfigValueError, 400),
     (BrokerNotFoundError, 404),
     (DriverRefusedError, 409),
+    (BridgeConflictError, 409),
     (BrokerNotRunningError, 409),
     (UnknownDriverError, 422),
     (BrokerUnavailableError, 503),

@@ -22,9 +22,22 @@ import urllib.parse
 import urllib.request
 from typing import Any
 
-from engine.agent.wire import WireError, observed_broker_from_json, observed_topic_from_json
+from engine.agent.wire import (
+    WireError,
+    observed_bridge_from_json,
+    observed_broker_from_json,
+    observed_topic_from_json,
+)
 from engine.errors import AgentAuthError, PermanentDispatchError, TemporaryDispatchError
-from engine.model import BrokerSpec, ObservedBroker, ObservedTopic, TopicSpec, to_dict
+from engine.model import (
+    BridgeSpec,
+    BrokerSpec,
+    ObservedBridge,
+    ObservedBroker,
+    ObservedTopic,
+    TopicSpec,
+    to_dict,
+)
 
 DEFAULT_BROKER_TIMEOUT = 150.0
 
@@ -79,6 +92,22 @@ class AgentClient:
 
     def delete_topic(self, broker_id: str, name: str) -> None:
         self._request("DELETE", f"/v1/brokers/{_segment(broker_id)}/topics/{_segment(name)}")
+
+    def list_bridges(self) -> list[ObservedBridge]:
+        data = self._request("GET", "/v1/bridges")
+        bridges = data.get("bridges") if isinstance(data, dict) else None
+        if not isinstance(bridges, list):
+            raise self._bad_answer("GET /v1/bridges", "no 'bridges' array")
+        return [self._parse(observed_bridge_from_json, b, "GET /v1/bridges") for b in bridges]
+
+    def put_bridge(self, spec: BridgeSpec) -> ObservedBridge:
+        path = f"/v1/brokers/{_segment(spec.local.id)}/bridges/{_segment(spec.remote.id)}"
+        data = self._request("PUT", path, to_dict(spec), timeout=self.broker_timeout)
+        return self._parse(observed_bridge_from_json, data, path)
+
+    def delete_bridge(self, local_id: str, remote_id: str) -> None:
+        self._request("DELETE", f"/v1/brokers/{_segment(local_id)}/bridges/{_segment(remote_id)}",
+                      timeout=self.broker_timeout)
 
     # --- HTTP ------------------------------------------------------------------------------
 

@@ -5,6 +5,7 @@
     spec.json        the BrokerSpec last PUT (its presence means "this broker should run")
     pid.json         pid, start time (clock ticks since boot), argv, restarts, config hash, essence
     topics.json      topics the agent was asked for (reported for implicit-topic drivers: MQTT)
+    bridges.json     the native bridges the broker carries (rendered into its config)
     <rendered>       the driver's config files (mosquitto.conf, server.properties, ...)
     data/            the broker's data (Kafka log dirs)
     logs/<kind>.log  the broker's stdout and stderr (and Mosquitto's own log)
@@ -21,13 +22,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from engine.agent.wire import WireError, broker_spec_from_json, observed_topic_from_json
+from engine.agent.wire import (
+    WireError,
+    bridge_spec_from_json,
+    broker_spec_from_json,
+    observed_topic_from_json,
+)
 from engine.errors import EngineError
-from engine.model import BrokerSpec, ObservedTopic, to_dict
+from engine.model import BridgeSpec, BrokerSpec, ObservedTopic, to_dict
 
 SPEC_FILE = "spec.json"
 PID_FILE = "pid.json"
 TOPICS_FILE = "topics.json"
+BRIDGES_FILE = "bridges.json"
 
 
 @dataclass(frozen=True)
@@ -120,11 +127,23 @@ class BrokerFolder:
     def write_topics(self, topics: list[ObservedTopic]) -> None:
         self.write_json(TOPICS_FILE, [to_dict(t) for t in sorted(topics, key=lambda t: t.name)])
 
+    # bridges.json
+    def read_bridges(self) -> tuple[BridgeSpec, ...]:
+        data = self._read_json(BRIDGES_FILE) or []
+        try:
+            return tuple(bridge_spec_from_json(b) for b in data)
+        except WireError as exc:
+            raise EngineError(f"{self.path / BRIDGES_FILE}: {exc.message}",
+                              hint="PUT the bridges again, or delete the file") from exc
+
+    def write_bridges(self, bridges: tuple[BridgeSpec, ...]) -> None:
+        self.write_json(BRIDGES_FILE, [to_dict(b) for b in bridges])
+
     # rendered files
     def write_rendered(self, files: dict[str, str]) -> None:
         for name, text in files.items():
             target = (self.path / name).resolve()
-            if target.parent != self.path.resolve() or name in (SPEC_FILE, PID_FILE, TOPICS_FILE):
+            if target.parent != self.path.resolve() or name in (SPEC_FILE, PID_FILE, TOPICS_FILE, BRIDGES_FILE):
                 raise EngineError(f"driver tried to write {name!r} outside its config files",
                                   hint="fix the driver's render_config")
             write_atomic(target, text)

@@ -43,7 +43,7 @@ from engine.agent.procs import (
     stop_foreign,
 )
 from engine.agent.wire import BROKER_ID
-from engine.drivers.base import LOGS_DIR, Driver, config_hash, log_file
+from engine.drivers.base import LOGS_DIR, BridgeCarrier, Driver, config_hash, log_file
 from engine.drivers.registry import DriverRegistry
 from engine.errors import (
     BrokerUnavailableError,
@@ -53,7 +53,16 @@ from engine.errors import (
     UnknownDriverError,
     WaitTimeoutError,
 )
-from engine.model import BrokerSpec, BrokerStatus, ObservedBroker, ObservedTopic, TopicSpec
+from engine.model import (
+    BridgeSpec,
+    BridgeStatus,
+    BrokerSpec,
+    BrokerStatus,
+    ObservedBridge,
+    ObservedBroker,
+    ObservedTopic,
+    TopicSpec,
+)
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +77,10 @@ class BrokerNotFoundError(EngineError):
         super().__init__(f"no broker {broker_id!r} on this agent",
                          hint="PUT /v1/brokers/<id> first")
         self.broker_id = broker_id
+
+
+class BridgeConflictError(EngineError):
+    """A bridge PUT whose local end is not the broker this agent runs under that id (HTTP 409)."""
 
 
 class BrokerNotRunningError(EngineError):
@@ -231,6 +244,71 @@ class BrokerManager:
         finally:
             b.op.release()
 
+    # --- native bridges (carried in the broker's own config) ---------------------------------
+
+    def put_native_bridge(self, bridge: BridgeSpec) -> ObservedBridge:
+        """Render ``bridge`` into its local broker's config; restart that broker (only) if the
+        rendered config changed. The remote may be down: the broker keeps reconnecting."""
+        b = self._existing(bridge.local.id)
+        try:
+            if (b.spec.host, b.spec.port) != (bridge.local.host, bridge.local.port):
+                raise BridgeConflictError(
+                    f"{bridge.address}: its local end {bridge.local.host}:{bridge.local.port} is "
+                    f"not broker {b.spec.id!r} here ({b.spec.host}:{b.spec.port})",
+                    hint="PUT the broker first, then its bridges")
+            kept = tuple(x for x in b.folder.read_bridges() if x.address != bridge.address)
+            self._rerender(b, tuple(sorted((*kept, bridge), key=lambda x: x.address)))
+        finally:
+            b.op.release()
+        return next(o for o in self.native_bridges() if o.spec.address == bridge.address)
+
+    def delete_native_bridge(self, local_id: str, remote_id: str) -> bool:
+        """Remove the bridge from its broker's config (restarting it); False if not carried."""
+        try:
+            b = self._existing(local_id)
+        except BrokerNotFoundError:
+            return False
+        try:
+            bridges = b.folder.read_bridges()
+            kept = tuple(x for x in bridges if x.remote.id != remote_id)
+            if kept == bridges:
+                return False
+            self._rerender(b, kept)
+            return True
+        finally:
+            b.op.release()
+
+    def native_bridges(self) -> list[ObservedBridge]:
+        """Every native bridge, with its state as the running broker reports it."""
+        out: list[ObservedBridge] = []
+        for b in sorted(self._all(), key=lambda b: b.spec.id):
+            bridges = b.folder.read_bridges() if b.folder.path.exists() else ()
+            if not bridges:
+                continue
+            driver, status = b.driver, b.status
+            states: dict[str, bool] = {}
+            if status is BrokerStatus.RUNNING and isinstance(driver, BridgeCarrier):
+                states = driver.bridge_states(b.spec, bridges, 0.5)
+            for bridge in bridges:
+                out.append(ObservedBridge(
+                    spec=bridge, status=_native_status(status, states.get(bridge.address)),
+                    last_error=None if states.get(bridge.address) else b.last_error))
+        return out
+
+    def _rerender(self, b: _Broker, bridges: tuple[BridgeSpec, ...]) -> None:
+        """Validate the new rendering first (nothing changes on a refusal), then store the bridges
+        and restart the broker if its config changed."""
+        assert b.driver is not None
+        files = b.driver.render_config(b.spec, b.folder.path, bridges)
+        b.folder.write_bridges(bridges)
+        if b.proc is not None and b.proc.alive() and config_hash(files) == b.config_hash:
+            return
+        if b.proc is not None:
+            self._stop_proc(b)
+        self._update(b, failures=0, next_start=None, last_error=None)
+        self._start(b, restart=False)
+        self._wait_healthy(b)
+
     # --- helpers for the API ---------------------------------------------------------------
 
     def _all(self) -> list[_Broker]:
@@ -274,7 +352,8 @@ class BrokerManager:
         if b.essence != driver.essence(spec):
             return False
         try:
-            return config_hash(driver.render_config(spec, b.folder.path)) == b.config_hash
+            return config_hash(driver.render_config(spec, b.folder.path, b.folder.read_bridges())) \
+                == b.config_hash
         except EngineError:
             return False
 
@@ -324,7 +403,7 @@ class BrokerManager:
         assert driver is not None
         (path / LOGS_DIR).mkdir(parents=True, exist_ok=True)
         driver.prepare(spec, path)
-        files = driver.render_config(spec, path)
+        files = driver.render_config(spec, path, b.folder.read_bridges())
         b.folder.write_rendered(files)
         argv = driver.command(spec, path)
         child = process.spawn(argv, log_dir=path / LOGS_DIR, name=driver.kind, cwd=path)
@@ -491,6 +570,14 @@ class BrokerManager:
                              next_start=now + delay,
                              last_error=f"restart failed: {exc}; next try in {delay:.1f} s")
                 log.warning("broker %s: restart failed: %s", b.spec.id, exc)
+
+
+def _native_status(broker: BrokerStatus, connected: bool | None) -> BridgeStatus:
+    """A native bridge runs when its broker runs and reports the connection up."""
+    if broker is BrokerStatus.RUNNING:
+        return BridgeStatus.RUNNING if connected else BridgeStatus.CONNECTING
+    return {BrokerStatus.STARTING: BridgeStatus.CONNECTING, BrokerStatus.CRASHED: BridgeStatus.CRASHED,
+            BrokerStatus.FAILED: BridgeStatus.FAILED}.get(broker, BridgeStatus.STOPPED)
 
 
 def _last_lines(text: str, count: int = 12) -> str:

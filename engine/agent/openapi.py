@@ -101,6 +101,41 @@ _SCHEMAS: dict[str, Any] = {
             "last_error": {"type": ["string", "null"]},
         },
     },
+    "BridgeEnd": {
+        "type": "object", "required": ["id", "kind", "host", "port"],
+        "properties": {"id": {"type": "string"}, "kind": {"type": "string"},
+                       "host": {"type": "string"}, "port": {"type": "integer"}},
+    },
+    "BridgeSpec": {
+        "type": "object", "additionalProperties": False,
+        "required": ["local", "remote", "mechanism", "routes"],
+        "properties": {
+            "local": _ref("BridgeEnd"),
+            "remote": _ref("BridgeEnd"),
+            "mechanism": {"type": "string", "enum": ["mosquitto", "mqtt-kafka"]},
+            "routes": {"type": "array", "minItems": 1, "items": {
+                "type": "object", "required": ["topic", "direction"],
+                "properties": {"topic": {"type": "string"},
+                               "direction": {"type": "string", "enum": ["out", "in", "both"]},
+                               "qos": {"type": "integer", "minimum": 0, "maximum": 2},
+                               "key": {"type": "string", "enum": ["mqtt-topic", "none"]}}}},
+            "asserted": {"type": "boolean"},
+        },
+    },
+    "ObservedBridge": {
+        "type": "object", "required": ["spec", "status"],
+        "properties": {
+            "spec": _ref("BridgeSpec"),
+            "status": {"type": "string",
+                       "enum": ["running", "connecting", "stopped", "crashed", "failed"]},
+            "pid": _NULLABLE_INT,
+            "started_at": {"type": ["number", "null"]},
+            "restarts": {"type": "integer"},
+            "forwarded": _NULLABLE_INT,
+            "retried": _NULLABLE_INT,
+            "last_error": {"type": ["string", "null"]},
+        },
+    },
     "Health": {
         "type": "object", "required": ["status", "agent", "version"],
         "properties": {
@@ -182,6 +217,35 @@ def openapi_document(version: str) -> dict[str, Any]:
                     "operationId": "deleteTopic", "summary": "Delete a topic (idempotent)",
                     "responses": {"204": {"description": "Gone"},
                                   **_error_responses(400, 401, 409, 503)},
+                },
+            },
+            "/v1/bridges": {"get": {
+                "operationId": "listBridges", "summary": "Every bridge this agent's brokers carry",
+                "responses": {
+                    "200": _json({"type": "object", "required": ["bridges"], "properties": {
+                        "bridges": {"type": "array", "items": _ref("ObservedBridge")}}},
+                        "The bridges, sorted by address"),
+                    **_error_responses(401),
+                },
+            }},
+            "/v1/brokers/{broker_id}/bridges/{remote_id}": {
+                "parameters": [_BROKER_ID, {**_BROKER_ID, "name": "remote_id"}],
+                "put": {
+                    "operationId": "putBridge",
+                    "summary": "Make the bridge from this broker to the remote one run (idempotent)",
+                    "description": "mechanism mosquitto: rendered into the broker's config, which "
+                                   "restarts only if its config changed; mqtt-kafka: a supervised "
+                                   "worker process. A remote that is down is not an error: the "
+                                   "bridge connects when it comes up (status connecting).",
+                    "requestBody": {"required": True, "content": {
+                        "application/json": {"schema": _ref("BridgeSpec")}}},
+                    "responses": {"200": _json(_ref("ObservedBridge"), "The bridge as observed"),
+                                  **_error_responses(400, 401, 404, 409, 422, 503)},
+                },
+                "delete": {
+                    "operationId": "deleteBridge", "summary": "Stop the bridge (idempotent)",
+                    "responses": {"204": {"description": "Gone"},
+                                  **_error_responses(400, 401, 503)},
                 },
             },
             "/v1/openapi.json": {"get": {

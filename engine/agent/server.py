@@ -27,6 +27,7 @@ from werkzeug.serving import BaseWSGIServer, make_server
 
 from engine.agent.app import AgentState, create_app
 from engine.agent.manager import BrokerManager
+from engine.agent.workers import WorkerManager
 from engine.drivers.registry import DriverRegistry
 from engine.errors import EngineError
 
@@ -141,11 +142,14 @@ class RunningAgent:
     thread: threading.Thread
     manager: BrokerManager
     lock: IO[str]
+    workers: WorkerManager | None = None
 
     def shutdown(self, *, stop_brokers: bool = False) -> None:
         self.server.shutdown()
         self.thread.join()
         self.server.server_close()
+        if self.workers is not None:
+            self.workers.close(stop_workers=stop_brokers)
         self.manager.close(stop_brokers=stop_brokers)
         self.lock.close()
 
@@ -166,10 +170,12 @@ def start_agent(
     except BaseException:
         lock.close()
         raise
-    app = create_app(AgentState(manager, token, name or f"plantkg-agent@{listen.url}"))
+    workers = WorkerManager(state_dir).open()
+    app = create_app(AgentState(manager, token, name or f"plantkg-agent@{listen.url}", workers))
     try:
         server = make_server(listen.host, listen.port, app, threaded=True)
     except (OSError, SystemExit) as exc:  # werkzeug exits when the port is taken
+        workers.close()
         manager.close()
         lock.close()
         raise EngineError(f"cannot listen on {listen.url}: {exc}",
@@ -177,7 +183,7 @@ def start_agent(
     address = ListenAddress(listen.host, server.server_port)
     thread = threading.Thread(target=server.serve_forever, name="plantkg-http", daemon=True)
     thread.start()
-    return RunningAgent(address, server, thread, manager, lock)
+    return RunningAgent(address, server, thread, manager, lock, workers)
 
 
 def wait_for_signal(signals: tuple[signal.Signals, ...] = (signal.SIGTERM, signal.SIGINT),

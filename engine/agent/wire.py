@@ -1,7 +1,7 @@
 """JSON <-> engine.model dataclasses for the agent API, strictly.
 
-The agent reads BrokerSpec and TopicSpec bodies with :func:`broker_spec_from_json` and
-:func:`topic_spec_from_json`: an unknown field, a missing one, a value of the wrong JSON type or an
+The agent reads BrokerSpec, TopicSpec and BridgeSpec bodies with :func:`broker_spec_from_json`,
+:func:`topic_spec_from_json` and :func:`bridge_spec_from_json`: an unknown field, a missing one, a value of the wrong JSON type or an
 unsafe value (control character, port out of range, a host name where an address belongs) raises
 :class:`WireError` naming the field, which the agent answers with 400. The client reads the agent's
 answers with :func:`observed_broker_from_json` / :func:`observed_topic_from_json`. Writing is
@@ -16,7 +16,20 @@ from typing import Any
 
 from engine.drivers.base import check_text
 from engine.errors import ConfigValueError, EngineError
-from engine.model import BrokerSpec, BrokerStatus, ObservedBroker, ObservedTopic, TopicSpec
+from engine.model import (
+    BridgeDirection,
+    BridgeEnd,
+    BridgeMechanism,
+    BridgeRoute,
+    BridgeSpec,
+    BridgeStatus,
+    BrokerSpec,
+    BrokerStatus,
+    ObservedBridge,
+    ObservedBroker,
+    ObservedTopic,
+    TopicSpec,
+)
 from engine.values import check_host, check_port
 
 #: pk:id as the shapes allow it (pks:PlantElement-idValue); ids name folders on the agent.
@@ -146,5 +159,75 @@ def observed_broker_from_json(data: Any, where: str = "") -> ObservedBroker:
         started_at=float(started) if started is not None else None,
         restarts=_typed(data, "restarts", (int,), where) if "restarts" in data else 0,
         config_hash=_typed(data, "config_hash", (str,), where, optional=True),
+        last_error=_typed(data, "last_error", (str,), where, optional=True),
+    )
+
+
+def _enum(data: dict[str, Any], name: str, cls: type, where: str) -> Any:
+    value = _typed(data, name, (str,), where)
+    try:
+        return cls(value)
+    except ValueError:
+        raise WireError(_join(where, name), f"not one of {[e.value for e in cls]}") from None
+
+
+def _bridge_end(data: Any, where: str, strict: bool) -> BridgeEnd:
+    data = _fields(data, BridgeEnd, where, strict=strict)
+    end_id = _typed(data, "id", (str,), where)
+    if not BROKER_ID.fullmatch(end_id):
+        raise WireError(_join(where, "id"), "not a broker id")
+    kind = _typed(data, "kind", (str,), where)
+    if not KIND.fullmatch(kind):
+        raise WireError(_join(where, "kind"), "must be a lower-case driver name such as mosquitto")
+    host = _typed(data, "host", (str,), where)
+    _checked(where, check_host, "host", host)
+    port = _checked(where, check_port, "port", _typed(data, "port", (int,), where))
+    return BridgeEnd(id=end_id, kind=kind, host=host, port=port)
+
+
+def _bridge_route(data: Any, where: str, strict: bool) -> BridgeRoute:
+    data = _fields(data, BridgeRoute, where, strict=strict)
+    topic = _checked(where, check_text, "topic", _typed(data, "topic", (str,), where))
+    qos = _typed(data, "qos", (int,), where) if "qos" in data else 1
+    if qos not in (0, 1, 2):
+        raise WireError(_join(where, "qos"), "must be 0, 1 or 2")
+    key = _typed(data, "key", (str,), where) if "key" in data else "mqtt-topic"
+    if key not in ("mqtt-topic", "none"):
+        raise WireError(_join(where, "key"), "must be 'mqtt-topic' or 'none'")
+    return BridgeRoute(topic=topic, direction=_enum(data, "direction", BridgeDirection, where),
+                       qos=qos, key=key)
+
+
+def bridge_spec_from_json(data: Any, where: str = "", *, strict: bool = True) -> BridgeSpec:
+    """A BridgeSpec with types, ids, addresses and routes checked (the driver or the worker
+    checks what it renders)."""
+    data = _fields(data, BridgeSpec, where, strict=strict)
+    routes = data.get("routes")
+    if not isinstance(routes, list) or not routes:
+        raise WireError(_join(where, "routes"), "expected a non-empty array")
+    parsed = tuple(_bridge_route(r, _join(where, f"routes[{i}]"), strict) for i, r in enumerate(routes))
+    if len({r.topic for r in parsed}) != len(parsed):
+        raise WireError(_join(where, "routes"), "a topic is routed twice")
+    local = _bridge_end(data["local"], _join(where, "local"), strict)
+    remote = _bridge_end(data["remote"], _join(where, "remote"), strict)
+    if local.id == remote.id:
+        raise WireError(_join(where, "remote"), "a broker cannot bridge to itself")
+    asserted = _typed(data, "asserted", (bool,), where) if "asserted" in data else True
+    return BridgeSpec(local=local, remote=remote,
+                      mechanism=_enum(data, "mechanism", BridgeMechanism, where),
+                      routes=parsed, asserted=asserted)
+
+
+def observed_bridge_from_json(data: Any, where: str = "") -> ObservedBridge:
+    data = _fields(data, ObservedBridge, where, strict=False)
+    started = _typed(data, "started_at", (int, float), where, optional=True)
+    return ObservedBridge(
+        spec=bridge_spec_from_json(data["spec"], _join(where, "spec"), strict=False),
+        status=_enum(data, "status", BridgeStatus, where),
+        pid=_typed(data, "pid", (int,), where, optional=True),
+        started_at=float(started) if started is not None else None,
+        restarts=_typed(data, "restarts", (int,), where) if "restarts" in data else 0,
+        forwarded=_typed(data, "forwarded", (int,), where, optional=True),
+        retried=_typed(data, "retried", (int,), where, optional=True),
         last_error=_typed(data, "last_error", (str,), where, optional=True),
     )

@@ -18,8 +18,11 @@ from engine.agents_config import AgentDirectory
 from engine.apply import operations
 from engine.errors import PermanentDispatchError, TemporaryDispatchError
 from engine.model import (
+    BridgeSpec,
+    BridgeStatus,
     BrokerSpec,
     BrokerStatus,
+    ObservedBridge,
     ObservedBroker,
     ObservedState,
     ObservedTopic,
@@ -34,6 +37,7 @@ class FakeFleet:
     """All agents of a test plant; ``client_for``-compatible through :meth:`directory`."""
 
     brokers: dict[str, ObservedBroker] = field(default_factory=dict)
+    bridges: dict[str, ObservedBridge] = field(default_factory=dict)  # by address
     calls: list[tuple[str, str, str]] = field(default_factory=list)  # (host, verb, key)
     fail: dict[tuple[str, str], list[Exception]] = field(default_factory=dict)  # (verb, key) -> errors
     down: set[str] = field(default_factory=set)
@@ -43,7 +47,8 @@ class FakeFleet:
 
     @classmethod
     def from_observed(cls, observed: ObservedState) -> FakeFleet:
-        return cls(brokers={b.spec.id: b for b in observed.brokers})
+        return cls(brokers={b.spec.id: b for b in observed.brokers},
+                   bridges={b.spec.address: b for b in observed.bridges})
 
     def directory(self) -> AgentDirectory:
         return AgentDirectory(default_token="test-token", client_factory=self.client)
@@ -57,7 +62,8 @@ class FakeFleet:
     def observed(self, hosts: set[str] | None = None) -> ObservedState:
         with self.lock:
             brokers = tuple(sorted(self.brokers.values(), key=lambda b: b.spec.id))
-        return ObservedState(brokers=brokers)
+            bridges = tuple(sorted(self.bridges.values(), key=lambda b: b.spec.address))
+        return ObservedState(brokers=brokers, bridges=bridges)
 
     def verbs(self) -> list[tuple[str, str]]:
         return [(verb, key) for _host, verb, key in self.calls]
@@ -127,6 +133,8 @@ class FakeClient:
             restart = old is None or old.status is not BrokerStatus.RUNNING or any(
                 getattr(old.spec, f) != getattr(spec, f) for f in REPLACE_FIELDS)
             topics = () if old is None or old.spec.kind != spec.kind else old.topics
+            if old is not None and old.spec.kind != spec.kind:  # its folder (and bridges) go
+                self._drop_bridges_of(spec.id)
             if restart:
                 fleet.next_pid += 1
             new = ObservedBroker(spec=spec, status=BrokerStatus.RUNNING, topics=topics,
@@ -141,6 +149,34 @@ class FakeClient:
             broker = self.fleet.brokers.get(broker_id)
             if broker is not None and broker.spec.host == self.host:
                 del self.fleet.brokers[broker_id]
+                self._drop_bridges_of(broker_id)
+
+    def _drop_bridges_of(self, broker_id: str) -> None:
+        for address in [a for a, b in self.fleet.bridges.items() if b.spec.local.id == broker_id]:
+            del self.fleet.bridges[address]
+
+    def list_bridges(self) -> list[ObservedBridge]:
+        self._enter("list_bridges", "")
+        with self.fleet.lock:
+            return [b for b in self.fleet.bridges.values() if b.spec.local.host == self.host]
+
+    def put_bridge(self, spec: BridgeSpec) -> ObservedBridge:
+        """As the agent: the local broker must run here; the remote may be anywhere, or down."""
+        self._enter("put_bridge", spec.address)
+        with self.fleet.lock:
+            local = self._mine(spec.local.id)
+            if (local.spec.host, local.spec.port) != (spec.local.host, spec.local.port):
+                raise PermanentDispatchError(f"409: {spec.address}: local end is not the broker here")
+            new = ObservedBridge(spec=spec, status=BridgeStatus.RUNNING, forwarded=0, retried=0)
+            self.fleet.bridges[spec.address] = new
+            return new
+
+    def delete_bridge(self, local_id: str, remote_id: str) -> None:
+        self._enter("delete_bridge", f"bridge.{local_id}.{remote_id}")
+        with self.fleet.lock:
+            bridge = self.fleet.bridges.get(f"bridge.{local_id}.{remote_id}")
+            if bridge is not None and bridge.spec.local.host == self.host:
+                del self.fleet.bridges[bridge.spec.address]
 
     def put_topic(self, spec: TopicSpec) -> ObservedTopic:
         self._enter("put_topic", f"{spec.broker_id}/{spec.name}")

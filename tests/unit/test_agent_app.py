@@ -99,7 +99,8 @@ def test_openapi_needs_no_token_and_describes_every_route(client: FlaskClient) -
     for rule in client.application.url_map.iter_rules():
         if rule.endpoint == "static":
             continue
-        path = rule.rule.replace("<broker_id>", "{broker_id}").replace("<topic:name>", "{name}")
+        path = rule.rule.replace("<broker_id>", "{broker_id}").replace("<topic:name>", "{name}") \
+            .replace("<remote_id>", "{remote_id}")
         for method in rule.methods - {"HEAD", "OPTIONS"}:
             routes.add((path, method.lower()))
     described = {(path, method) for path, item in document["paths"].items()

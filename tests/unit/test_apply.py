@@ -79,11 +79,15 @@ def test_apply_creates_everything_in_order_and_converges() -> None:
     fleet = FakeFleet()
     result, events = run(fleet, robot_cell())
     assert result.ok and result.converged and not result.failed
-    assert len(result.changed) == 5
+    assert len(result.changed) == 6
     for broker in ("kafka", "mosquitto"):
         put = index(fleet, "put_broker", broker)
         topics = [i for i, (v, k) in enumerate(fleet.verbs()) if v == "put_topic" and k.startswith(broker + "/")]
         assert topics and all(i > put for i in topics)
+    # the bridge goes to the agent of its local (MQTT) broker, after that broker and its topics
+    bridge = index(fleet, "put_bridge", "bridge.mosquitto.kafka")
+    assert bridge > max(i for i, (v, k) in enumerate(fleet.verbs()) if k.startswith("mosquitto"))
+    assert fleet.calls[bridge][0] == "127.0.0.2"
     starts = [e.address for e in events if e.kind is EventKind.START]
     dones = [e.address for e in events if e.kind is EventKind.DONE]
     assert sorted(starts) == sorted(dones) == sorted(c.address for c in result.plan.pending)
@@ -130,9 +134,9 @@ def test_retries_stop_at_the_deadline_and_skip_the_lane() -> None:
     assert {o.change.address for o in result.skipped} == {
         "topic.kafka.robot.abb-irb120.energy", "topic.kafka.robot.abb-irb120.position"}
     assert all(("put_topic", k) not in fleet.verbs() for k in ("kafka/robot.abb-irb120.energy",))
-    # the other broker went ahead
+    # the other broker went ahead, and its bridge to Kafka (which connects once Kafka runs)
     assert {o.change.address for o in result.changed} == {
-        "broker.mosquitto", "topic.mosquitto.robot.abb-irb120.position"}
+        "broker.mosquitto", "topic.mosquitto.robot.abb-irb120.position", "bridge.mosquitto.kafka"}
     assert not result.ok and not result.unexpected  # a failure explains what is left
     assert [e.kind for e in events].count(EventKind.SKIPPED) == 2
 
@@ -143,7 +147,7 @@ def test_permanent_error_stops_only_its_broker_and_a_rerun_converges() -> None:
     result, _ = run(fleet, robot_cell())
     assert [o.change.address for o in result.failed] == ["broker.kafka"]
     assert result.failed[0].attempts == 1 and "see the log" in (result.failed[0].error or "")
-    assert len(result.skipped) == 2 and len(result.changed) == 2
+    assert len(result.skipped) == 2 and len(result.changed) == 3
     assert result.after is not None and not result.after.empty
     rerun, _ = run(fleet, robot_cell())
     assert rerun.ok and {o.change.address for o in rerun.changed} == {
@@ -279,5 +283,5 @@ def test_a_failing_check_is_reported_not_raised() -> None:
         raise ObserveError("agent at http://127.0.0.3:7300 answered 500")
 
     result = apply(the_plan, desired, fleet.directory(), observe_fn=broken_observe)
-    assert len(result.changed) == 5 and result.after is None and not result.ok
+    assert len(result.changed) == 6 and result.after is None and not result.ok
     assert [u.address for u in result.unexpected] == ["check"]

@@ -47,15 +47,15 @@ def run(capsys: pytest.CaptureFixture[str], *args: object) -> tuple[int, str, st
 
 
 def dispatched(fleet: FakeFleet) -> list[tuple[str, str]]:
-    return [(v, k) for v, k in fleet.verbs() if v != "list_brokers"]
+    return [(v, k) for v, k in fleet.verbs() if v not in ("list_brokers", "list_bridges")]
 
 
 def test_plan_shows_changes_and_detailed_exit_code(fleet: FakeFleet, capsys) -> None:  # type: ignore[no-untyped-def]
     code, out, _ = run(capsys, "plan", PLANT)
-    assert code == 0 and "Plan: 5 to create, 0 to update, 0 to replace, 0 to destroy." in out
+    assert code == 0 and "Plan: 6 to create, 0 to update, 0 to replace, 0 to destroy." in out
     assert run(capsys, "plan", PLANT, "--detailed-exitcode")[0] == 1
     code, out, _ = run(capsys, "plan", PLANT, "--format", "json")
-    assert json.loads(out)["summary"]["create"] == 5
+    assert json.loads(out)["summary"]["create"] == 6
     assert dispatched(fleet) == []
 
 
@@ -63,7 +63,7 @@ def test_apply_with_yes_applies_and_reports(fleet: FakeFleet, capsys) -> None:  
     code, out, err = run(capsys, "apply", PLANT, "--yes")
     assert code == 0, out + err
     assert "broker.kafka: Created after" in out
-    assert "Apply complete: 5 changed, 0 failed, 0 skipped" in out
+    assert "Apply complete: 6 changed, 0 failed, 0 skipped" in out
     code, out, _ = run(capsys, "plan", PLANT, "--detailed-exitcode")
     assert code == 0 and out.rstrip().endswith("No changes. The plant matches its description.")
     code, out, _ = run(capsys, "apply", PLANT)  # nothing to do: no question asked
@@ -116,7 +116,7 @@ def test_failed_change_exits_3_and_names_it(fleet: FakeFleet, capsys) -> None:  
                                                                   hint="see its log")]
     code, out, _ = run(capsys, "apply", PLANT, "--yes")
     assert code == 3
-    assert "Apply finished with problems: 2 changed, 1 failed, 2 skipped" in out
+    assert "Apply finished with problems: 3 changed, 1 failed, 2 skipped" in out
     assert "✗ broker.kafka: 422: kafka would not start (see its log)" in out
     assert "Still to do: broker.kafka" in out
     code, out, _ = run(capsys, "apply", PLANT, "--yes")  # the re-run converges
@@ -134,7 +134,7 @@ def test_status_table_and_destroy(fleet: FakeFleet, capsys) -> None:  # type: ig
     assert rows[0].split()[:4] == ["kafka", "kafka", "127.0.0.3:9092", "running"]
     assert rows[0].split()[-1] == "2/2"
     code, out, _ = run(capsys, "destroy", PLANT, "--yes")
-    assert code == 0 and "Destroy complete: 5 changed" in out
+    assert code == 0 and "Destroy complete: 6 changed" in out
     assert fleet.brokers == {}
     code, out, _ = run(capsys, "destroy", PLANT, "--yes")
     assert code == 0 and "Nothing to destroy" in out

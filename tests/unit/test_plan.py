@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 from engine.model import (
     Action,
@@ -66,6 +67,33 @@ def test_destroy_plan_touches_only_the_plants_brokers() -> None:
         ("topic.kf.t", Action.DELETE), ("broker.kf", Action.DELETE), ("broker.mq", Action.DELETE)]
 
 
+def test_destroy_plan_deletes_the_plants_bridges_before_their_broker() -> None:
+    desired, observed, _ = load_case("no-change")
+    result = destroy_plan(desired, observed)
+    addresses = [c.address for c in result.changes]
+    assert addresses.index("bridge.mosquitto.kafka") < addresses.index("broker.mosquitto")
+    assert {c.action for c in result.changes} == {Action.DELETE}
+
+
+def test_a_bridge_whose_broker_starts_anew_is_created_again() -> None:
+    desired, observed, _ = load_case("no-change")
+    moved = replace(desired.brokers[1], host="127.0.0.9")
+    assert moved.id == "mosquitto"
+    desired = replace(desired, brokers=(desired.brokers[0], moved))
+    changes = {c.address: c.action for c in plan(desired, observed).changes}
+    assert changes["broker.mosquitto"] is Action.REPLACE
+    assert changes["bridge.mosquitto.kafka"] is Action.CREATE
+
+
+def test_a_bridge_on_an_unreachable_host_is_not_planned() -> None:
+    desired, observed, _ = load_case("no-change")
+    observed = replace(observed, unreachable=("127.0.0.2",),
+                       brokers=tuple(b for b in observed.brokers if b.spec.host != "127.0.0.2"))
+    result = plan(desired, observed)
+    assert not any(c.address.startswith("bridge.") for c in result.changes)
+    assert not result.applicable
+
+
 def test_unreachable_host_blocks_the_plan() -> None:
     result = plan(DesiredState((MQ,)), ObservedState(unreachable=("127.0.0.2",)))
     assert not result.applicable and result.unreachable == ("127.0.0.2",)
@@ -79,7 +107,9 @@ def test_render_signs_and_summary() -> None:
     text = render_plan(plan(desired, observed))
     assert "  + broker.kafka will be created" in text
     assert '+ port = 9092' in text
-    assert text.splitlines()[-1] == "Plan: 5 to create, 0 to update, 0 to replace, 0 to destroy."
+    assert "  + bridge.mosquitto.kafka will be created" in text
+    assert '+ mechanism = "mqtt-kafka"' in text
+    assert text.splitlines()[-1] == "Plan: 6 to create, 0 to update, 0 to replace, 0 to destroy."
 
 
 def test_render_replace_shows_the_field_and_why() -> None:
@@ -129,7 +159,7 @@ def test_plan_json_round_trips_the_plan() -> None:
     result = plan(desired, observed)
     data = json.loads(plan_json(result))
     assert data == json.loads(json.dumps(plan_dict(result)))
-    assert data["summary"] == {"create": 2, "update": 0, "replace": 1, "delete": 0}
+    assert data["summary"] == {"create": 2, "update": 1, "replace": 1, "delete": 0}
     assert data["applicable"] is True and data["empty"] is False
     first = data["changes"][0]
     assert first["address"] == "broker.kafka" and first["action"] == "replace"

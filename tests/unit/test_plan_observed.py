@@ -117,7 +117,8 @@ def test_observe_asks_each_agent_once_and_lists_unreachable_hosts() -> None:
     state = observe(fleet.directory(), ["127.0.0.2", "127.0.0.3", "127.0.0.2"])
     assert [b.spec.id for b in state.brokers] == ["a", "b"]
     assert state.unreachable == ("127.0.0.3",)
-    assert sorted(h for h, v, _ in fleet.calls) == ["127.0.0.2", "127.0.0.3"]
+    assert sorted(h for h, v, _ in fleet.calls if v == "list_brokers") == ["127.0.0.2", "127.0.0.3"]
+    assert [h for h, v, _ in fleet.calls if v == "list_bridges"] == ["127.0.0.2"]  # .3 is down
 
 
 def test_observe_reports_a_wrong_token_as_an_error_to_fix() -> None:

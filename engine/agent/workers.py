@@ -1,0 +1,315 @@
+"""The agent's bridge workers: one supervised process per MQTT <-> Kafka bridge it carries.
+
+A worker bridge lives in ``<state-dir>/bridges/<local>--<remote>/``::
+
+    spec.json     the BridgeSpec last PUT (its presence means "this worker should run")
+    worker.json   the worker's configuration (engine.bridge_worker.config.WorkerConfig)
+    pid.json      pid, start time, argv, restarts, config hash (as for brokers)
+    stats.json    what the worker reports: readiness, counters, last error
+    logs/bridge.log
+
+The rules are the broker manager's (:mod:`engine.agent.manager`), kept small: ``put`` is
+idempotent (same config and a live process: nothing to do; else restart the worker), a supervisor
+thread restarts a worker that exits with exponential backoff, and ``open`` re-adopts workers an
+earlier agent left running (pid, start time and command line must match). A worker whose remote is
+down keeps running and reconnecting: it shows as CONNECTING, not as failed.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+from engine import process
+from engine.agent.folder import BrokerFolder, PidRecord
+from engine.agent.procs import (
+    AdoptedProcess,
+    BrokerProcess,
+    SpawnedProcess,
+    mentions,
+    proc_info,
+    processes_of,
+    started_at,
+    stop_foreign,
+)
+from engine.agent.wire import WireError, bridge_spec_from_json
+from engine.bridge_worker.config import Direction, KeyMode, Route, WorkerConfig
+from engine.bridge_worker.stats import read_stats
+from engine.drivers.base import LOGS_DIR, config_hash
+from engine.errors import EngineError
+from engine.model import (
+    BridgeDirection,
+    BridgeMechanism,
+    BridgeSpec,
+    BridgeStatus,
+    ObservedBridge,
+    to_dict,
+)
+from engine.values import host_in_url
+
+log = logging.getLogger(__name__)
+
+WORKERS_DIR = "bridges"
+REMOVED_DIR = "removed"
+WORKER_FILE = "worker.json"
+LOG_NAME = "bridge"
+STOP_GRACE = 10.0
+#: A worker that has not rewritten stats.json for this long is reported as not ready.
+STALE_STATS = 5.0
+
+
+def folder_name(local_id: str, remote_id: str) -> str:
+    return f"{local_id}--{remote_id}"
+
+
+def worker_config(spec: BridgeSpec, state_dir: Path) -> WorkerConfig:
+    """The worker's configuration for ``spec`` (local: the MQTT broker, remote: Kafka). The worker
+    subscribes and publishes at QoS 1 at most: a QoS 2 topic is bridged at least once."""
+    routes: list[Route] = []
+    for r in spec.routes:
+        qos, key = min(r.qos, 1), KeyMode(r.key)
+        if r.direction in (BridgeDirection.OUT, BridgeDirection.BOTH):
+            routes.append(Route(r.topic, r.topic, Direction.MQTT_TO_KAFKA, qos, key))
+        if r.direction in (BridgeDirection.IN, BridgeDirection.BOTH):
+            routes.append(Route(r.topic, r.topic, Direction.KAFKA_TO_MQTT, qos, key))
+    return WorkerConfig(
+        bridge_id=folder_name(spec.local.id, spec.remote.id),
+        mqtt_host=spec.local.host, mqtt_port=spec.local.port,
+        kafka_bootstrap=f"{host_in_url(spec.remote.host)}:{spec.remote.port}",
+        routes=tuple(routes), state_dir=state_dir,
+    )
+
+
+class WorkerFolder(BrokerFolder):
+    """A worker bridge's folder: a BrokerFolder whose spec.json holds a BridgeSpec."""
+
+    def read_bridge(self) -> BridgeSpec | None:
+        data = self._read_json("spec.json")
+        if data is None:
+            return None
+        try:
+            return bridge_spec_from_json(data)
+        except WireError as exc:
+            raise EngineError(f"{self.path / 'spec.json'}: {exc.message}",
+                              hint="PUT the bridge again, or delete its folder") from exc
+
+    def write_bridge(self, spec: BridgeSpec) -> None:
+        self.write_json("spec.json", to_dict(spec))
+
+
+@dataclass(eq=False)
+class _Worker:
+    spec: BridgeSpec
+    folder: WorkerFolder
+    op: threading.Lock = field(default_factory=threading.Lock)
+    proc: BrokerProcess | None = None
+    config_hash: str | None = None
+    status: BridgeStatus = BridgeStatus.STOPPED
+    restarts: int = 0
+    failures: int = 0
+    next_start: float | None = None
+    last_error: str | None = None
+
+
+class WorkerManager:
+    """All bridge workers of one agent; thread-safe."""
+
+    def __init__(self, state_dir: Path, *, python: str = sys.executable, backoff_base: float = 1.0,
+                 backoff_cap: float = 30.0, tick: float = 0.1) -> None:
+        self.state_dir = state_dir
+        self.python = python
+        self.backoff_base, self.backoff_cap, self.tick = backoff_base, backoff_cap, tick
+        self._lock = threading.Lock()
+        self._workers: dict[str, _Worker] = {}
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    @property
+    def workers_dir(self) -> Path:
+        return self.state_dir / WORKERS_DIR
+
+    # --- life cycle ------------------------------------------------------------------------
+
+    def open(self) -> WorkerManager:
+        self.workers_dir.mkdir(parents=True, exist_ok=True)
+        for path in sorted(p for p in self.workers_dir.iterdir() if p.is_dir()):
+            try:
+                self._load(path)
+            except EngineError as exc:
+                log.error("bridge folder %s ignored: %s", path, exc)
+        self._thread = threading.Thread(target=self._supervise_loop, name="plantkg-workers",
+                                        daemon=True)
+        self._thread.start()
+        return self
+
+    def close(self, *, stop_workers: bool = False) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        if stop_workers:
+            for w in self._all():
+                with w.op:
+                    self._stop_proc(w)
+
+    # --- API -------------------------------------------------------------------------------
+
+    def put(self, spec: BridgeSpec) -> ObservedBridge:
+        """Make the worker of ``spec`` run with its configuration (restarted if it changed)."""
+        if spec.mechanism is not BridgeMechanism.WORKER:
+            raise EngineError(f"{spec.address} is not a worker bridge", hint="a bug in the agent")
+        key = folder_name(spec.local.id, spec.remote.id)
+        folder = WorkerFolder(self.workers_dir / key)
+        config = worker_config(spec, folder.path)  # refuses bad values before anything changes
+        text = config.to_json()
+        with self._lock:
+            w = self._workers.setdefault(key, _Worker(spec, folder))
+        with w.op:
+            digest = config_hash({WORKER_FILE: text})
+            if w.proc is not None and w.proc.alive() and w.config_hash == digest:
+                if w.spec != spec:
+                    w.folder.write_bridge(spec)
+                    w.spec = spec
+                return self._observe(w)
+            self._stop_proc(w)
+            folder.path.mkdir(parents=True, exist_ok=True)
+            folder.write_bridge(spec)
+            folder.write_rendered({WORKER_FILE: text})
+            self._set(w, spec=spec, failures=0, last_error=None)
+            self._start(w, restart=False)
+            return self._observe(w)
+
+    def delete(self, local_id: str, remote_id: str) -> bool:
+        """Stop the worker and retire its folder; False if there was none."""
+        key = folder_name(local_id, remote_id)
+        with self._lock:
+            w = self._workers.pop(key, None)
+        if w is None:
+            return False
+        with w.op:
+            self._stop_proc(w)
+            if w.folder.path.exists():
+                stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%S.%fZ")
+                target = self.state_dir / REMOVED_DIR / f"bridge.{key}.{stamp}"
+                target.parent.mkdir(parents=True, exist_ok=True)
+                shutil.move(str(w.folder.path), str(target))
+        return True
+
+    def list(self) -> list[ObservedBridge]:
+        return [self._observe(w) for w in sorted(self._all(), key=lambda w: w.spec.address)]
+
+    # --- processes -------------------------------------------------------------------------
+
+    def _all(self) -> list[_Worker]:
+        with self._lock:
+            return list(self._workers.values())
+
+    def _set(self, w: _Worker, **changes: object) -> None:
+        with self._lock:
+            for name, value in changes.items():
+                setattr(w, name, value)
+
+    def _argv(self, w: _Worker) -> list[str]:
+        return [self.python, "-m", "engine.bridge_worker", str(w.folder.path / WORKER_FILE)]
+
+    def _start(self, w: _Worker, *, restart: bool) -> None:
+        argv = self._argv(w)
+        text = (w.folder.path / WORKER_FILE).read_text(encoding="utf-8")
+        child = process.spawn(argv, log_dir=w.folder.path / LOGS_DIR, name=LOG_NAME, cwd=w.folder.path)
+        proc = SpawnedProcess(child)
+        restarts = w.restarts + (1 if restart else 0)
+        digest = config_hash({WORKER_FILE: text})
+        try:
+            w.folder.write_pid(PidRecord(pid=proc.pid, start_ticks=proc.start_ticks, argv=tuple(argv),
+                                         restarts=restarts, config_hash=digest))
+        except BaseException:
+            proc.stop(STOP_GRACE)
+            raise
+        self._set(w, proc=proc, config_hash=digest, restarts=restarts, next_start=None,
+                  status=BridgeStatus.CONNECTING)
+        log.info("bridge worker %s started, pid %d", w.spec.address, proc.pid)
+
+    def _stop_proc(self, w: _Worker) -> None:
+        if w.proc is not None:
+            w.proc.stop(STOP_GRACE)
+            w.folder.remove_pid()
+        self._set(w, proc=None, status=BridgeStatus.STOPPED, next_start=None)
+
+    def _observe(self, w: _Worker) -> ObservedBridge:
+        with self._lock:
+            spec, proc, status = w.spec, w.proc, w.status
+            restarts, last_error = w.restarts, w.last_error
+        stats = read_stats(w.folder.path) if w.folder.path.exists() else None
+        alive = proc is not None and proc.alive()
+        fresh = stats is not None and proc is not None and stats.pid == proc.pid \
+            and time.time() - stats.updated_at < STALE_STATS
+        if alive:
+            status = BridgeStatus.RUNNING if fresh and stats.ready else BridgeStatus.CONNECTING  # type: ignore[union-attr]
+        error = last_error or (stats.last_error if stats is not None else None)
+        return ObservedBridge(
+            spec=spec, status=status, pid=proc.pid if proc is not None else None,
+            started_at=started_at(proc.start_ticks) if proc is not None else None,
+            restarts=restarts,
+            forwarded=stats.forwarded if stats is not None else None,
+            retried=stats.retried if stats is not None else None,
+            last_error=error,
+        )
+
+    # --- re-adoption and supervision ------------------------------------------------------
+
+    def _load(self, path: Path) -> None:
+        folder = WorkerFolder(path)
+        spec = folder.read_bridge()
+        if spec is None or not (path / WORKER_FILE).is_file():
+            return
+        w = _Worker(spec, folder)
+        pid = folder.read_pid()
+        if pid is not None:
+            info = proc_info(pid.pid)
+            if info is not None and info.start_ticks == pid.start_ticks \
+                    and mentions(info, path, pid.argv[0]):
+                w.proc = AdoptedProcess(info, path / LOGS_DIR / f"{LOG_NAME}.log")
+                w.config_hash, w.status = pid.config_hash, BridgeStatus.CONNECTING
+            w.restarts = pid.restarts
+        for stray in processes_of(path, self.python):
+            if w.proc is None or stray.pid != w.proc.pid:
+                log.warning("stopping stray bridge worker %d in %s", stray.pid, path)
+                stop_foreign(stray, STOP_GRACE)
+        if w.proc is None:
+            w.next_start = time.monotonic()
+            if pid is not None:
+                w.status, w.last_error = BridgeStatus.CRASHED, f"process {pid.pid} was gone when the agent started"
+        self._workers[path.name] = w
+
+    def _supervise_loop(self) -> None:
+        while not self._stop.wait(self.tick):
+            for w in self._all():
+                if self._stop.is_set() or not w.op.acquire(blocking=False):
+                    continue
+                try:
+                    self._supervise(w)
+                except Exception:  # noqa: BLE001 - the supervisor must outlive any one worker
+                    log.exception("supervising bridge worker %s", w.spec.address)
+                finally:
+                    w.op.release()
+
+    def _supervise(self, w: _Worker) -> None:
+        now = time.monotonic()
+        if w.proc is not None and not w.proc.alive():
+            code = w.proc.exit_code()
+            failures = w.failures + 1
+            delay = min(self.backoff_cap, self.backoff_base * 2 ** (failures - 1))
+            tail = "\n".join(w.proc.log_tail().strip().splitlines()[-8:])
+            error = (f"worker exited" + (f" with code {code}" if code is not None else "")
+                     + f"; restart in {delay:.1f} s. Log ends with:\n{tail}")
+            self._set(w, proc=None, status=BridgeStatus.CRASHED, failures=failures,
+                      next_start=now + delay, last_error=error)
+            log.warning("bridge %s: %s", w.spec.address, error)
+        elif w.proc is None and w.next_start is not None and now >= w.next_start:
+            self._start(w, restart=w.status is BridgeStatus.CRASHED)
+            self._set(w, last_error=None)
