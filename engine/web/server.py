@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
+from flask import Flask
 from werkzeug.serving import BaseWSGIServer, make_server
 
 from engine.agent.server import ListenAddress, load_or_create_token, wait_for_signal
@@ -41,12 +42,14 @@ class RunningServer:
     server: BaseWSGIServer
     thread: threading.Thread
     state: PlantState
+    app: Flask
 
     def shutdown(self) -> None:
         self.server.shutdown()
         self.thread.join()
         self.server.server_close()
         self.state.close()
+        self.app.extensions["plantkg_sparql"].close()
 
 
 def start_server(listen: ListenAddress, state: PlantState, token: str, limits: Limits) -> RunningServer:
@@ -60,7 +63,7 @@ def start_server(listen: ListenAddress, state: PlantState, token: str, limits: L
     state.start()
     thread = threading.Thread(target=server.serve_forever, name="plantkg-web-http", daemon=True)
     thread.start()
-    return RunningServer(ListenAddress(listen.host, server.server_port), server, thread, state)
+    return RunningServer(ListenAddress(listen.host, server.server_port), server, thread, state, app)
 
 
 def run_server(files: list[str], listen: ListenAddress, *, agents_file: Path | None, token_file: Path | None,
