@@ -16,7 +16,7 @@ import hashlib
 import json
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
@@ -127,7 +127,8 @@ class PlantState:
 
     def __init__(self, files: list[str], agents_file: Path | None = None, *, auto_apply: bool = False,
                  observe_interval: float = 5.0, poll_interval: float = 0.5,
-                 directory_loader: Callable[[Path | None], AgentDirectory] = AgentDirectory.load) -> None:
+                 directory_loader: Callable[[Path | None], AgentDirectory] = AgentDirectory.load,
+                 observe_fn: Callable[[AgentDirectory, Iterable[str]], ObservedState] = observe) -> None:
         self.files = tuple(str(Path(f)) for f in files)
         self.agents_file = agents_file
         self.auto_apply = auto_apply
@@ -135,6 +136,7 @@ class PlantState:
         self.poll_interval = poll_interval
         self.store_lock = ReadWriteLock()
         self._load_directory = directory_loader
+        self._observe_fn = observe_fn
         self._snap = Snapshot(files=self.files)
         self._publish_lock = threading.Lock()
         self._work_lock = threading.Lock()     # one reload or refresh at a time
@@ -165,11 +167,10 @@ class PlantState:
             assert plant is not None
             resources = tuple(views.ResourceLink(r[0].value, r[1].value if r[1] else "", r[2].value)
                               for r in run_query(plant, _RESOURCES).rows)
+            observed = self._observe(plant, result.desired) if result.desired is not None else {
+                "observed": None, "plan": None, "fingerprint": None, "error": None}
             snap = self._publish(plant=plant, report=result.report, desired=result.desired,
-                                 loaded_at=time.time(), resources=resources, error=None,
-                                 observed=None, plan=None, fingerprint=None)
-            if result.desired is not None:
-                snap = self._observe_locked()
+                                 loaded_at=time.time(), resources=resources, **observed)
         if self.auto_apply and snap.plan is not None and not snap.plan.empty and snap.plan.applicable:
             try:
                 self.start_apply(snap.fingerprint, by="auto-apply")
@@ -180,25 +181,25 @@ class PlantState:
     def refresh(self) -> Snapshot:
         """Ask the agents again and plan again (the files are not re-read)."""
         with self._work_lock:
-            return self._observe_locked()
+            snap = self._snap
+            if snap.desired is None or snap.plant is None:
+                return snap
+            return self._publish(**self._observe(snap.plant, snap.desired))
 
-    def _observe_locked(self) -> Snapshot:
-        snap = self._snap
-        if snap.desired is None or snap.plant is None:
-            return snap
+    def _observe(self, plant: PlantGraph, desired: DesiredState) -> dict[str, Any]:
+        """Ask the agents, write the observed graph, plan: the snapshot fields that change."""
         try:
             directory = self._load_directory(self.agents_file)
-            hosts = {b.host for b in snap.desired.brokers} | set(directory.hosts)
-            observed = observe(directory, hosts)
+            hosts = {b.host for b in desired.brokers} | set(directory.hosts)
+            observed = self._observe_fn(directory, hosts)
         except PlantKGError as exc:
-            return self._publish(error=f"the agents cannot be asked: {exc}", observed=None, plan=None,
-                                 fingerprint=None, observed_at=time.time())
+            return {"error": f"the agents cannot be asked: {exc}", "observed": None, "plan": None,
+                    "fingerprint": None, "observed_at": time.time()}
         with self.store_lock.writing():
-            write_observed(snap.plant, observed)
-        plan = make_plan(snap.desired, observed)
-        urls = tuple((h, directory.url_for(h)) for h in sorted(hosts))
-        return self._publish(observed=observed, plan=plan, fingerprint=plan_fingerprint(plan), error=None,
-                             observed_at=time.time(), agent_urls=urls)
+            write_observed(plant, observed)
+        plan = make_plan(desired, observed)
+        return {"observed": observed, "plan": plan, "fingerprint": plan_fingerprint(plan), "error": None,
+                "observed_at": time.time(), "agent_urls": tuple((h, directory.url_for(h)) for h in sorted(hosts))}
 
     def tick(self) -> None:
         """One look of the watcher: re-read changed files, or re-observe when it is time."""
