@@ -2,8 +2,9 @@
 
 The steps are the ones a person would take on a real plant, each with its real part: start an agent
 per machine of the plant (each on its own loopback address), ``validate``, ``apply``, ``status``,
-then simulated resources publish (:mod:`engine.simulate`) and taps on every broker show what
-arrives, live; at the end (``--duration`` or Ctrl-C) ``destroy`` and the agents stop. Nothing is
+then simulated resources publish (:mod:`engine.simulate`) and taps on every topic of every broker
+show what arrives, live — on Kafka that is the merged stream: the power meter's readings published
+there and the robot's pose carried over from Mosquitto by the bridge; at the end (``--duration`` or Ctrl-C) ``destroy`` and the agents stop. Nothing is
 left running, whatever happens in between.
 """
 
@@ -18,7 +19,7 @@ from typing import Callable
 import click
 
 from engine.agent.local import LocalAgents, start_local_agents
-from engine.model import BrokerSpec
+from engine.model import BridgeDirection, BrokerSpec, DesiredState
 from engine.pipeline import run_pipeline
 from engine.simulate import Feed, Source, Tap
 from kg.query import run_query
@@ -57,22 +58,37 @@ def hosts_of(files: list[str]) -> list[str]:
     return [r[0].value for r in rows if r[0] is not None]
 
 
-def _table(taps: list[Tap], started: float) -> list[str]:
+def bridged_in(desired: DesiredState) -> dict[tuple[str, str], str]:
+    """(broker id, topic) -> the broker a bridge carries the topic over from."""
+    found: dict[tuple[str, str], str] = {}
+    for bridge in desired.bridges:
+        for route in bridge.routes:
+            if route.direction in (BridgeDirection.OUT, BridgeDirection.BOTH):
+                found[(bridge.remote.id, route.topic)] = bridge.local.id
+            if route.direction in (BridgeDirection.IN, BridgeDirection.BOTH):
+                found[(bridge.local.id, route.topic)] = bridge.remote.id
+    return found
+
+
+def _table(taps: list[Tap], started: float, via: dict[tuple[str, str], str]) -> list[str]:
     elapsed = max(time.monotonic() - started, 1e-6)
-    lines = [f"{'broker':<12} {'topic':<32} {'messages':>8} {'msg/s':>6}  last payload"]
+    lines = [f"{'broker':<12} {'topic':<30} {'via':<16} {'messages':>8} {'msg/s':>6}  last payload"]
     for tap in taps:
         for topic, seen in sorted(tap.snapshot().items()):
             last = {k: v for k, v in seen.last.items() if k not in ("ts", "source")}
-            text = str(last)[:60]
-            lines.append(f"{tap.broker.id:<12} {topic:<32} {seen.count:>8} {seen.count / elapsed:>6.1f}  {text}")
+            text = str(last)[:56]
+            source = f"bridge from {via[(tap.broker.id, topic)]}" if (tap.broker.id, topic) in via else "published"
+            lines.append(f"{tap.broker.id:<12} {topic:<30} {source:<16} {seen.count:>8} "
+                         f"{seen.count / elapsed:>6.1f}  {text}")
     return lines
 
 
-def _watch(taps: list[Tap], stop: threading.Event, duration: float | None, live: bool) -> None:
+def _watch(taps: list[Tap], stop: threading.Event, duration: float | None, live: bool,
+           via: dict[tuple[str, str], str]) -> None:
     started = time.monotonic()
     drawn = 0
     while not stop.wait(0.5 if live else 1.0):
-        lines = _table(taps, started)
+        lines = _table(taps, started, via)
         if live:
             if drawn:
                 click.echo(f"\x1b[{drawn}A", nl=False)
@@ -81,13 +97,15 @@ def _watch(taps: list[Tap], stop: threading.Event, duration: float | None, live:
         if duration is not None and time.monotonic() - started >= duration:
             stop.set()
     if not live:
-        click.echo("\n".join(_table(taps, started)))
+        click.echo("\n".join(_table(taps, started, via)))
 
 
 def run_demo(files: list[str], run: Runner, *, duration: float | None, work_dir: Path | None) -> int:
     """The whole demo; ``run`` runs a plantkg command (in-process) and returns its exit code."""
     plant_feeds = feeds(files)
     hosts = hosts_of(files)
+    desired = run_pipeline(files, None, observe=False).desired or DesiredState()
+    via = bridged_in(desired)
     base = Path(work_dir) if work_dir else Path(tempfile.mkdtemp(prefix="plantkg-demo-"))
     click.secho(f"1. starting an agent on each machine of the plant: {', '.join(hosts)}", bold=True)
     agents: LocalAgents = start_local_agents(hosts, base)
@@ -108,11 +126,10 @@ def run_demo(files: list[str], run: Runner, *, duration: float | None, work_dir:
         for feed in plant_feeds:
             click.echo(f"   {feed.resource} -> {feed.broker.kind} {feed.broker.host}:{feed.broker.port} "
                        f"topic {feed.topic} at {feed.rate_hz:g} Hz")
-        by_broker: dict[str, list[str]] = {}
-        for feed in plant_feeds:
-            by_broker.setdefault(feed.broker.id, []).append(feed.topic)
-        taps = [Tap(next(f.broker for f in plant_feeds if f.broker.id == b), sorted(set(t)), stop)
-                for b, t in by_broker.items()]
+        for (broker, topic), source in sorted(via.items()):
+            click.echo(f"   bridge: {topic} from {source} to {broker}")
+        taps = [Tap(b, [t.name for t in desired.topics_of(b.id)], stop)
+                for b in desired.brokers if desired.topics_of(b.id)]
         threads += taps
         for tap in taps:
             tap.start()
@@ -123,7 +140,7 @@ def run_demo(files: list[str], run: Runner, *, duration: float | None, work_dir:
         for source in sources:
             source.start()
         try:
-            _watch(taps, stop, duration, live=click.get_text_stream("stdout").isatty())
+            _watch(taps, stop, duration, live=click.get_text_stream("stdout").isatty(), via=via)
         except KeyboardInterrupt:
             click.echo("\nstopping")
         return 0

@@ -1,6 +1,8 @@
 """``plantkg status FILE...``: what each broker of the plant is doing, as its agent reports it.
 
-One row per broker: id, kind, host:port, status, pid, uptime, restarts, topics (present/asked).
+One row per broker: id, kind, host:port, status, pid, uptime, restarts, topics (present/asked);
+then, if the plant has bridges, one row per bridge: its address, mechanism, status, routes,
+messages forwarded and retried (Mosquitto's own bridges count nothing: "-"), last error.
 A broker no agent runs is ``absent``; one whose agent did not answer is ``unknown``; brokers the
 agents run that the plant does not name are listed after, marked ``not in plant``. The answer is
 also written into the observed graph (see docs/reconciliation.md). Read-only; exit 0 unless the
@@ -22,7 +24,7 @@ from engine.model import BrokerStatus, DesiredState, ObservedBroker, ObservedSta
 from kg.errors import EXIT_VIOLATIONS
 
 HEADERS = ("id", "kind", "host:port", "status", "pid", "uptime", "restarts", "topics")
-_COLOURS = {"running": "green", "starting": "yellow", "stopped": "yellow", "crashed": "red",
+_COLOURS = {"running": "green", "starting": "yellow", "connecting": "yellow", "stopped": "yellow", "crashed": "red",
             "failed": "red", "absent": "red", "unknown": "red"}
 
 
@@ -48,6 +50,38 @@ def status_rows(desired: DesiredState, observed: ObservedState, now: float) -> l
     return rows
 
 
+BRIDGE_HEADERS = ("bridge", "mechanism", "status", "routes", "forwarded", "retried", "error")
+
+
+def bridge_rows(desired: DesiredState, observed: ObservedState) -> list[dict[str, str]]:
+    """One row per bridge the plant asks for (then bridges the agents run that it does not)."""
+    def show(value: int | None) -> str:
+        return "-" if value is None else str(value)
+
+    rows = []
+    wanted = {b.address for b in desired.bridges}
+    for spec in desired.bridges:
+        have = observed.bridge(spec.address)
+        routes = ", ".join(f"{r.topic} {r.direction.value}" for r in spec.routes)
+        if have is None:
+            host = spec.local.host
+            state = "unknown" if host in observed.unreachable else "absent"
+            rows.append({"bridge": spec.address, "mechanism": spec.mechanism.value, "status": state,
+                         "routes": routes, "forwarded": "-", "retried": "-", "error": ""})
+            continue
+        rows.append({"bridge": spec.address, "mechanism": spec.mechanism.value,
+                     "status": have.status.value, "routes": routes,
+                     "forwarded": show(have.forwarded), "retried": show(have.retried),
+                     "error": (have.last_error or "").splitlines()[0][:60] if have.last_error else ""})
+    for have in observed.bridges:
+        if have.spec.address not in wanted:
+            rows.append({"bridge": have.spec.address, "mechanism": have.spec.mechanism.value,
+                         "status": f"{have.status.value} (not in plant)",
+                         "routes": ", ".join(r.topic for r in have.spec.routes),
+                         "forwarded": show(have.forwarded), "retried": show(have.retried), "error": ""})
+    return rows
+
+
 def _row(broker_id: str, kind: str, host: str, port: int, state: str, have: ObservedBroker | None,
          now: float, wanted: set[str]) -> dict[str, str]:
     present = {t.name for t in have.topics} if have else set()
@@ -64,12 +98,12 @@ def _row(broker_id: str, kind: str, host: str, port: int, state: str, have: Obse
     }
 
 
-def render_table(rows: list[dict[str, str]]) -> str:
-    widths = {h: max([len(h)] + [len(r[h]) for r in rows]) for h in HEADERS}
-    lines = ["  ".join(click.style(h.upper().ljust(widths[h]), bold=True) for h in HEADERS)]
+def render_table(rows: list[dict[str, str]], headers: tuple[str, ...] = HEADERS) -> str:
+    widths = {h: max([len(h)] + [len(r[h]) for r in rows]) for h in headers}
+    lines = ["  ".join(click.style(h.upper().ljust(widths[h]), bold=True) for h in headers)]
     for row in rows:
         cells = []
-        for h in HEADERS:
+        for h in headers:
             text = row[h].ljust(widths[h])
             if h == "status":
                 text = click.style(text, fg=_COLOURS.get(row[h].split()[0], "white"))
@@ -97,9 +131,14 @@ def status_command(files: tuple[str, ...], agents_file: Path | None, fmt: str) -
     assert result.desired is not None and result.observed is not None
     if fmt == "json":
         click.echo(json.dumps({"brokers": status_rows(result.desired, result.observed, time.time()),
+                               "bridges": bridge_rows(result.desired, result.observed),
                                "observed": to_dict(result.observed)}, indent=2))
         return 0
     click.echo(render_table(status_rows(result.desired, result.observed, time.time())))
+    bridges = bridge_rows(result.desired, result.observed)
+    if bridges:
+        click.echo("")
+        click.echo(render_table(bridges, BRIDGE_HEADERS))
     if result.observed.unreachable:
         click.echo(click.style("agents that did not answer: " + ", ".join(result.observed.unreachable),
                                fg="red"), err=True)

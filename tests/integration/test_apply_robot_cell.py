@@ -11,8 +11,10 @@ that no broker process is left and stops the agents.
 
 from __future__ import annotations
 
+import json
 import queue
 import re
+import time
 import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -128,18 +130,49 @@ def kafka_roundtrip(bootstrap: str, topic: str) -> None:
         consumer.close()
 
 
+def assert_bridged(mqtt_host: str, mqtt_port: int, bootstrap: str, topic: str) -> None:
+    """A QoS-1 message published on Mosquitto arrives on Kafka, payload untouched, with the MQTT
+    topic as key and in a header (the bridge worker may still be connecting: poll until it is)."""
+    payload = json.dumps({"probe": uuid.uuid4().hex}).encode()
+    pub = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"it-pub-{uuid.uuid4().hex[:8]}")
+    pub.connect(mqtt_host, mqtt_port)
+    pub.loop_start()
+    consumer = Consumer({"bootstrap.servers": bootstrap, "group.id": f"it-{uuid.uuid4().hex[:8]}",
+                         "auto.offset.reset": "earliest", "enable.auto.commit": False})
+    consumer.subscribe([topic])
+    try:
+        def arrived():  # type: ignore[no-untyped-def]
+            pub.publish(topic, payload, qos=1).wait_for_publish(timeout=10)
+            end = time.monotonic() + 1.0
+            while time.monotonic() < end:
+                msg = consumer.poll(0.2)
+                if msg is not None and msg.error() is None and msg.value() == payload:
+                    return msg
+            return None
+
+        msg = process.wait_until(arrived, 60.0, 0.0, what=f"{topic} bridged into Kafka")
+        assert msg.key() == topic.encode()
+        assert dict(msg.headers() or [])["mqtt.topic"] == topic.encode()
+    finally:
+        consumer.close()
+        pub.loop_stop()
+        pub.disconnect()
+
+
 # -------------------------------------------------------------------------------- the tests
 
 def test_apply_deploys_the_robot_cell(cell: Cell, capsys: pytest.CaptureFixture[str]) -> None:
     code, out, err = cell.run(capsys, "apply", cell.plant, "--agents", cell.fleet.agents_file, "--yes")
     assert code == 0, out + err
-    assert "Plan: 5 to create, 0 to update, 0 to replace, 0 to destroy." in out
-    assert "broker.kafka: Created after" in out and "Apply complete: 5 changed" in out
+    assert "Plan: 6 to create, 0 to update, 0 to replace, 0 to destroy." in out
+    assert "broker.kafka: Created after" in out and "Apply complete: 6 changed" in out
     mqtt_roundtrip(MQTT_HOST, cell.ports["mosquitto"], POSITION)
     bootstrap = f"{KAFKA_HOST}:{cell.ports['kafka']}"
     assert kafka_partitions(bootstrap, ENERGY) == 3
     assert kafka_partitions(bootstrap, POSITION) == 3
     kafka_roundtrip(bootstrap, ENERGY)
+    # the bridge carries the robot's position from Mosquitto into Kafka
+    assert_bridged(MQTT_HOST, cell.ports["mosquitto"], bootstrap, POSITION)
 
 
 def test_plan_after_apply_has_no_changes(cell: Cell, capsys: pytest.CaptureFixture[str]) -> None:
@@ -149,8 +182,10 @@ def test_plan_after_apply_has_no_changes(cell: Cell, capsys: pytest.CaptureFixtu
     assert out.rstrip().endswith("No changes. The plant matches its description.")
     code, out, _ = cell.run(capsys, "status", cell.plant, "--agents", cell.fleet.agents_file)
     assert code == 0
-    rows = {line.split()[0]: line.split() for line in out.splitlines()[1:]}
+    brokers, bridges = out.split("\n\n")
+    rows = {line.split()[0]: line.split() for line in brokers.splitlines()[1:]}
     assert rows["kafka"][3] == rows["mosquitto"][3] == "running"
+    assert bridges.splitlines()[1].split()[:3] == ["bridge.mosquitto.kafka", "mqtt-kafka", "running"]
     assert rows["kafka"][2] == f"{KAFKA_HOST}:{cell.ports['kafka']}"
     assert rows["kafka"][7] == "2/2" and rows["mosquitto"][7] == "1/1"
 
@@ -202,10 +237,13 @@ def test_port_change_replaces_the_broker(cell: Cell, capsys: pytest.CaptureFixtu
     assert code == 1, out + err
     assert "-/+ broker.mosquitto must be replaced" in out
     assert f"~ port: {old_port} → {new_port}   # forces replacement" in out
-    assert "Plan: 0 to create, 0 to update, 1 to replace, 0 to destroy." in out
+    # the bridge worker follows its broker to the new port
+    assert "Plan: 0 to create, 1 to update, 1 to replace, 0 to destroy." in out
+    assert "~ bridge.mosquitto.kafka will be updated" in out
     code, out, err = cell.run(capsys, "apply", cell.plant, "--agents", cell.fleet.agents_file, "--yes")
     assert code == 0, out + err
     mqtt_roundtrip(MQTT_HOST, new_port, POSITION)
+    assert_bridged(MQTT_HOST, new_port, f"{KAFKA_HOST}:{cell.ports['kafka']}", POSITION)
     assert not netutil.port_open(MQTT_HOST, old_port)
     assert cell.snapshot()["kafka"] == kafka_before  # the other broker was not touched
     code, out, _ = cell.run(capsys, "plan", cell.plant, "--agents", cell.fleet.agents_file,
@@ -236,8 +274,9 @@ def test_removing_a_broker_stops_it(cell: Cell, capsys: pytest.CaptureFixture[st
     without_broker(cell.plant, "kafka", smaller)
     code, out, err = cell.run(capsys, "plan", smaller, "--agents", cell.fleet.agents_file)
     assert code == 0, out + err
-    assert "Plan: 0 to create, 0 to update, 0 to replace, 3 to destroy." in out
+    assert "Plan: 0 to create, 0 to update, 0 to replace, 4 to destroy." in out
     assert out.index(f"- topic.kafka.{ENERGY}") < out.index("- broker.kafka")
+    assert "- bridge.mosquitto.kafka will be destroyed" in out
     code, out, err = cell.run(capsys, "apply", smaller, "--agents", cell.fleet.agents_file, "--yes")
     assert code == 0, out + err
     assert "kafka" not in cell.fleet.brokers()

@@ -23,11 +23,15 @@ def test_demo_runs_end_to_end_and_leaves_nothing(tmp_path: Path) -> None:
     )
     out = proc.stdout
     assert proc.returncode == 0, out[-3000:] + proc.stderr[-3000:]
-    assert "Apply complete: 5 changed, 0 failed" in out
-    assert "Destroy complete: 5 changed, 0 failed" in out
-    rows = dict(re.findall(r"^(?:kafka|mosquitto)\s+(\S+)\s+(\d+)\s", out, re.M))
-    assert int(rows["robot.abb-irb120.position"]) >= 10   # 10 Hz over MQTT for ~3 s
-    assert int(rows["robot.abb-irb120.energy"]) >= 1      # 1 Hz into Kafka
+    assert "Apply complete: 6 changed, 0 failed" in out
+    assert "Destroy complete: 6 changed, 0 failed" in out
+    rows = {(broker, topic): int(count) for broker, topic, count in re.findall(
+        r"^(kafka|mosquitto)\s+(\S+)\s+(?:published|bridge from \S+)\s+(\d+)\s", out, re.M)}
+    assert rows[("mosquitto", "robot.abb-irb120.position")] >= 10   # 10 Hz over MQTT for ~3 s
+    assert rows[("kafka", "robot.abb-irb120.energy")] >= 1          # 1 Hz into Kafka
+    # the merged stream on Kafka: the pose arrived there through the bridge
+    assert "bridge from mosquitto" in out
+    assert rows[("kafka", "robot.abb-irb120.position")] >= 5
     # every process the demo started is gone: agents (pid files' owners) and brokers
     leftovers = subprocess.run(["pgrep", "-f", str(work)], capture_output=True, text=True).stdout.split()
     assert leftovers == []

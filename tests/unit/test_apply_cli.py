@@ -126,10 +126,17 @@ def test_failed_change_exits_3_and_names_it(fleet: FakeFleet, capsys) -> None:  
 def test_status_table_and_destroy(fleet: FakeFleet, capsys) -> None:  # type: ignore[no-untyped-def]
     code, out, _ = run(capsys, "status", PLANT)
     assert code == 0
-    assert [line.split()[3] for line in out.splitlines()[1:]] == ["absent", "absent"]
+    brokers, bridges = out.split("\n\n")
+    assert [line.split()[3] for line in brokers.splitlines()[1:]] == ["absent", "absent"]
+    assert bridges.splitlines()[1].split()[:3] == ["bridge.mosquitto.kafka", "mqtt-kafka", "absent"]
     run(capsys, "apply", PLANT, "--yes")
     code, out, _ = run(capsys, "status", PLANT)
-    header, *rows = out.splitlines()
+    brokers, bridges = out.split("\n\n")
+    header, *rows = brokers.splitlines()
+    assert bridges.splitlines()[0].split() == ["BRIDGE", "MECHANISM", "STATUS", "ROUTES", "FORWARDED",
+                                               "RETRIED", "ERROR"]
+    assert bridges.splitlines()[1].split()[:6] == [
+        "bridge.mosquitto.kafka", "mqtt-kafka", "running", "robot.abb-irb120.position", "out", "0"]
     assert header.split() == ["ID", "KIND", "HOST:PORT", "STATUS", "PID", "UPTIME", "RESTARTS", "TOPICS"]
     assert rows[0].split()[:4] == ["kafka", "kafka", "127.0.0.3:9092", "running"]
     assert rows[0].split()[-1] == "2/2"
