@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from benchmarks import bench_reason, bench_validate
 
 
@@ -118,3 +120,15 @@ def test_load_effects_separate_messages_from_brokers() -> None:
     load = {"rows": [{"cells": [cell(n, m) for m in (100, 500)]} for n in (1, 10)]}
     lines = report.load_effects(load)
     assert lines[2].startswith("| spread | ack | +4.0 ms | +0.9 ms | 4.1 ± 0.5 | 5.0 ± 0.5 |")
+
+
+@pytest.mark.integration  # real Mosquitto, Kafka and a bridge worker
+def test_bridge_benchmark_runs(tmp_path: Path) -> None:
+    from benchmarks import bench_bridge
+
+    assert bench_bridge.main(["--messages", "300", "--out", str(tmp_path)]) == 0
+    rows = json.loads((tmp_path / "bridge.json").read_text())["rows"]
+    assert {(r["path"], r["phase"]) for r in rows} == {
+        (p, phase) for p in bench_bridge.PATHS for phase in ("max", "paced")}
+    assert all(r["lost"] == 0 for r in rows)  # the benchmark loses nothing, at any speed
+    assert "| kafka-mqtt | paced |" in (tmp_path / "bridge.md").read_text()
