@@ -142,11 +142,12 @@ def test_sparql_query_from_the_page(page, served: Served) -> None:  # type: igno
     assert "resource" in header and "broker" in header
     body = page.inner_text("#results tbody")
     assert "robot-1" in body and "mqtt-a" in body and "sensor-1" in body
+    shot(page, served, "sparql-results")
     page.fill("#query", "SELEC nonsense")
     page.click("#run")
     page.wait_for_selector("#query-error:not([hidden])")
     assert "400" in page.inner_text("#query-error")
-    shot(page, served, "sparql")
+    shot(page, served, "sparql-error")
 
 
 def test_apply_from_the_plan_changes_the_status_live(page, browser, served: Served) -> None:  # type: ignore[no-untyped-def]
