@@ -4,8 +4,8 @@ Real parts: two ``plantkg agent`` processes (127.0.0.2, 127.0.0.3) that run real
 brokers, and ``plantkg serve`` as its own process. The tests run in file order on one server:
 the overview shows each broker (absent before apply), the graph and the tables; a SPARQL query
 runs from its page; a logged-in person presses Apply on the plan, confirms, and sees the brokers
-turn running on an overview left open (live update, no reload); then a changed file shows a new
-plan. Screenshots go to the pytest tmp dir (``screenshots/``).
+and their bridge turn running on an overview left open (live update, no reload); then a changed
+file shows a new plan. Screenshots go to the pytest tmp dir (``screenshots/``).
 """
 
 from __future__ import annotations
@@ -120,12 +120,16 @@ def test_overview_shows_each_broker_and_the_graph(page, served: Served) -> None:
     rows = page.inner_text("#brokers tbody")
     assert "127.0.0.2" in rows and "mosquitto" in rows
     assert page.inner_text("#validation-summary").startswith("valid")
-    assert "4 to create" in page.inner_text("#plan-summary")  # two brokers, a topic each
+    assert "6 to create" in page.inner_text("#plan-summary")  # two brokers, three topics, a bridge
+    assert page.inner_text('#bridges td[data-status-of="bridge.mqtt-a.mqtt-b"]') == "absent"
+    assert "cell.robot-1.position (out)" in page.inner_text("#bridges tbody")
     assert page.inner_text("#machines tbody").count("answered") == 2
     wait_js(page, "window.plantGraph && window.plantGraph.nodes().length === 4")
     nodes = page.evaluate("window.plantGraph.nodes().map(n => n.id() + '=' + n.data('status')).sort()")
     assert nodes == ["broker:mqtt-a=absent", "broker:mqtt-b=absent", "resource:robot-1=resource",
                      "resource:sensor-1=resource"]
+    assert page.evaluate("window.plantGraph.edges('[type = \"bridge\"]').map(e => e.source().id() + '>' + e.target().id())") \
+        == ["broker:mqtt-a>broker:mqtt-b"]
     zoom = page.evaluate("window.plantGraph.zoom()")
     page.mouse.move(400, 600)
     page.mouse.wheel(0, -400)
@@ -161,7 +165,7 @@ def test_apply_from_the_plan_changes_the_status_live(page, browser, served: Serv
     page.fill("#token", TOKEN)
     page.click("#login")
     page.wait_for_url(served.url + "/plan")
-    assert "+ broker.mqtt-a" in page.inner_text("main") and "Plan: 4 to create" in page.inner_text("#plan-line")
+    assert "+ broker.mqtt-a" in page.inner_text("main") and "Plan: 6 to create" in page.inner_text("#plan-line")
     dialogs: list[str] = []
     page.on("dialog", lambda d: (dialogs.append(d.message), d.accept()))
     page.click("#apply")
@@ -172,6 +176,7 @@ def test_apply_from_the_plan_changes_the_status_live(page, browser, served: Serv
     wait_js(overview, """document.querySelector('#brokers td[data-status-of="mqtt-a"]').textContent === 'running'
         && document.querySelector('#brokers td[data-status-of="mqtt-b"]').textContent === 'running'""")
     assert overview.evaluate("window.plantGraph.getElementById('broker:mqtt-a').data('status')") == "running"
+    wait_js(overview, """document.querySelector('#bridges td[data-status-of="bridge.mqtt-a.mqtt-b"]').textContent === 'running'""")
     assert netutil.port_open(MACHINES[0], served.status()["brokers"][0]["port"])
     shot(overview, served, "overview-after-apply")
     overview.close()
