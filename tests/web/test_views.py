@@ -94,3 +94,14 @@ def test_pages_render(client: FlaskClient) -> None:
     plan = client.get("/plan").get_data(as_text=True)
     assert "Agent did not answer: 127.0.0.2" in plan and "Agent did not answer: 127.0.0.3" in plan
     assert client.get("/static/third_party/cytoscape/LICENSE").status_code == 200
+
+
+def test_every_example_query_runs_and_answers(client: FlaskClient) -> None:
+    from engine.web.examples import EXAMPLES
+
+    for example in EXAMPLES:
+        r = client.post("/sparql", data={"query": example.query},
+                        headers={"Accept": "application/sparql-results+json, text/turtle;q=0.9"})
+        assert r.status_code == 200, (example.title, r.get_data(as_text=True))
+        answered = r.json["results"]["bindings"] if r.mimetype.endswith("json") else r.get_data(as_text=True)
+        assert answered, example.title

@@ -109,7 +109,8 @@
           "text-wrap": "wrap", "text-valign": "bottom", "text-margin-y": 4, width: 18, height: 18 } },
         { selector: "node[type = 'broker']", style: { shape: "round-rectangle", width: 34, height: 26 } },
         { selector: "edge", style: { width: 1.5, "line-color": "data(color)", "target-arrow-color": "data(color)",
-          "target-arrow-shape": "triangle", "curve-style": "bezier", label: "data(label)", "font-size": 8 } },
+          "target-arrow-shape": "triangle", "curve-style": "bezier", label: "data(label)", "font-size": 8,
+          "text-background-color": "#fff", "text-background-opacity": 1, "text-background-padding": 2 } },
         { selector: "edge[type = 'bridge']", style: { width: 3, "line-style": "dashed" } }
       ]
     });
