@@ -40,6 +40,7 @@ import time
 from pathlib import Path
 
 import paho.mqtt.client as mqtt
+from confluent_kafka import KafkaException
 
 from benchmarks import plots, synthetic
 from benchmarks.bench_deploy import KAFKA_PLANT
@@ -269,7 +270,11 @@ def kafka_arm(args: argparse.Namespace, work: Path, raw: list[BurstResult]) -> d
                                          ("kafka-size", args.sizes, [args.size_messages])):
                 for size in sizes:
                     for m in counts:
-                        runs = [rig.burst(m, size) for _ in range(args.repeat)]
+                        try:
+                            runs = [rig.burst(m, size) for _ in range(args.repeat)]
+                        except KafkaException as exc:  # e.g. 1 MB > the default message.max.bytes
+                            cells.append({"study": study, "size": size, "messages": m, "refused": str(exc)})
+                            continue
                         raw.extend(runs)
                         cells.append(_cell(runs, study))
         mem = memory(agents.agents[HOST].child.pid)
@@ -348,7 +353,11 @@ def to_markdown(data: dict[str, object]) -> str:
                   "delivery mean | delivery p50 | delivery p99 | stdev of burst means (ack / delivery) | lost |",
                   "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for c in sorted(kafka["cells"], key=lambda c: (c["study"], c["size"], c["messages"])):
-            lines.append(_cell_line({**c, "label": f"{c['study']}: {c['size']}"}, first="label"))
+            if "refused" in c:
+                lines.append(f"| {c['study']}: {c['size']} | 1 | {c['messages']} | refused by Kafka: {c['refused']} "
+                             "||||||||")
+            else:
+                lines.append(_cell_line({**c, "label": f"{c['study']}: {c['size']}"}, first="label"))
     sized = [c for c in cells if c["study"] == "size"]
     if sized:
         lines += ["", "## Message size (spread)", "",

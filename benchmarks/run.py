@@ -40,7 +40,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("studies", nargs="*", metavar="STUDY",
                         help=f"{', '.join(STUDIES)} or report (default: {' '.join(DEFAULT)})")
     parser.add_argument("--tiny", action="store_true", help="each study at a size that takes seconds")
-    parser.add_argument("--out", type=Path, default=RESULTS, help="results folder (RESULTS.md goes next to it)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="results folder (default benchmarks/results; RESULTS.md goes next to it)")
     args = parser.parse_args(argv)
     chosen = args.studies or DEFAULT
     unknown = [s for s in chosen if s not in STUDIES and s != "report"]
@@ -48,10 +49,11 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"unknown study {', '.join(unknown)}: choose from {', '.join(STUDIES)}, report")
     for name in (s for s in chosen if s != "report"):
         print(f"== {name}", flush=True)
-        study_args = [*(TINY[name] if args.tiny else []), "--out", str(args.out)]
+        study_args = [*(TINY[name] if args.tiny else []), *(["--out", str(args.out)] if args.out else [])]
         if STUDIES[name](study_args) != 0:
             return 1
-    path = report.write(args.out, args.out.parent / "RESULTS.md")
+    out = args.out or RESULTS
+    path = report.write(out, out.parent / "RESULTS.md")
     print(f"wrote {path}")
     return 0
 
