@@ -11,7 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from engine import netutil
+from engine import netutil, process
+from engine.model import BridgeStatus
 from engine.cli import main
 from tests.integration.agents import plant_copy, start_agents
 from tests.integration.test_apply_robot_cell import kafka_partitions, kafka_roundtrip, mqtt_roundtrip
@@ -33,7 +34,8 @@ def test_multi_machine_plant_on_three_agents(tmp_path: Path, capsys: pytest.Capt
 
         code, out = run("apply", plant, "--agents", fleet.agents_file, "--yes")
         assert code == 0, out
-        assert "Plan: 22 to create, 0 to update, 0 to replace, 0 to destroy." in out, out
+        # 3 brokers, 19 topics, 2 bridges (each Mosquitto cell to Kafka, run as workers)
+        assert "Plan: 24 to create, 0 to update, 0 to replace, 0 to destroy." in out, out
         brokers = fleet.brokers()
         assert {b: brokers[b].spec.host for b in HOSTS} == HOSTS  # type: ignore[attr-defined]
         mqtt_roundtrip(HOSTS["mosquitto-a"], ports["mosquitto-a"], "cell-a/plc-a/robot-command")
@@ -44,8 +46,16 @@ def test_multi_machine_plant_on_three_agents(tmp_path: Path, capsys: pytest.Capt
 
         code, out = run("plan", plant, "--agents", fleet.agents_file, "--detailed-exitcode")
         assert code == 0 and "No changes." in out, out
+        def bridges_running() -> bool:
+            found = [b for host in sorted(set(HOSTS.values()))
+                     for b in fleet.client(host).list_bridges()]
+            return len(found) == 2 and all(b.status is BridgeStatus.RUNNING for b in found)
+
+        process.wait_until(bridges_running, 60, 0.2, what="both bridge workers to be ready")
         code, out = run("status", plant, "--agents", fleet.agents_file)
-        assert code == 0 and out.count("running") == 3, out
+        brokers_table, bridges_table = out.split("\n\n")
+        assert code == 0 and brokers_table.count("running") == 3, out
+        assert bridges_table.count("running") == 2, out
 
         code, out = run("destroy", plant, "--agents", fleet.agents_file, "--yes")
         assert code == 0 and "Destroy complete" in out, out
