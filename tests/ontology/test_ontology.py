@@ -72,6 +72,7 @@ DATA_PROPERTIES = {  # name: (domain or None for all classes, range or None for 
     "retentionMs": ("Topic", ns.XSD.integer, True),
     "qos": ("Topic", ns.XSD.integer, True),
     "retain": ("Topic", ns.XSD.boolean, True),
+    "kafkaKey": ("Topic", ns.XSD.string, True),
 }
 SKOS_ALT_LABEL = URIRef("http://www.w3.org/2004/02/skos/core#altLabel")
 DCTERMS_LICENSE = URIRef("http://purl.org/dc/terms/license")
