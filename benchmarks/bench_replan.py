@@ -4,7 +4,8 @@ For a synthetic plant: ``cold`` = load + validate + reason + derive + plan (what
 without the cache); ``warm`` = the same through :class:`engine.desired_cache.DesiredCache` after a
 first run (hash the files, read the cached desired state, plan). The observed state is made equal
 to the desired one, so both plans are empty, and the agents' HTTP round trip (one per machine,
-paid either way) is not included. Each measurement runs in a fresh process.
+paid either way) is not included, nor is building the observed state (it stands for the agents'
+answers, part of observing; ``observed_build_s`` in the JSON). Each measurement runs in a fresh process.
 
 Each cold run also reports its stages (load, validate, reason, derive, plan against an empty
 observed state, i.e. everything to create) so the study doubles as the plant-size scaling study:
@@ -36,16 +37,20 @@ from engine.plan import plan
 t1 = time.perf_counter()
 result = run_pipeline([sys.argv[1]], None, observe=False, cache=DesiredCache(__import__("pathlib").Path(sys.argv[2])))
 d = result.desired
+t_pipe = time.perf_counter()
 observed = ObservedState(tuple(
     ObservedBroker(b, BrokerStatus.RUNNING, tuple(
         ObservedTopic(t.name, t.partitions, t.replication_factor, t.retention_ms, t.qos, t.retain)
         for t in d.topics_of(b.id)))
     for b in d.brokers), bridges=tuple(ObservedBridge(b, BridgeStatus.RUNNING) for b in d.bridges))
+t_obs = time.perf_counter()
 p = plan(d, observed)
 t2 = time.perf_counter()
 fresh = plan(d, ObservedState(()))
 t3 = time.perf_counter()
-print(json.dumps({"import": t1 - t0, "replan": t2 - t1, "hit": result.plant is None, "pending": len(p.pending),
+observed_s = t_obs - t_pipe
+print(json.dumps({"import": t1 - t0, "replan": t2 - t1 - observed_s, "observed_build": observed_s,
+                  "hit": result.plant is None, "pending": len(p.pending),
                   "stages": {**result.timings, "plan (all new)": t3 - t2}, "changes": len(fresh.changes)}))
 """
 STAGES = ("load", "validate", "reason", "derive", "plan (all new)")
@@ -71,6 +76,7 @@ def measure(sizes: list[int], repeat: int) -> dict[str, object]:
             stages["validate+reason+derive+plan"] = sum(stages[k] for k in STAGES if k != "load")
             stages["re-plan, no change"] = w
             rows.append({"resources": n, "cold_s": c, "warm_s": w, "ratio": w / c, "stages_s": stages,
+                         "observed_build_s": statistics.median(r["observed_build"] for r in warm),
                          "changes": cold[0]["changes"]})
             print(json.dumps(rows[-1]), flush=True)
     slopes = {k: loglog_slope([r["resources"] for r in rows], [r["stages_s"][k] for r in rows])
