@@ -12,7 +12,9 @@ that no broker process is left and stops the agents.
 from __future__ import annotations
 
 import json
+import os
 import queue
+import signal
 import re
 import time
 import uuid
@@ -29,6 +31,7 @@ from paho.mqtt.enums import CallbackAPIVersion
 
 from engine import netutil, process
 from engine.cli import main
+from engine.model import BridgeStatus
 from kg.namespaces import PK
 from tests.integration.agents import AgentFleet, plant_copy, set_port, start_agents
 
@@ -188,6 +191,54 @@ def test_plan_after_apply_has_no_changes(cell: Cell, capsys: pytest.CaptureFixtu
     assert bridges.splitlines()[1].split()[:3] == ["bridge.mosquitto.kafka", "mqtt-kafka", "running"]
     assert rows["kafka"][2] == f"{KAFKA_HOST}:{cell.ports['kafka']}"
     assert rows["kafka"][7] == "2/2" and rows["mosquitto"][7] == "1/1"
+
+
+def test_a_killed_bridge_worker_is_restarted_by_its_agent_and_loses_nothing(cell: Cell) -> None:
+    """SIGKILL the worker the Mosquitto agent runs while 3,000 messages flow: the agent restarts
+    it, Mosquitto redelivers what it had not acknowledged, Kafka ends up with every message."""
+    agent = cell.fleet.client(MQTT_HOST)
+    (bridge,) = agent.list_bridges()
+    assert bridge.status is BridgeStatus.RUNNING and bridge.pid
+    run_id, count = uuid.uuid4().hex[:8], 3000
+    consumer = Consumer({"bootstrap.servers": f"{KAFKA_HOST}:{cell.ports['kafka']}",
+                         "group.id": f"it-{run_id}", "auto.offset.reset": "earliest"})
+    consumer.subscribe([POSITION])
+    pub = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"it-pub-{run_id}")
+    pub.max_inflight_messages_set(100)
+    pub.max_queued_messages_set(0)
+    pub.connect(MQTT_HOST, cell.ports["mosquitto"])
+    pub.loop_start()
+    got: set[int] = set()
+    try:
+        infos = []
+        for n in range(count):
+            infos.append(pub.publish(POSITION, f"{run_id}:{n}".encode(), qos=1))
+            if n == count // 3:
+                os.kill(bridge.pid, signal.SIGKILL)
+        for info in infos:
+            info.wait_for_publish(timeout=60)
+
+        def restarted() -> bool:
+            (now,) = agent.list_bridges()
+            return now.pid not in (None, bridge.pid) and now.restarts == bridge.restarts + 1 \
+                and now.status is BridgeStatus.RUNNING
+
+        process.wait_until(restarted, 60, 0.2, what="the agent to restart the killed worker")
+
+        def all_in_kafka() -> bool:
+            msg = consumer.poll(0.5)
+            if msg is not None and msg.error() is None:
+                tag, _, n = msg.value().decode().partition(":")
+                if tag == run_id:
+                    got.add(int(n))
+            return len(got) == count
+
+        process.wait_until(all_in_kafka, 120, 0.0, what=f"all {count} messages in Kafka")
+    finally:
+        consumer.close()
+        pub.loop_stop()
+        pub.disconnect()
+    assert got == set(range(count))
 
 
 def test_apply_without_terminal_or_yes_refuses(cell: Cell, capsys: pytest.CaptureFixture[str]) -> None:
