@@ -122,13 +122,14 @@ def by_hand(n: int, work: Path) -> tuple[float, float]:
             process.stop(child)
 
 
-def through_plantkg(plant: Path, directory: AgentDirectory, destroy: bool = False) -> dict[str, float]:
+def through_plantkg(plant: Path, directory: AgentDirectory, destroy: bool = False,
+                    parallelism: int = 8) -> dict[str, float]:
     """One ``apply`` (or ``destroy``) of the plant: total seconds and the pipeline's stages."""
     start = time.perf_counter()
     result = run_pipeline([plant], directory, destroy=destroy)
     assert result.plan is not None and result.desired is not None, "the load plant is invalid"
     planned = time.perf_counter()
-    outcome = apply(result.plan, result.desired, directory, destroy=destroy)
+    outcome = apply(result.plan, result.desired, directory, destroy=destroy, parallelism=parallelism)
     if not outcome.ok:
         raise RuntimeError(f"apply of {plant} failed: {outcome}")
     end = time.perf_counter()
@@ -210,9 +211,9 @@ def one_size(n: int, args: argparse.Namespace, work: Path, raw: list[BurstResult
             ports = netutil.free_ports(n, HOST)
             plant = work / f"load-{n}-{r}.ttl"
             plant.write_text(synthetic.mosquitto_plant(HOST, ports))
-            ups.append(through_plantkg(plant, directory))
+            ups.append(through_plantkg(plant, directory, parallelism=args.apply_parallelism))
             if r < args.deploy_repeat - 1:
-                downs.append(through_plantkg(plant, directory, destroy=True))
+                downs.append(through_plantkg(plant, directory, destroy=True, parallelism=args.apply_parallelism))
         mem = memory(agent_pid)
         brokers = [(HOST, p) for p in ports]
         cells = []
@@ -222,7 +223,7 @@ def one_size(n: int, args: argparse.Namespace, work: Path, raw: list[BurstResult
             cells += _bursts(rig, "matrix", args.messages, [args.size], MODES, args.repeat, raw)
             if n in args.size_brokers:
                 cells += _bursts(rig, "size", [args.size_messages], args.sizes, ("spread",), args.repeat, raw)
-        downs.append(through_plantkg(plant, directory, destroy=True))
+        downs.append(through_plantkg(plant, directory, destroy=True, parallelism=args.apply_parallelism))
     finally:
         agents.stop()
     up_s, hand_up_s = statistics.median(u["total"] for u in ups), statistics.median(hand_ups)
@@ -247,8 +248,8 @@ def nagle_arm(n: int, args: argparse.Namespace, work: Path, raw: list[BurstResul
             _spawn_all(confs, work, children)
             wait_all_ready([(HOST, p) for p in ports])
             with BurstRig([(HOST, p) for p in ports], 0) as rig:
-                rig.burst(min(max(args.messages), 50), args.size, "spread")  # warm-up
-                cells += _bursts(rig, label, args.messages, [args.size], ("spread",), args.repeat, raw)
+                rig.burst(min(max(args.nagle_messages), 50), args.size, "spread")  # warm-up
+                cells += _bursts(rig, label, args.nagle_messages, [args.size], ("spread",), args.repeat, raw)
         finally:
             for child in children:
                 process.stop(child)
@@ -297,6 +298,7 @@ def measure(args: argparse.Namespace, argv: list[str] | None) -> tuple[dict[str,
         kafka = kafka_arm(args, Path(tmp), raw) if args.kafka_messages else None
     return {"kafka": kafka, "benchmark": "load", "machine": info, "command": command_line("benchmarks.bench_load", argv),
             "repeat": args.repeat, "deploy_repeat": args.deploy_repeat, "size": args.size,
+            "apply_parallelism": args.apply_parallelism,
             "paper": "Fig. 12: 1-100 brokers x 100-500 messages < 1 KB, one machine", "rows": rows}, raw
 
 
@@ -388,6 +390,10 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--size-messages", type=int, default=100)
     parser.add_argument("--kafka-messages", type=int, nargs="*", default=[100, 300, 500],
                         help="burst sizes against one Kafka broker (none: no Kafka arm)")
+    parser.add_argument("--apply-parallelism", type=int, default=8,
+                        help="apply's parallel calls (engine.apply's default is 8)")
+    parser.add_argument("--nagle-messages", type=int, nargs="+", default=[1, 10, 100, 500],
+                        help="burst sizes of the TCP_NODELAY arm (small bursts show stalls best)")
     parser.add_argument("--nagle-brokers", type=int, nargs="*", default=[10],
                         help="broker counts also measured by hand with and without set_tcp_nodelay")
     parser.add_argument("--out", type=Path, default=RESULTS)

@@ -17,7 +17,7 @@ pytestmark = pytest.mark.integration
 
 def test_load_benchmark_runs(tmp_path: Path) -> None:
     args = ["--brokers", "1", "2", "--messages", "4", "6", "--repeat", "1", "--deploy-repeat", "1",
-            "--sizes", "100", "20000", "--size-brokers", "2", "--size-messages", "3", "--nagle-brokers", "1",
+            "--sizes", "100", "20000", "--size-brokers", "2", "--size-messages", "3", "--nagle-brokers", "1", "--nagle-messages", "2",
             "--kafka-messages", "--out", str(tmp_path)]
     assert bench_load.main(args) == 0
     data = json.loads((tmp_path / "load.json").read_text())
