@@ -307,8 +307,11 @@ def kafka_to_mqtt(tmp_path: Path, mosquitto: rig.Mosquitto, bootstrap: str, work
 def test_mqtt_to_kafka_10k(tmp_path: Path, mosquitto: rig.Mosquitto, kafka_broker: KafkaBroker,
                            workers: Workers) -> None:
     mqtt_to_kafka(tmp_path, mosquitto, kafka_broker.bootstrap_servers, workers, "m2k-plain")
-    stats = workers.stats()
-    assert stats is not None and stats.ready and stats.forwarded_mqtt_to_kafka >= N
+    # stats.json is rewritten every stats_interval: poll until it has caught up with the messages
+    stats = process.wait_until(
+        lambda: (s := workers.stats()) is not None and s.ready and s.forwarded_mqtt_to_kafka >= N and s,
+        10, 0.1, what=f"the worker's stats to count {N} forwarded")
+    assert stats.forwarded_mqtt_to_kafka >= N
     workers.stop_clean()  # SIGTERM: exit code 0, no process left
     assert not read_stats(workers.cfg.state_dir).ready  # type: ignore[union-attr]
 
