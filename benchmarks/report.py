@@ -20,6 +20,8 @@ SECTIONS = (
     ("load", "2. Load test (the paper's Fig. 12), bring-up and memory; message sizes",
      ("load.png", "load-nodelay.png", "load-sizes.png", "load-bringup.png")),
     ("replan", "3. Plant size scaling and re-planning", ("replan.png",)),
+    ("bridge", "Bridges against the raw MQTT path (MQTT ↔ Kafka)", ()),
+    ("web", "Dashboard and SPARQL endpoint", ()),
     ("validate", "Validation against pySHACL", ()),
     ("reason", "Reasoning against HermiT", ()),
 )
