@@ -3,7 +3,7 @@
 Each study is a module with a ``main(argv)`` writing its raw results, table and plots into the
 results folder; this runner only chooses which to run, with which arguments, and rebuilds the
 report afterwards. ``--tiny`` runs each study at a size that takes seconds (what the test suite
-does); the defaults are the full sizes of the issue (tens of minutes on two cores).
+does); the defaults are the full sizes of the issue (about ten minutes on two cores for the default studies).
 
 Usage: ``plantkg-bench [STUDY ...] [--tiny] [--out DIR]`` — studies: deploy, load, scale,
 validate, reason, bridge, web; default ``deploy load scale``; ``plantkg-bench report`` only rebuilds RESULTS.md.
