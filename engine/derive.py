@@ -46,10 +46,10 @@ _INTEGERS = {str(XSD[t]) for t in ("integer", "int", "long", "short", "byte", "n
                                     "unsignedByte", "negativeInteger", "nonPositiveInteger")}
 
 BROKERS = """
-SELECT ?b ?id ?name ?kind ?ip ?port WHERE {
+SELECT ?b ?id ?name ?kind ?ip ?port ?persist WHERE {
     ?b a pk:DeployedBroker .
     OPTIONAL { ?b pk:id ?id } OPTIONAL { ?b pk:name ?name } OPTIONAL { ?b pk:brokerType ?kind }
-    OPTIONAL { ?b pk:ip ?ip } OPTIONAL { ?b pk:port ?port }
+    OPTIONAL { ?b pk:ip ?ip } OPTIONAL { ?b pk:port ?port } OPTIONAL { ?b pk:persistEvery ?persist }
 }"""
 
 TOPICS = """
@@ -169,7 +169,7 @@ def _brokers(plant: PlantGraph, rows: Iterable[ox.QuerySolution]) -> list[Broker
     values: dict[ox.NamedNode, dict[str, set[object]]] = defaultdict(lambda: defaultdict(set))
     for row in rows:
         slot = values[row["b"]]
-        for var in ("id", "name", "kind", "ip", "port"):
+        for var in ("id", "name", "kind", "ip", "port", "persist"):
             if row[var] is not None:
                 slot[var].add(row[var])
     out = []
@@ -177,8 +177,11 @@ def _brokers(plant: PlantGraph, rows: Iterable[ox.QuerySolution]) -> list[Broker
     for node, slot in values.items():
         got = {var: _one(plant, node, prop, slot[var]) for var, prop in props.items()}
         port = _integer(plant, node, "port", got["port"])
+        persist = (_integer(plant, node, "persistEvery", _one(plant, node, "persistEvery", slot["persist"]))
+                   if slot["persist"] else None)
         out.append(BrokerSpec(id=got["id"].value, iri=node.value, name=got["name"].value,
-                              kind=got["kind"].value, host=got["ip"].value, port=port))
+                              kind=got["kind"].value, host=got["ip"].value, port=port,
+                              persist_every=persist))
     return _unique(out, "broker")
 
 

@@ -48,6 +48,7 @@ class BrokerSpec:
     kind: str               # pk:brokerType — also the driver's entry-point name
     host: str               # pk:ip — the agent is found there
     port: int               # pk:port
+    persist_every: int | None = None  # pk:persistEvery — Mosquitto saves after this many changes
 
     @property
     def address(self) -> str:

@@ -113,7 +113,11 @@ def broker_spec_from_json(data: Any, where: str = "", *, strict: bool = True) ->
     host = _typed(data, "host", (str,), where)
     _checked(where, check_host, "host", host)
     port = _checked(where, check_port, "port", _typed(data, "port", (int,), where))
-    return BrokerSpec(id=broker_id, iri=iri, name=name, kind=kind, host=host, port=port)
+    persist = _typed(data, "persist_every", (int,), where, optional=True)
+    if persist is not None and not 1 <= persist <= 1_000_000:
+        raise WireError(_join(where, "persist_every"), "must be in 1..1000000")
+    return BrokerSpec(id=broker_id, iri=iri, name=name, kind=kind, host=host, port=port,
+                      persist_every=persist)
 
 
 def topic_spec_from_json(data: Any, where: str = "") -> TopicSpec:

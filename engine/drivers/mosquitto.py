@@ -67,6 +67,7 @@ class MosquittoDriver:
             log_file=log_file(broker_dir, self.kind),
             run_as=self.run_as,
             data_dir=broker_dir / DATA_DIR,
+            persist_every=spec.persist_every,
             bridges=tuple(native_bridge(spec, b) for b in bridges),
         )
         return {CONF_FILE: mosquitto_runtime.render_mosquitto_conf(cfg)}
@@ -114,7 +115,7 @@ class MosquittoDriver:
         return []
 
     def essence(self, spec: BrokerSpec) -> dict[str, Any]:
-        return spec_essence(spec)
+        return {**spec_essence(spec), "persist_every": spec.persist_every}
 
     def bridge_states(self, spec: BrokerSpec, bridges: tuple[BridgeSpec, ...],
                       timeout: float) -> dict[str, bool]:

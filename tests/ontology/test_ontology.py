@@ -65,6 +65,7 @@ DATA_PROPERTIES = {  # name: (domain or None for all classes, range or None for 
     "brokerType": ("Broker", ns.XSD.string, True),
     "ip": ("Broker", ns.XSD.string, True),
     "port": ("Broker", ns.XSD.integer, True),
+    "persistEvery": ("Broker", ns.XSD.integer, True),
     "valueTopic": ("Topic", ns.XSD.string, True),
     "typeTopic": ("Topic", ns.XSD.string, True),
     "partitions": ("Topic", ns.XSD.integer, True),

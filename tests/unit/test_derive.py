@@ -126,6 +126,13 @@ def test_a_derived_bridge_between_two_kafka_brokers_is_refused(tmp_path: Path) -
         derive(reasoned(tmp_path, body))
 
 
+def test_save_policy_is_read_when_set(tmp_path: Path) -> None:
+    body = PLANT.replace('pk:ip "127.0.0.2" ; pk:port 1883 .', 'pk:ip "127.0.0.2" ; pk:port 1883 ; pk:persistEvery 1 .')
+    state = derive(reasoned(tmp_path, body))
+    assert state.broker("mq").persist_every == 1  # type: ignore[union-attr]
+    assert state.broker("kf").persist_every is None  # type: ignore[union-attr]
+
+
 def test_deterministic(tmp_path: Path) -> None:
     plant = reasoned(tmp_path, PLANT)
     first = derive(plant)

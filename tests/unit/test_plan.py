@@ -94,6 +94,13 @@ def test_a_bridge_on_an_unreachable_host_is_not_planned() -> None:
     assert not result.applicable
 
 
+def test_a_new_save_policy_restarts_the_broker() -> None:
+    durable = replace(MQ, persist_every=1)
+    result = plan(DesiredState((durable,)), ObservedState((running(MQ),)))
+    (change,) = result.pending
+    assert change.action is Action.REPLACE and "persist_every null → 1 forces replacement" in change.reason
+
+
 def test_unreachable_host_blocks_the_plan() -> None:
     result = plan(DesiredState((MQ,)), ObservedState(unreachable=("127.0.0.2",)))
     assert not result.applicable and result.unreachable == ("127.0.0.2",)

@@ -224,3 +224,22 @@ def test_cluster_id_never_starts_with_a_dash() -> None:
     with pytest.raises(EngineError, match="cluster_id"):  # refused before any part is looked at
         kafka_runtime.storage_format_command(None, Path("/usr/bin/java"),  # type: ignore[arg-type]
                                              Path("/tmp/x.properties"), "-" + "A" * 21)
+
+
+def test_mosquitto_saves_after_every_change_when_asked() -> None:
+    text = render_mosquitto_conf(mosquitto(data_dir=Path("/var/lib/plantkg/m1/data"), persist_every=1))
+    assert "persistence true\npersistence_location /var/lib/plantkg/m1/data/\n" \
+        "autosave_on_changes true\nautosave_interval 1\n" in text
+    default = render_mosquitto_conf(mosquitto(data_dir=Path("/var/lib/plantkg/m1/data")))
+    assert "autosave_on_changes" not in default and "autosave_interval 60" in default
+
+
+@pytest.mark.parametrize("every", [0, -1, 1_000_001, True, "1"])
+def test_mosquitto_refuses_a_bad_save_policy(every: object) -> None:
+    with pytest.raises(ConfigValueError, match="persist_every"):
+        mosquitto(data_dir=Path("/var/lib/plantkg/m1/data"), persist_every=every)
+
+
+def test_mosquitto_save_policy_needs_persistence() -> None:
+    with pytest.raises(ConfigValueError, match="needs a data_dir"):
+        mosquitto(persist_every=1)
