@@ -32,13 +32,15 @@ class Mosquitto:
     host: str = "127.0.0.1"
     port: int = 0
     bridges: tuple[MosquittoBridge, ...] = ()
+    persist_every: int | None = None
     child: process.Child | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         self.port = self.port or netutil.free_port(self.host)
         (self.folder / "data").mkdir(parents=True, exist_ok=True)
         cfg = MosquittoConfig(self.host, self.port, self.folder / "mosquitto.log", default_run_as(),
-                              data_dir=self.folder / "data", bridges=self.bridges)
+                              data_dir=self.folder / "data", bridges=self.bridges,
+                              persist_every=self.persist_every)
         (self.folder / "mosquitto.conf").write_text(render_mosquitto_conf(cfg), encoding="utf-8")
 
     def start(self) -> Mosquitto:

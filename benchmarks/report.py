@@ -21,6 +21,7 @@ SECTIONS = (
      ("load.png", "load-nodelay.png", "load-sizes.png", "load-bringup.png")),
     ("replan", "3. Plant size scaling and re-planning", ("replan.png",)),
     ("bridge", "Bridges against the raw MQTT path (MQTT ↔ Kafka)", ()),
+    ("durability", "A Mosquitto bridge target killed with SIGKILL, per save policy", ()),
     ("web", "Dashboard and SPARQL endpoint", ()),
     ("validate", "Validation against pySHACL", ()),
     ("reason", "Reasoning against HermiT", ()),

@@ -132,3 +132,16 @@ def test_bridge_benchmark_runs(tmp_path: Path) -> None:
         (p, phase) for p in bench_bridge.PATHS for phase in ("max", "paced")}
     assert all(r["lost"] == 0 for r in rows)  # the benchmark loses nothing, at any speed
     assert "| kafka-mqtt | paced |" in (tmp_path / "bridge.md").read_text()
+
+
+@pytest.mark.integration  # real Mosquitto brokers joined by a Mosquitto bridge, one SIGKILLed
+def test_durability_benchmark_runs(tmp_path: Path) -> None:
+    from benchmarks import bench_durability
+
+    assert bench_durability.main(["--messages", "300", "--policies", "default", "1",
+                                  "--out", str(tmp_path)]) == 0
+    rows = {r["policy"]: r for r in json.loads((tmp_path / "durability.json").read_text())["rows"]}
+    assert set(rows) == {"default", "1"}
+    assert rows["1"]["killed"]["missing"] == 0          # saving every change keeps what was acked
+    assert all(r["throughput"]["missing"] == 0 for r in rows.values())  # no kill: nothing lost
+    assert "| 1 |" in (tmp_path / "durability.md").read_text()
