@@ -10,7 +10,9 @@ the security issue). Settings that make bridges lose nothing:
 - ``max_queued_messages`` raised from Mosquitto's 1000, past which it silently drops QoS 1
   messages queued for a disconnected persistent session (a bridge, a bridge worker);
 - ``max_inflight_messages`` raised from 20, so a consumer that acknowledges late (a worker waiting
-  for Kafka's confirmation) is not throttled to 20 messages per round trip.
+  for Kafka's confirmation) is not throttled to 20 messages per round trip;
+- ``set_tcp_nodelay``: without it a PUBACK can wait ~40 ms for the client's delayed ACK (Nagle);
+  the load benchmark measured PUBACK p99 40.9 ms without, 12.6 ms with.
 
 Each :class:`MosquittoBridge` is one ``connection`` section: Mosquitto's own bridge with a
 persistent session (``cleansession false``), notifications of its state on the local broker
@@ -123,6 +125,7 @@ def render_mosquitto_conf(cfg: MosquittoConfig) -> str:
         "allow_anonymous true",
         f"max_queued_messages {MAX_QUEUED_MESSAGES}",
         f"max_inflight_messages {MAX_INFLIGHT_MESSAGES}",
+        "set_tcp_nodelay true",
         *_persistence_lines(cfg.data_dir, cfg.persist_every),
         f"log_dest file {cfg.log_file}",
         "log_type error",

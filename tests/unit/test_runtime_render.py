@@ -19,6 +19,7 @@ listener 18830 127.0.0.2
 allow_anonymous true
 max_queued_messages 1000000
 max_inflight_messages 1000
+set_tcp_nodelay true
 persistence false
 log_dest file /var/lib/plantkg/m1/mosquitto.log
 log_type error
