@@ -72,13 +72,14 @@ def bridged_in(desired: DesiredState) -> dict[tuple[str, str], str]:
 
 def _table(taps: list[Tap], started: float, via: dict[tuple[str, str], str]) -> list[str]:
     elapsed = max(time.monotonic() - started, 1e-6)
-    lines = [f"{'broker':<12} {'topic':<30} {'via':<16} {'messages':>8} {'msg/s':>6}  last payload"]
+    width = max([3, *(len(f"bridge from {s}") for s in via.values())])
+    lines = [f"{'broker':<12} {'topic':<30} {'via':<{width}} {'messages':>8} {'msg/s':>6}  last payload"]
     for tap in taps:
         for topic, seen in sorted(tap.snapshot().items()):
             last = {k: v for k, v in seen.last.items() if k not in ("ts", "source")}
             text = str(last)[:56]
             source = f"bridge from {via[(tap.broker.id, topic)]}" if (tap.broker.id, topic) in via else "published"
-            lines.append(f"{tap.broker.id:<12} {topic:<30} {source:<16} {seen.count:>8} "
+            lines.append(f"{tap.broker.id:<12} {topic:<30} {source:<{width}} {seen.count:>8} "
                          f"{seen.count / elapsed:>6.1f}  {text}")
     return lines
 

@@ -114,10 +114,11 @@ def _past(action: Action) -> str:
 
 def _field_lines(change: Change) -> list[str]:
     before, after = change.before or {}, change.after or {}
+    # An optional field the plant leaves unset (None) is not listed when created or destroyed.
     if change.action is Action.CREATE:
-        return [f"+ {k} = {_show(v)}" for k, v in after.items() if k not in _QUIET]
+        return [f"+ {k} = {_show(v)}" for k, v in after.items() if k not in _QUIET and v is not None]
     if change.action is Action.DELETE:
-        return [f"- {k} = {_show(v)}" for k, v in before.items() if k not in _QUIET]
+        return [f"- {k} = {_show(v)}" for k, v in before.items() if k not in _QUIET and v is not None]
     out = []
     for key in after:
         old, new = before.get(key), after.get(key)

@@ -115,6 +115,7 @@ def test_render_signs_and_summary() -> None:
     assert "  + broker.kafka will be created" in text
     assert '+ port = 9092' in text
     assert "  + bridge.mosquitto.kafka will be created" in text
+    assert "persist_every" not in text  # unset optional fields are not listed
     assert '+ mechanism = "mqtt-kafka"' in text
     assert text.splitlines()[-1] == "Plan: 6 to create, 0 to update, 0 to replace, 0 to destroy."
 
