@@ -44,6 +44,7 @@ from confluent_kafka import KafkaException
 
 from benchmarks import plots, synthetic
 from benchmarks.bench_deploy import KAFKA_PLANT
+from benchmarks.bridge_burst import BridgeBurstRig
 from benchmarks.kafka_burst import KafkaRig
 from benchmarks.common import RESULTS, command_line, machine, summarize, write_results
 from benchmarks.mqtt_burst import MODES, BurstResult, BurstRig
@@ -57,6 +58,15 @@ from engine.pipeline import run_pipeline
 
 HOST = "127.0.0.2"
 READY_S = 60.0
+#: One Mosquitto bridged to one Kafka on the same machine; the topic's name is valid for both.
+BRIDGE_PLANT = """@prefix pk: <https://w3id.org/plantkg/ontology#> .
+@prefix : <https://w3id.org/plantkg/examples/bench-bridge#> .
+:mqtt a pk:Broker ; pk:id "mqtt" ; pk:name "bench-mqtt" ; pk:brokerType "mosquitto" ;
+    pk:ip "{host}" ; pk:port {mqtt_port} ; pk:hasTopic :t ; pk:bridgesTo :kafka .
+:kafka a pk:Broker ; pk:id "kafka" ; pk:name "bench-kafka" ; pk:brokerType "kafka" ;
+    pk:ip "{host}" ; pk:port {kafka_port} ; pk:hasTopic :t .
+:t a pk:Topic ; pk:id "t" ; pk:name "bench.bridge" ; pk:qos 1 ; pk:partitions 1 .
+"""
 
 
 def connack(host: str, port: int, timeout: float = 0.5) -> bool:
@@ -285,6 +295,28 @@ def kafka_arm(args: argparse.Namespace, work: Path, raw: list[BurstResult]) -> d
     return {"up_s": up["total"], "down_s": down["total"], "memory": mem, "cells": cells}
 
 
+def bridge_arm(args: argparse.Namespace, work: Path, raw: list[BurstResult]) -> dict[str, object]:
+    """One apply of a Mosquitto bridged to a Kafka (a bridge worker beside Mosquitto); bursts of
+    each size of ``--bridge-messages`` published on Mosquitto and consumed from Kafka."""
+    agents = start_local_agents([HOST], work / "agents-bridge")
+    try:
+        directory = AgentDirectory.load(agents.agents_file)
+        mqtt_port, kafka_port = netutil.free_ports(2, HOST)
+        plant = work / "bridge.ttl"
+        plant.write_text(BRIDGE_PLANT.format(host=HOST, mqtt_port=mqtt_port, kafka_port=kafka_port))
+        up = through_plantkg(plant, directory)
+        cells = []
+        with BridgeBurstRig(HOST, mqtt_port, f"{HOST}:{kafka_port}", "bench.bridge") as rig:
+            for m in args.bridge_messages:
+                runs = [rig.burst(m, args.size) for _ in range(args.repeat)]
+                raw.extend(runs)
+                cells.append(_cell(runs, "bridge"))
+        down = through_plantkg(plant, directory, destroy=True)
+    finally:
+        agents.stop()
+    return {"up_s": up["total"], "down_s": down["total"], "cells": cells}
+
+
 def measure(args: argparse.Namespace, argv: list[str] | None) -> tuple[dict[str, object], list[BurstResult]]:
     info = machine()
     raw: list[BurstResult] = []
@@ -296,7 +328,8 @@ def measure(args: argparse.Namespace, argv: list[str] | None) -> tuple[dict[str,
             if n in args.nagle_brokers:
                 rows[-1]["cells"] += nagle_arm(n, args, Path(tmp), raw)
         kafka = kafka_arm(args, Path(tmp), raw) if args.kafka_messages else None
-    return {"kafka": kafka, "benchmark": "load", "machine": info, "command": command_line("benchmarks.bench_load", argv),
+        bridge = bridge_arm(args, Path(tmp), raw) if args.bridge_messages else None
+    return {"kafka": kafka, "bridge": bridge, "benchmark": "load", "machine": info, "command": command_line("benchmarks.bench_load", argv),
             "repeat": args.repeat, "deploy_repeat": args.deploy_repeat, "size": args.size,
             "apply_parallelism": args.apply_parallelism,
             "paper": "Fig. 12: 1-100 brokers x 100-500 messages < 1 KB, one machine", "rows": rows}, raw
@@ -360,6 +393,18 @@ def to_markdown(data: dict[str, object]) -> str:
                              "||||||||")
             else:
                 lines.append(_cell_line({**c, "label": f"{c['study']}: {c['size']}"}, first="label"))
+    bridge = data.get("bridge")
+    if bridge:
+        lines += ["", "## MQTT → Kafka bridge (one Mosquitto, its bridge worker, one Kafka; ack = Mosquitto's "
+                  "PUBACK, delivery = consumed from Kafka)", "",
+                  f"One apply brought the three up in {bridge['up_s']:.2f} s, one destroy took {bridge['down_s']:.2f} s. "
+                  "Compare with the one-broker rows of the matrix (delivery on the same Mosquitto) and the Kafka "
+                  "table (produced to Kafka directly).", "",
+                  "| path | brokers | messages | send burst ms | ack mean | ack p50 | ack p99 | delivery mean | "
+                  "delivery p50 | delivery p99 | stdev of burst means (ack / delivery) | lost |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+        for c in sorted(bridge["cells"], key=lambda c: c["messages"]):
+            lines.append(_cell_line({**c, "label": "MQTT → bridge → Kafka"}, first="label"))
     sized = [c for c in cells if c["study"] == "size"]
     if sized:
         lines += ["", "## Message size (spread)", "",
@@ -390,6 +435,8 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--size-messages", type=int, default=100)
     parser.add_argument("--kafka-messages", type=int, nargs="*", default=[100, 300, 500],
                         help="burst sizes against one Kafka broker (none: no Kafka arm)")
+    parser.add_argument("--bridge-messages", type=int, nargs="*", default=[100, 300, 500],
+                        help="burst sizes through an MQTT -> Kafka bridge (none: no bridge arm)")
     parser.add_argument("--apply-parallelism", type=int, default=8,
                         help="apply's parallel calls (engine.apply's default is 8)")
     parser.add_argument("--nagle-messages", type=int, nargs="+", default=[1, 10, 100, 500],

@@ -30,7 +30,7 @@ TINY: dict[str, list[str]] = {
     "deploy": ["--runs", "2", "--kafka-runs", "0", "--delay-ms", "-1"],
     "load": ["--brokers", "1", "2", "--messages", "5", "10", "--repeat", "1", "--deploy-repeat", "1",
              "--sizes", "100", "10000", "--size-brokers", "2", "--size-messages", "5", "--nagle-brokers", "2", "--nagle-messages", "1", "5",
-             "--kafka-messages"],
+             "--kafka-messages", "--bridge-messages"],
     "scale": ["--sizes", "30", "60", "--repeat", "1"],
     "validate": ["--sizes", "40", "--repeat", "1", "--reference-max", "40"],
     "reason": ["--sizes", "20", "--repeat", "1", "--hermit-max", "0"],

@@ -18,7 +18,7 @@ pytestmark = pytest.mark.integration
 def test_load_benchmark_runs(tmp_path: Path) -> None:
     args = ["--brokers", "1", "2", "--messages", "4", "6", "--repeat", "1", "--deploy-repeat", "1",
             "--sizes", "100", "20000", "--size-brokers", "2", "--size-messages", "3", "--nagle-brokers", "1", "--nagle-messages", "2",
-            "--kafka-messages", "--out", str(tmp_path)]
+            "--kafka-messages", "--bridge-messages", "--out", str(tmp_path)]
     assert bench_load.main(args) == 0
     data = json.loads((tmp_path / "load.json").read_text())
     assert [r["brokers"] for r in data["rows"]] == [1, 2]
@@ -40,7 +40,7 @@ def test_load_benchmark_runs(tmp_path: Path) -> None:
 def test_load_benchmark_kafka_arm(tmp_path: Path) -> None:
     args = ["--brokers", "1", "--messages", "3", "--repeat", "1", "--deploy-repeat", "1", "--sizes", "100", "5000",
             "--size-brokers", "--size-messages", "2", "--nagle-brokers", "--kafka-messages", "4",
-            "--out", str(tmp_path)]
+            "--bridge-messages", "--out", str(tmp_path)]
     assert bench_load.main(args) == 0
     kafka = json.loads((tmp_path / "load.json").read_text())["kafka"]
     assert kafka["up_s"] > 0 and kafka["memory"]["brokers"] == 1  # the JVM is the agent's one child
@@ -48,6 +48,20 @@ def test_load_benchmark_kafka_arm(tmp_path: Path) -> None:
         ("kafka", 100, 4), ("kafka-size", 100, 2), ("kafka-size", 5000, 2)}
     assert all(c["lost"] == 0 and c["ack"]["n"] == c["delivery"]["n"] == c["messages"] for c in kafka["cells"])
     assert "## Kafka" in (tmp_path / "load.md").read_text()
+
+
+def test_load_benchmark_bridge_arm(tmp_path: Path) -> None:
+    """The MQTT -> Kafka bridge path of the matrix: one apply of Mosquitto + Kafka + their
+    bridge, bursts published on Mosquitto and consumed from Kafka, nothing lost."""
+    args = ["--brokers", "1", "--messages", "3", "--repeat", "1", "--deploy-repeat", "1", "--sizes", "100",
+            "--size-brokers", "--nagle-brokers", "--kafka-messages", "--bridge-messages", "5", "20",
+            "--out", str(tmp_path)]
+    assert bench_load.main(args) == 0
+    data = json.loads((tmp_path / "load.json").read_text())
+    cells = data["bridge"]["cells"]
+    assert [c["messages"] for c in cells] == [5, 20] and all(c["lost"] == 0 for c in cells)
+    assert all(c["ack"]["n"] == c["delivery"]["n"] == c["messages"] for c in cells)
+    assert "| MQTT → bridge → Kafka | 1 | 20 |" in (tmp_path / "load.md").read_text()
 
 
 def test_burst_refuses_more_one_to_one_messages_than_publishers(tmp_path: Path) -> None:
