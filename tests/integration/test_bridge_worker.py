@@ -380,7 +380,10 @@ def test_worker_comes_up_when_its_remote_does(tmp_path: Path, mosquitto: rig.Mos
     child = workers.start(cfg, wait=False)
     stats = process.wait_until(lambda: (s := workers.stats()) is not None and s.kafka_connected is False and s,
                                30.0, what="the worker to find Kafka down", child=child)
-    assert not stats.ready and stats.mqtt_connected and "unreachable" in (stats.last_error or "")
+    # the last error is the probe's ("unreachable") or the producer's ("Connect to ... failed"),
+    # whichever came last: both name the Kafka address
+    assert not stats.ready and stats.mqtt_connected
+    assert own_kafka.bootstrap.rsplit(":", 1)[1] in (stats.last_error or ""), stats.last_error
     own_kafka.up()
     rig.wait_ready(cfg, child, deadline=60.0)
     client = mqtt_client(mosquitto.port, "late-publisher")
