@@ -11,7 +11,10 @@ messages); a worker bridging MQTT and Kafka both ways skips what it wrote itself
   two ``pk:MqttBroker`` -> Mosquitto's own bridge; an MQTT and a ``pk:KafkaBroker`` -> a bridge
   worker. Two Kafka brokers would need MirrorMaker 2, which plantkg does not run: refused.
 - Carrier (``local``): a worker runs beside the MQTT broker; a one-way Mosquitto bridge is carried
-  by its source (it pushes); a two-way one by the broker with the smaller id.
+  by its source (it pushes); a two-way one by the broker with the smaller id — unless that would
+  make it connect to an IPv6 address, which Mosquitto's bridge cannot (its ``address`` line takes
+  no IPv6 literal): then by the other, and if both are IPv6 (or a one-way bridge's target is) the
+  bridge is refused here, before anything is deployed.
 - Each shared topic is a :class:`BridgeRoute` with its direction seen from the carrier, the topic's
   ``pk:qos`` (default 1: at-least-once) and, for a worker, its ``pk:kafkaKey``.
 """
@@ -84,7 +87,7 @@ def pair_bridges(
 def _pair(ds: list[DirectedBridge], brokers: Mapping[str, BrokerSpec],
           classes: Mapping[str, frozenset[str]], options: Mapping[str, TopicOptions]) -> BridgeSpec:
     first = ds[0]
-    mechanism, local = _mechanism_and_carrier(first.source, first.target, ds, classes)
+    mechanism, local = _mechanism_and_carrier(first.source, first.target, ds, classes, brokers)
     remote = first.target if local == first.source else first.source
     out = set().union(*(d.topics for d in ds if d.source == local))
     into = set().union(*(d.topics for d in ds if d.source == remote))
@@ -100,13 +103,20 @@ def _pair(ds: list[DirectedBridge], brokers: Mapping[str, BrokerSpec],
                       routes=tuple(routes), asserted=any(d.asserted for d in ds))
 
 
-def _mechanism_and_carrier(a: str, c: str, ds: list[DirectedBridge],
-                           classes: Mapping[str, frozenset[str]]) -> tuple[BridgeMechanism, str]:
+def _mechanism_and_carrier(a: str, c: str, ds: list[DirectedBridge], classes: Mapping[str, frozenset[str]],
+                           brokers: Mapping[str, BrokerSpec]) -> tuple[BridgeMechanism, str]:
     mqtt = {b for b in (a, c) if MQTT_CLASS in classes.get(b, frozenset())}
     kafka = {b for b in (a, c) if KAFKA_CLASS in classes.get(b, frozenset())}
     if len(mqtt) == 2:
-        sources = {d.source for d in ds}
-        return BridgeMechanism.MOSQUITTO, (min(sources) if len(sources) == 2 else next(iter(sources)))
+        sources = sorted({d.source for d in ds})
+        carriers = [s for s in sources if not _ipv6(brokers[c if s == a else a].host)]
+        if not carriers:
+            target = c if sources[0] == a else a
+            raise BridgeNotSupportedError(a, c, f"Mosquitto's bridge cannot connect to broker "
+                                          f"{target!r} at the IPv6 address {brokers[target].host} "
+                                          "(its 'address' takes no IPv6 literal); give it an IPv4 "
+                                          "address")
+        return BridgeMechanism.MOSQUITTO, carriers[0]
     if len(mqtt) == 1 and len(kafka) == 1:
         return BridgeMechanism.WORKER, next(iter(mqtt))
     if len(kafka) == 2:
@@ -114,6 +124,10 @@ def _mechanism_and_carrier(a: str, c: str, ds: list[DirectedBridge],
                                       "yet (plantkg does not run Kafka MirrorMaker 2)")
     raise BridgeNotSupportedError(a, c, "plantkg bridges an MQTT broker to an MQTT or a Kafka "
                                   "broker; these brokers are not both of such classes")
+
+
+def _ipv6(host: str) -> bool:
+    return ":" in host
 
 
 def _end(spec: BrokerSpec) -> BridgeEnd:

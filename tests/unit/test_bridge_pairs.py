@@ -66,6 +66,18 @@ def test_pairs_are_sorted_and_separate() -> None:
     assert [s.routes[0].direction for s in specs] == [BridgeDirection.OUT] * 3
 
 
+def test_a_mosquitto_bridge_never_connects_to_an_ipv6_address() -> None:
+    six = {**BROKERS, "v6": BrokerSpec("v6", "urn:v6", "V6", "mosquitto", "::1", 1883)}
+    classes = {**CLASSES, "v6": MQTT}
+    with pytest.raises(BridgeNotSupportedError, match="'v6' at the IPv6 address ::1"):
+        pair_bridges([d("a", "v6", "t")], six, classes, {})
+    # pushing from the IPv6 broker to an IPv4 one is fine, and a two-way pair picks that carrier
+    [one_way] = pair_bridges([d("v6", "a", "t")], six, classes, {})
+    [two_way] = pair_bridges([d("a", "v6", "t"), d("v6", "a", "t")], six, classes, {})
+    assert one_way.local.id == two_way.local.id == "v6"
+    assert two_way.routes[0].direction is BridgeDirection.BOTH
+
+
 def test_two_kafka_brokers_are_refused_by_name() -> None:
     with pytest.raises(BridgeNotSupportedError, match="k -> k2: a bridge between two Kafka brokers"):
         pair_bridges([d("k", "k2", "t")], BROKERS, CLASSES, {})
