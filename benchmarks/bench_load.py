@@ -95,14 +95,18 @@ def wait_all_ready(brokers: list[tuple[str, int]], deadline: float = READY_S) ->
     process.wait_until(none_pending, deadline, 0.001, what=f"{len(brokers)} mosquitto to answer")
 
 
-def _hand_confs(n: int, work: Path, extra: str = "") -> tuple[list[int], list[Path]]:
-    """n configs as the agent renders them (plus ``extra`` lines), on free ports."""
+def _hand_confs(n: int, work: Path, nodelay: bool = True) -> tuple[list[int], list[Path]]:
+    """n configs as the agent renders them, on free ports; ``nodelay=False`` turns Mosquitto's
+    TCP_NODELAY back to its own default (off), which plantkg's rendering sets on."""
     ports = netutil.free_ports(n, HOST)
     confs = []
     for i, port in enumerate(ports):
         conf = work / f"hand-{i}.conf"
-        conf.write_text(render_mosquitto_conf(MosquittoConfig(HOST, port, work / f"hand-{i}.log", default_run_as()))
-                        + extra)
+        text = render_mosquitto_conf(MosquittoConfig(HOST, port, work / f"hand-{i}.log", default_run_as()))
+        if not nodelay:
+            assert "set_tcp_nodelay true\n" in text, "the rendering no longer sets TCP_NODELAY"
+            text = text.replace("set_tcp_nodelay true\n", "set_tcp_nodelay false\n")
+        conf.write_text(text)
         confs.append(conf)
     return ports, confs
 
@@ -248,11 +252,12 @@ def one_size(n: int, args: argparse.Namespace, work: Path, raw: list[BurstResult
 
 
 def nagle_arm(n: int, args: argparse.Namespace, work: Path, raw: list[BurstResult]) -> list[dict[str, object]]:
-    """The matrix (spread) against n brokers spawned by hand, as rendered and with
-    ``set_tcp_nodelay true``: do Nagle's algorithm and delayed ACKs explain stalls?"""
+    """The matrix (spread) against n brokers spawned by hand, with Mosquitto's default
+    (``set_tcp_nodelay false``) and with plantkg's ``set_tcp_nodelay true``: do Nagle's algorithm
+    and delayed ACKs explain stalls?"""
     cells = []
-    for label, extra in (("tcp-default", ""), ("tcp-nodelay", "set_tcp_nodelay true\n")):
-        ports, confs = _hand_confs(n, work, extra)
+    for label, nodelay in (("tcp-default", False), ("tcp-nodelay", True)):
+        ports, confs = _hand_confs(n, work, nodelay)
         children: list[process.Child] = []
         try:
             _spawn_all(confs, work, children)
