@@ -11,8 +11,9 @@ the security issue). Settings that make bridges lose nothing:
   messages queued for a disconnected persistent session (a bridge, a bridge worker);
 - ``max_inflight_messages`` raised from 20, so a consumer that acknowledges late (a worker waiting
   for Kafka's confirmation) is not throttled to 20 messages per round trip;
-- ``set_tcp_nodelay``: without it a PUBACK can wait ~40 ms for the client's delayed ACK (Nagle);
-  the load benchmark measured PUBACK p99 40.9 ms without, 12.6 ms with.
+- ``set_tcp_nodelay``: without it a PUBACK can wait ~40 ms for the client's delayed ACK (Nagle).
+  A trade-off (benchmarks/results/nodelay-10-repeats): 100-message bursts, PUBACK p99 42.1 ms
+  without, 13.1 ms with; 500-message bursts, 62.2 ms without, 93.1 ms with.
 
 Each :class:`MosquittoBridge` is one ``connection`` section: Mosquitto's own bridge with a
 persistent session (``cleansession false``), notifications of its state on the local broker
