@@ -42,6 +42,7 @@ from engine.agent.procs import (
     started_at,
     stop_foreign,
 )
+from engine.agent.supervision import backoff, start_supervisor
 from engine.agent.wire import BROKER_ID
 from engine.drivers.base import LOGS_DIR, BridgeCarrier, Driver, config_hash, log_file
 from engine.drivers.registry import DriverRegistry
@@ -144,9 +145,8 @@ class BrokerManager:
                     self._load(path)
                 except EngineError as exc:
                     log.error("broker folder %s ignored: %s", path, exc)
-        self._thread = threading.Thread(target=self._supervise_loop, name="plantkg-supervisor",
-                                        daemon=True)
-        self._thread.start()
+        self._thread = start_supervisor("plantkg-supervisor", self._stop, self.tick, self._all,
+                                        self._supervise_one, lambda b: f"broker {b.spec.id}")
         return self
 
     def close(self, *, stop_brokers: bool = False) -> None:
@@ -521,21 +521,12 @@ class BrokerManager:
 
     # --- supervision -----------------------------------------------------------------------
 
-    def _supervise_loop(self) -> None:
-        while not self._stop.wait(self.tick):
-            for b in self._all():
-                if self._stop.is_set() or not b.op.acquire(blocking=False):
-                    continue
-                try:
-                    if not b.deleted and b.driver is not None:
-                        self._supervise(b)
-                except Exception:  # noqa: BLE001 - the supervisor must outlive any one broker
-                    log.exception("supervising broker %s", b.spec.id)
-                finally:
-                    b.op.release()
+    def _supervise_one(self, b: _Broker) -> None:
+        if not b.deleted and b.driver is not None:
+            self._supervise(b)
 
     def _backoff(self, failures: int) -> float:
-        return min(self.backoff_cap, self.backoff_base * 2 ** max(failures - 1, 0))
+        return backoff(self.backoff_base, self.backoff_cap, failures)
 
     def _supervise(self, b: _Broker) -> None:
         now = time.monotonic()

@@ -38,6 +38,7 @@ from engine.agent.procs import (
     started_at,
     stop_foreign,
 )
+from engine.agent.supervision import backoff, start_supervisor
 from engine.agent.wire import WireError, bridge_spec_from_json
 from engine.bridge_worker.config import Direction, KeyMode, Route, WorkerConfig
 from engine.bridge_worker.stats import read_stats
@@ -143,9 +144,8 @@ class WorkerManager:
                 self._load(path)
             except EngineError as exc:
                 log.error("bridge folder %s ignored: %s", path, exc)
-        self._thread = threading.Thread(target=self._supervise_loop, name="plantkg-workers",
-                                        daemon=True)
-        self._thread.start()
+        self._thread = start_supervisor("plantkg-workers", self._stop, self.tick, self._all,
+                                        self._supervise, lambda w: f"bridge worker {w.spec.address}")
         return self
 
     def close(self, *, stop_workers: bool = False) -> None:
@@ -286,24 +286,12 @@ class WorkerManager:
                 w.status, w.last_error = BridgeStatus.CRASHED, f"process {pid.pid} was gone when the agent started"
         self._workers[path.name] = w
 
-    def _supervise_loop(self) -> None:
-        while not self._stop.wait(self.tick):
-            for w in self._all():
-                if self._stop.is_set() or not w.op.acquire(blocking=False):
-                    continue
-                try:
-                    self._supervise(w)
-                except Exception:  # noqa: BLE001 - the supervisor must outlive any one worker
-                    log.exception("supervising bridge worker %s", w.spec.address)
-                finally:
-                    w.op.release()
-
     def _supervise(self, w: _Worker) -> None:
         now = time.monotonic()
         if w.proc is not None and not w.proc.alive():
             code = w.proc.exit_code()
             failures = w.failures + 1
-            delay = min(self.backoff_cap, self.backoff_base * 2 ** (failures - 1))
+            delay = backoff(self.backoff_base, self.backoff_cap, failures)
             tail = "\n".join(w.proc.log_tail().strip().splitlines()[-8:])
             error = (f"worker exited" + (f" with code {code}" if code is not None else "")
                      + f"; restart in {delay:.1f} s. Log ends with:\n{tail}")
