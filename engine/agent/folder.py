@@ -20,7 +20,8 @@ import os
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 from engine.agent.wire import (
     WireError,
@@ -30,6 +31,8 @@ from engine.agent.wire import (
 )
 from engine.errors import EngineError
 from engine.model import BridgeSpec, BrokerSpec, ObservedTopic, to_dict
+
+T = TypeVar("T")
 
 SPEC_FILE = "spec.json"
 PID_FILE = "pid.json"
@@ -81,16 +84,21 @@ class BrokerFolder:
             raise EngineError(f"{path}: unreadable ({exc})",
                               hint="delete the file; the agent rewrites it on the next PUT") from exc
 
-    # spec.json
-    def read_spec(self) -> BrokerSpec | None:
-        data = self._read_json(SPEC_FILE)
+    def read_parsed(self, name: str, parse: Callable[[Any], T], hint: str) -> T | None:
+        """File ``name`` parsed by ``parse`` (None if absent); a body that does not parse is an
+        EngineError naming the file."""
+        data = self._read_json(name)
         if data is None:
             return None
         try:
-            return broker_spec_from_json(data)
+            return parse(data)
         except WireError as exc:
-            raise EngineError(f"{self.path / SPEC_FILE}: {exc.message}",
-                              hint="PUT the broker again, or delete its folder") from exc
+            raise EngineError(f"{self.path / name}: {exc.message}", hint=hint) from exc
+
+    # spec.json
+    def read_spec(self) -> BrokerSpec | None:
+        return self.read_parsed(SPEC_FILE, broker_spec_from_json,
+                                "PUT the broker again, or delete its folder")
 
     def write_spec(self, spec: BrokerSpec) -> None:
         self.write_json(SPEC_FILE, to_dict(spec))
@@ -129,12 +137,8 @@ class BrokerFolder:
 
     # bridges.json
     def read_bridges(self) -> tuple[BridgeSpec, ...]:
-        data = self._read_json(BRIDGES_FILE) or []
-        try:
-            return tuple(bridge_spec_from_json(b) for b in data)
-        except WireError as exc:
-            raise EngineError(f"{self.path / BRIDGES_FILE}: {exc.message}",
-                              hint="PUT the bridges again, or delete the file") from exc
+        return self.read_parsed(BRIDGES_FILE, lambda data: tuple(bridge_spec_from_json(b) for b in data),
+                                "PUT the bridges again, or delete the file") or ()
 
     def write_bridges(self, bridges: tuple[BridgeSpec, ...]) -> None:
         self.write_json(BRIDGES_FILE, [to_dict(b) for b in bridges])

@@ -27,7 +27,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from engine import process
-from engine.agent.folder import BrokerFolder, PidRecord
+from engine.agent.folder import SPEC_FILE, BrokerFolder, PidRecord
 from engine.agent.procs import (
     AdoptedProcess,
     BrokerProcess,
@@ -39,7 +39,7 @@ from engine.agent.procs import (
     stop_foreign,
 )
 from engine.agent.supervision import backoff, start_supervisor
-from engine.agent.wire import WireError, bridge_spec_from_json
+from engine.agent.wire import bridge_spec_from_json
 from engine.bridge_worker.config import Direction, KeyMode, Route, WorkerConfig
 from engine.bridge_worker.stats import read_stats
 from engine.drivers.base import LOGS_DIR, config_hash
@@ -91,17 +91,11 @@ class WorkerFolder(BrokerFolder):
     """A worker bridge's folder: a BrokerFolder whose spec.json holds a BridgeSpec."""
 
     def read_bridge(self) -> BridgeSpec | None:
-        data = self._read_json("spec.json")
-        if data is None:
-            return None
-        try:
-            return bridge_spec_from_json(data)
-        except WireError as exc:
-            raise EngineError(f"{self.path / 'spec.json'}: {exc.message}",
-                              hint="PUT the bridge again, or delete its folder") from exc
+        return self.read_parsed(SPEC_FILE, bridge_spec_from_json,
+                                "PUT the bridge again, or delete its folder")
 
     def write_bridge(self, spec: BridgeSpec) -> None:
-        self.write_json("spec.json", to_dict(spec))
+        self.write_json(SPEC_FILE, to_dict(spec))
 
 
 @dataclass(eq=False)
