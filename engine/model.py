@@ -78,6 +78,9 @@ class BridgeMechanism(str, enum.Enum):
 
     MOSQUITTO = "mosquitto"   # Mosquitto's own bridge, in the carrying broker's mosquitto.conf
     WORKER = "mqtt-kafka"     # a bridge worker process (engine.bridge_worker) run by the carrying agent
+    NGSI = "mqtt-ngsi"        # an MQTT <-> NGSI-v2 bridge worker (the paper's FIROS role), run beside
+                              # the MQTT broker: messages become entity attributes, and back through a
+                              # subscription whose notifications the context broker publishes on MQTT
 
 
 class BridgeDirection(str, enum.Enum):
