@@ -16,7 +16,6 @@ from __future__ import annotations
 import json
 import re
 import sys
-import time
 import warnings
 from pathlib import Path
 
@@ -286,16 +285,3 @@ def test_examples_exist() -> None:
     if not EXAMPLES:
         pytest.skip("ontology/examples/*.ttl not written yet")
     assert len(EXAMPLES) >= 2
-
-
-def test_reference_timing(shapes: Graph, ontology: Graph, capsys: pytest.CaptureFixture[str]) -> None:
-    """Not a benchmark: prints how long pySHACL takes on the valid case and the examples."""
-    plants = [CASES_DIR / "valid" / "plant.ttl", *EXAMPLES]
-    lines = []
-    for plant in plants:
-        data = plant_graph(plant, ontology)
-        start = time.perf_counter()
-        run_pyshacl(data, shapes)
-        lines.append(f"{plant.relative_to(ROOT)}: {len(data)} triples, {time.perf_counter() - start:.3f} s")
-    with capsys.disabled():
-        print("\npySHACL reference timings:\n  " + "\n  ".join(lines))

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import socket
+import subprocess
 from importlib.metadata import EntryPoint
 from pathlib import Path
 
@@ -19,7 +20,14 @@ from engine.drivers.base import Driver, config_hash
 from engine.drivers.kafka import KafkaDriver, check_kafka_topic_name, read_controller_port
 from engine.drivers.mosquitto import MosquittoDriver, check_mqtt_topic_name
 from engine.drivers.registry import DriverRegistry
-from engine.errors import ConfigValueError, EngineError, UnknownDriverError
+from engine.errors import (
+    ConfigValueError,
+    EngineError,
+    JavaMissingError,
+    KafkaMissingError,
+    MosquittoMissingError,
+    UnknownDriverError,
+)
 from engine.model import (
     BridgeDirection,
     BridgeEnd,
@@ -326,5 +334,52 @@ def test_a_plain_tcp_listener_is_not_healthy() -> None:
         assert MosquittoDriver().health(spec, 0.3) is False
 
 
-def test_parts_found() -> None:
-    parts.mosquitto_binary()
+def test_installed_mosquitto_is_found_and_runs() -> None:
+    """The binary `make setup` installed is what the finder returns, and it is Mosquitto."""
+    binary = parts.mosquitto_binary()
+    assert binary.is_file() and os.access(binary, os.X_OK)
+    out = subprocess.run([str(binary), "-h"], capture_output=True, text=True, timeout=10)
+    assert "mosquitto version" in (out.stdout + out.stderr)
+
+
+def _executable(path: Path) -> Path:
+    path.write_text("#!/bin/sh\n", encoding="utf-8")
+    path.chmod(0o755)
+    return path
+
+
+def test_mosquitto_found_in_sbin_when_not_on_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("PATH", str(tmp_path / "empty"))
+    sbin = tmp_path / "sbin"
+    sbin.mkdir()
+    monkeypatch.setattr(parts, "SBIN_DIRS", (tmp_path / "nowhere", sbin))
+    with pytest.raises(MosquittoMissingError, match="make setup"):
+        parts.mosquitto_binary()
+    binary = _executable(sbin / "mosquitto")
+    assert parts.mosquitto_binary() == binary
+
+
+def test_java_from_java_home_when_not_on_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("PATH", str(tmp_path / "empty"))
+    monkeypatch.delenv("JAVA_HOME", raising=False)
+    with pytest.raises(JavaMissingError):
+        parts.java_binary()
+    (tmp_path / "jdk" / "bin").mkdir(parents=True)
+    java = _executable(tmp_path / "jdk" / "bin" / "java")
+    monkeypatch.setenv("JAVA_HOME", str(tmp_path / "jdk"))
+    assert parts.java_binary() == java
+
+
+def test_kafka_parts_need_broker_jars_and_find_log4j(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("PLANTKG_KAFKA_HOME", str(tmp_path))
+    (tmp_path / "libs").mkdir()
+    with pytest.raises(KafkaMissingError, match="PLANTKG_KAFKA_HOME"):
+        parts.kafka_parts()
+    (tmp_path / "libs" / "kafka_2.13-3.9.1.jar").write_bytes(b"")
+    (tmp_path / "config").mkdir()
+    (tmp_path / "config" / "log4j.properties").write_text("", encoding="utf-8")
+    found = parts.kafka_parts()
+    assert found.libs == tmp_path / "libs"
+    assert found.classpath == str(tmp_path / "libs" / "*")
+    assert found.log4j_config == tmp_path / "config" / "log4j.properties"
+    assert found.tools_log4j_config is None
