@@ -1,0 +1,164 @@
+"""Delivery lanes: each subscription's notifications in order, none waiting for another's receiver.
+
+A :class:`Lane` per subscription holds a bounded queue and, while it has work, one thread that
+sends the head of the queue. A temporary failure keeps that notification at the head and retries
+it after :func:`backoff_delay` (0.5 s doubling to 30 s), until it is sent, the subscription is
+deleted or deactivated, or the service closes; so order is kept and nothing is skipped while a
+receiver is down. A permanent failure (see :mod:`.result`) is counted and let go. Each attempt
+uses the subscription's *current* target, so a ``PATCH`` of a wrong URL unblocks a lane.
+
+Bounded: past ``bound`` queued notifications the oldest is dropped and counted
+(``droppedNotifications`` on the subscription). Queued notifications live in memory only: they
+are lost if the process is killed (docs/context-broker.md says so).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import deque
+from collections.abc import Callable
+from typing import Protocol
+
+from engine.context_broker.subscriptions.model import Subscription, Target
+from engine.context_broker.subscriptions.render import Outgoing
+from engine.context_broker.subscriptions.result import Result
+
+BACKOFF_BASE = 0.5
+BACKOFF_CAP = 30.0
+DEFAULT_BOUND = 10_000
+
+
+def backoff_delay(attempt: int, base: float = BACKOFF_BASE, cap: float = BACKOFF_CAP) -> float:
+    """Seconds before retry number ``attempt`` (1, 2, ...): base, 2 base, 4 base, ... at most cap."""
+    if attempt < 1:
+        return 0.0
+    return min(cap, base * 2 ** min(attempt - 1, 62))
+
+
+class Sender(Protocol):
+    def send(self, target, msg: Outgoing) -> Result: ...  # type: ignore[no-untyped-def]
+    def close(self) -> None: ...
+
+
+class Hooks(Protocol):
+    """What the lanes need from the service (the registry and the senders behind it)."""
+
+    def current(self, sub_id: str) -> Subscription | None: ...
+    def sender_for(self, target: Target) -> Sender: ...
+    def attempted(self, sub_id: str, result: Result) -> bool: ...   # False: stop this lane's queue
+    def dropped(self, sub_id: str, count: int) -> None: ...
+
+
+class Lane:
+    def __init__(self, sub_id: str, hooks: Hooks, stop: threading.Event, bound: int,
+                 backoff: Callable[[int], float]) -> None:
+        self.sub_id = sub_id
+        self._hooks = hooks
+        self._stop = stop
+        self._bound = bound
+        self._backoff = backoff
+        self._lock = threading.Lock()
+        self._queue: deque[Outgoing] = deque()
+        self._thread: threading.Thread | None = None
+        self._wake = threading.Event()
+
+    def put(self, msg: Outgoing) -> None:
+        dropped = 0
+        with self._lock:
+            self._queue.append(msg)
+            while len(self._queue) > self._bound:
+                self._queue.popleft()
+                dropped += 1
+            if self._thread is None and not self._stop.is_set():
+                self._thread = threading.Thread(target=self._run, name=f"notify-{self.sub_id}",
+                                                daemon=True)
+                self._thread.start()
+        if dropped:
+            self._hooks.dropped(self.sub_id, dropped)
+
+    def pending(self) -> int:
+        with self._lock:
+            return len(self._queue)
+
+    def discard(self) -> int:
+        """Throw away what is queued (subscription deleted or deactivated); returns how many."""
+        with self._lock:
+            count = len(self._queue)
+            self._queue.clear()
+        self._wake.set()
+        return count
+
+    def join(self, timeout: float) -> None:
+        thread = self._thread
+        self._wake.set()
+        if thread is not None:
+            thread.join(timeout)
+
+    def _head(self) -> Outgoing | None:
+        with self._lock:
+            if not self._queue or self._stop.is_set():
+                self._thread = None
+                return None
+            return self._queue[0]
+
+    def _pop(self, msg: Outgoing) -> None:
+        with self._lock:
+            if self._queue and self._queue[0] is msg:
+                self._queue.popleft()
+
+    def _run(self) -> None:
+        attempt = 0
+        while (msg := self._head()) is not None:
+            sub = self._hooks.current(self.sub_id)
+            if sub is None:
+                self.discard()
+                continue
+            result = self._hooks.sender_for(sub.notification.target).send(sub.notification.target, msg)
+            keep_going = self._hooks.attempted(self.sub_id, result)
+            if result.ok or not result.retry:
+                self._pop(msg)
+                attempt = 0
+            else:
+                attempt += 1
+                self._wake.clear()
+                self._wake.wait(self._backoff(attempt))
+            if not keep_going:
+                self._hooks.dropped(self.sub_id, self.discard())
+
+
+class Delivery:
+    """The lanes of all subscriptions."""
+
+    def __init__(self, hooks: Hooks, *, bound: int = DEFAULT_BOUND,
+                 backoff: Callable[[int], float] = backoff_delay) -> None:
+        self._hooks = hooks
+        self._bound = bound
+        self._backoff = backoff
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._lanes: dict[str, Lane] = {}
+
+    def enqueue(self, msg: Outgoing) -> None:
+        with self._lock:
+            lane = self._lanes.get(msg.subscription_id)
+            if lane is None:
+                lane = self._lanes[msg.subscription_id] = Lane(
+                    msg.subscription_id, self._hooks, self._stop, self._bound, self._backoff)
+        lane.put(msg)
+
+    def forget(self, sub_id: str) -> None:
+        with self._lock:
+            lane = self._lanes.pop(sub_id, None)
+        if lane is not None:
+            lane.discard()
+
+    def pending(self, sub_id: str) -> int:
+        lane = self._lanes.get(sub_id)
+        return lane.pending() if lane else 0
+
+    def close(self, timeout: float = 10.0) -> None:
+        self._stop.set()
+        with self._lock:
+            lanes = list(self._lanes.values())
+        for lane in lanes:
+            lane.join(timeout)

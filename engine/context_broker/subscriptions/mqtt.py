@@ -1,0 +1,78 @@
+"""MQTT notifications (paho-mqtt 2.x): the notification JSON published on ``topic``.
+
+One persistent client per broker (``url`` and ``user``), created at its first notification; paho's
+network thread reconnects it (0.5 s doubling to 30 s). A publish counts as sent when the broker
+acknowledged it: for QoS 1 and 2 the PUBACK/PUBCOMP must arrive within :data:`ACK_TIMEOUT`, for
+QoS 0 the message must have been handed to a connected client. A client that is not connected is
+a temporary failure (the lane retries). Delivery is at least once: a QoS 1 message whose PUBACK
+was late may arrive twice.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+import uuid
+
+from paho.mqtt import client as paho
+from paho.mqtt.enums import CallbackAPIVersion
+
+from engine.context_broker.subscriptions.model import MqttTarget
+from engine.context_broker.subscriptions.render import Outgoing
+from engine.context_broker.subscriptions.result import Result
+
+CONNECT_WAIT = 5.0
+ACK_TIMEOUT = 10.0
+KEEPALIVE = 30
+
+
+class MqttSender:
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._clients: dict[tuple[str, int, str | None], paho.Client] = {}
+
+    def _client(self, target: MqttTarget) -> paho.Client:
+        key = (target.host, target.port, target.user)
+        with self._lock:
+            client = self._clients.get(key)
+            if client is None:
+                client = paho.Client(CallbackAPIVersion.VERSION2,
+                                     client_id=f"plantkg-cb-{uuid.uuid4().hex[:12]}")
+                if target.user is not None:
+                    client.username_pw_set(target.user, target.passwd)
+                client.reconnect_delay_set(0.5, 30)
+                client.connect_async(target.host, target.port, keepalive=KEEPALIVE)
+                client.loop_start()
+                self._clients[key] = client
+            return client
+
+    def send(self, target: MqttTarget, msg: Outgoing) -> Result:
+        client = self._client(target)
+        deadline = time.monotonic() + CONNECT_WAIT
+        while not client.is_connected():
+            if time.monotonic() >= deadline:
+                return Result.temporary(f"MQTT broker {target.host}:{target.port} not connected")
+            time.sleep(0.02)  # polling paho's connection flag, bounded by the deadline above
+        try:
+            info = client.publish(target.topic, msg.body, qos=target.qos, retain=target.retain)
+        except (ValueError, OSError) as err:
+            return Result.temporary(f"MQTT publish failed: {err}")
+        if info.rc != paho.MQTT_ERR_SUCCESS:
+            return Result.temporary(f"MQTT publish failed: {paho.error_string(info.rc)}")
+        if target.qos == 0:
+            return Result.success()
+        try:
+            info.wait_for_publish(timeout=ACK_TIMEOUT)
+        except (RuntimeError, ValueError) as err:
+            return Result.temporary(f"MQTT publish failed: {err}")
+        if not info.is_published():
+            return Result.temporary(f"no PUBACK from {target.host}:{target.port} within "
+                                    f"{ACK_TIMEOUT:g} s")
+        return Result.success()
+
+    def close(self) -> None:
+        with self._lock:
+            clients, self._clients = list(self._clients.values()), {}
+        for client in clients:
+            client.disconnect()
+            client.loop_stop()

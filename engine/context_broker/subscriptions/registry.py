@@ -1,0 +1,201 @@
+"""Subscriptions on disk: durable CRUD, and the delivery status beside them.
+
+Two files in the service's data directory, each replaced atomically (write a temporary file,
+fsync it, rename it over the old one, fsync the directory), so a kill -9 leaves the old or the
+new version, never half of one:
+
+- ``subscriptions.json``: every subscription as its client wrote it (after ``PATCH`` merges),
+  with its tenant. Written before ``POST``/``PATCH``/``DELETE`` answer 2xx, and when a
+  ``oneshot`` subscription fires or ``maxFailsLimit`` deactivates one.
+- ``subscription-status.json``: the delivery counters (``timesSent``, ``lastSuccess``, ...),
+  written by :meth:`Registry.flush_status` (every few seconds by the service, and at close), so a
+  kill -9 loses at most that window of counter updates.
+
+Subscriptions belong to a ``Fiware-Service`` (Orion: "subscriptions belong only to the service");
+their service path is the scope of entities they watch.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import threading
+from collections.abc import Mapping
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from engine.context_broker.contract import NgsiError, Tenant, not_found
+from engine.context_broker.subscriptions.model import DeliveryStatus, Status, Subscription
+from engine.context_broker.subscriptions.parse import QParser, merge_patch, parse_subscription
+from engine.context_broker.subscriptions.result import Result
+
+SUBSCRIPTIONS_FILE = "subscriptions.json"
+STATUS_FILE = "subscription-status.json"
+NOT_FOUND = "The requested subscription has not been found. Check id"
+
+
+def new_id() -> str:
+    """24 lower-case hex digits, like Orion's (MongoDB ObjectId) ids."""
+    return secrets.token_hex(12)
+
+
+def check_id(sub_id: str) -> None:
+    if len(sub_id) != 24 or any(c not in "0123456789abcdefABCDEF" for c in sub_id):
+        raise NgsiError(400, "BadRequest", f"Invalid subscription ID: {sub_id!r} is not 24 "
+                                           "hexadecimal digits")
+
+
+def atomic_write_json(path: Path, data: Any) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w", encoding="utf-8") as fh:
+        json.dump(data, fh, ensure_ascii=False, indent=1)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+    dir_fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
+
+
+class Registry:
+    def __init__(self, data_dir: Path, parse_q: QParser) -> None:
+        self._dir = Path(data_dir)
+        self._dir.mkdir(parents=True, exist_ok=True)
+        self._parse_q = parse_q
+        self._lock = threading.RLock()
+        self._docs: dict[str, dict[str, Any]] = {}
+        self._subs: dict[str, Subscription] = {}
+        self._status: dict[str, DeliveryStatus] = {}
+        self._status_dirty = False
+        self.snapshot: tuple[Subscription, ...] = ()
+        self._load()
+
+    # --- persistence ---------------------------------------------------------------------
+    def _load(self) -> None:
+        path = self._dir / SUBSCRIPTIONS_FILE
+        if path.exists():
+            for item in json.loads(path.read_text(encoding="utf-8"))["subscriptions"]:
+                tenant = Tenant(item["service"], item["servicePath"])
+                self._docs[item["id"]] = {"tenant": tenant, "doc": item["doc"]}
+                self._subs[item["id"]] = parse_subscription(
+                    item["doc"], sub_id=item["id"], tenant=tenant, parse_q=self._parse_q)
+        status_path = self._dir / STATUS_FILE
+        if status_path.exists():
+            for sub_id, data in json.loads(status_path.read_text(encoding="utf-8")).items():
+                if sub_id in self._subs:
+                    self._status[sub_id] = DeliveryStatus.from_json(data)
+        self.snapshot = tuple(self._subs.values())
+
+    def _save(self) -> None:
+        items = [{"id": sub_id, "service": entry["tenant"].service,
+                  "servicePath": entry["tenant"].service_path, "doc": entry["doc"]}
+                 for sub_id, entry in self._docs.items()]
+        atomic_write_json(self._dir / SUBSCRIPTIONS_FILE, {"version": 1, "subscriptions": items})
+        self.snapshot = tuple(self._subs.values())
+
+    def flush_status(self) -> None:
+        with self._lock:
+            if not self._status_dirty:
+                return
+            data = {k: v.as_json() for k, v in self._status.items() if k in self._subs}
+            self._status_dirty = False
+        atomic_write_json(self._dir / STATUS_FILE, data)
+
+    # --- CRUD ----------------------------------------------------------------------------
+    def create(self, tenant: Tenant, doc: Mapping[str, Any]) -> Subscription:
+        sub_id = new_id()
+        sub = parse_subscription(doc, sub_id=sub_id, tenant=tenant, parse_q=self._parse_q)
+        stored = {k: v for k, v in doc.items() if k != "id"}
+        with self._lock:
+            self._docs[sub_id] = {"tenant": tenant, "doc": stored}
+            self._subs[sub_id] = sub
+            self._status[sub_id] = DeliveryStatus()
+            self._save()
+        return sub
+
+    def _owned(self, sub_id: str, service: str) -> Subscription:
+        check_id(sub_id)
+        sub = self._subs.get(sub_id)
+        if sub is None or sub.tenant.service != service:
+            raise not_found(NOT_FOUND)
+        return sub
+
+    def get(self, sub_id: str, service: str) -> tuple[Subscription, DeliveryStatus]:
+        with self._lock:
+            sub = self._owned(sub_id, service)
+            return sub, self._status.get(sub_id, DeliveryStatus())
+
+    def listing(self, service: str, service_path: str | None) -> list[tuple[Subscription, DeliveryStatus]]:
+        """The service's subscriptions in creation order; with ``service_path``, only those
+        created with exactly that path (as Orion)."""
+        with self._lock:
+            return [(s, self._status.get(s.id, DeliveryStatus())) for s in self._subs.values()
+                    if s.tenant.service == service
+                    and (service_path is None or s.tenant.service_path == service_path)]
+
+    def update(self, sub_id: str, service: str, patch: Any) -> Subscription:
+        with self._lock:
+            old = self._owned(sub_id, service)
+            merged = merge_patch(self._docs[sub_id]["doc"], patch)
+            sub = parse_subscription(merged, sub_id=sub_id, tenant=old.tenant, parse_q=self._parse_q)
+            self._docs[sub_id] = {"tenant": old.tenant, "doc": merged}
+            self._subs[sub_id] = sub
+            if sub.status is not Status.INACTIVE and "status" in patch:
+                # re-activated by its owner: a fresh start for maxFailsLimit
+                self._status[sub_id] = replace(self._status.get(sub_id, DeliveryStatus()), fails_counter=0)
+                self._status_dirty = True
+            self._save()
+        return sub
+
+    def delete(self, sub_id: str, service: str) -> None:
+        with self._lock:
+            self._owned(sub_id, service)
+            del self._docs[sub_id], self._subs[sub_id]
+            self._status.pop(sub_id, None)
+            self._save()
+
+    def current(self, sub_id: str) -> Subscription | None:
+        return self._subs.get(sub_id)
+
+    def deactivate(self, sub_id: str) -> None:
+        """``oneshot`` after it fired, or ``maxFailsLimit`` passed: ``inactive``, durably."""
+        with self._lock:
+            if sub_id not in self._subs:
+                return
+            self._docs[sub_id]["doc"] = {**self._docs[sub_id]["doc"], "status": Status.INACTIVE.value}
+            self._subs[sub_id] = replace(self._subs[sub_id], status=Status.INACTIVE)
+            self._save()
+
+    # --- delivery status -----------------------------------------------------------------
+    def record(self, sub_id: str, result: Result, now: float) -> DeliveryStatus | None:
+        """Count one delivery attempt. ``timesSent`` counts attempts (retries included);
+        ``failsCounter`` the consecutive failures, reset by a success."""
+        with self._lock:
+            if sub_id not in self._subs:
+                return None
+            old = self._status.get(sub_id, DeliveryStatus())
+            new = replace(old, times_sent=old.times_sent + 1, last_notification=now)
+            if result.ok:
+                new = replace(new, last_success=now, last_success_code=result.code, fails_counter=0)
+            else:
+                new = replace(new, last_failure=now, last_failure_reason=result.reason,
+                              fails_counter=old.fails_counter + 1)
+            self._status[sub_id] = new
+            self._status_dirty = True
+            return new
+
+    def record_dropped(self, sub_id: str, count: int) -> None:
+        with self._lock:
+            if sub_id in self._subs:
+                old = self._status.get(sub_id, DeliveryStatus())
+                self._status[sub_id] = replace(old, dropped=old.dropped + count)
+                self._status_dirty = True
+
+    def status_of(self, sub_id: str) -> DeliveryStatus:
+        with self._lock:
+            return self._status.get(sub_id, DeliveryStatus())

@@ -1,0 +1,178 @@
+"""The subscription service: registry + matching + delivery, as one part the app wires in.
+
+``SubscriptionService(data_dir)`` gives the Flask blueprint of ``/v2/subscriptions``
+(:meth:`blueprint`) and is the :class:`~engine.context_broker.contract.ChangeListener` of the
+entity layer (:meth:`entity_changed`: match, render, enqueue; it never waits for a receiver).
+:meth:`start` starts the status flusher; :meth:`close` stops the lanes, flushes the status and
+closes the MQTT and Kafka connections. As Orion 3.2+, creating a subscription sends nothing.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from engine.context_broker.contract import EntityChange, Tenant
+from engine.context_broker.subscriptions import matcher, render
+from engine.context_broker.subscriptions.delivery import DEFAULT_BOUND, Delivery, Sender, backoff_delay
+from engine.context_broker.subscriptions.http import HttpSender
+from engine.context_broker.subscriptions.model import (
+    DeliveryStatus, HttpTarget, KafkaTarget, MqttTarget, Status, Subscription, Target,
+)
+from engine.context_broker.subscriptions.parse import QParser
+from engine.context_broker.subscriptions.registry import Registry
+from engine.context_broker.subscriptions.result import Result
+
+log = logging.getLogger(__name__)
+STATUS_FLUSH_INTERVAL = 2.0
+
+
+def _default_parse_q(text: str) -> Any:
+    from engine.context_broker.q import parse_q  # the HTTP layer's q language (same grammar as GET /v2/entities)
+
+    return parse_q(text)
+
+
+class SubscriptionService:
+    def __init__(self, data_dir: Path | str, *, clock: Callable[[], float] = time.time,
+                 parse_q: QParser | None = None, queue_bound: int = DEFAULT_BOUND,
+                 backoff: Callable[[int], float] = backoff_delay,
+                 status_flush_interval: float = STATUS_FLUSH_INTERVAL,
+                 senders: dict[type, Sender] | None = None) -> None:
+        self.clock = clock
+        self._parse_q = parse_q or _default_parse_q
+        self.registry = Registry(Path(data_dir), self._parse_q)
+        self._queries: dict[tuple[str, str], Any] = {}
+        self._last_triggered: dict[str, float] = {}
+        self._trigger_lock = threading.Lock()
+        self._senders: dict[type, Sender] = senders or {}
+        self._sender_lock = threading.Lock()
+        self.delivery = Delivery(self, bound=queue_bound, backoff=backoff)
+        self._flush_interval = status_flush_interval
+        self._stop = threading.Event()
+        self._flusher: threading.Thread | None = None
+
+    # --- lifecycle -----------------------------------------------------------------------
+    def start(self) -> None:
+        if self._flusher is None:
+            self._flusher = threading.Thread(target=self._flush_loop, name="subscription-status",
+                                             daemon=True)
+            self._flusher.start()
+
+    def _flush_loop(self) -> None:
+        while not self._stop.wait(self._flush_interval):
+            try:
+                self.registry.flush_status()
+            except OSError:
+                log.exception("could not write the subscription status file")
+
+    def close(self) -> None:
+        self._stop.set()
+        self.delivery.close()
+        if self._flusher is not None:
+            self._flusher.join(5.0)
+        self.registry.flush_status()
+        with self._sender_lock:
+            senders, self._senders = list(self._senders.values()), {}
+        for sender in senders:
+            sender.close()
+
+    def blueprint(self):  # -> flask.Blueprint
+        from engine.context_broker.subscriptions.blueprint import make_blueprint
+
+        return make_blueprint(self)
+
+    # --- the ChangeListener --------------------------------------------------------------
+    def entity_changed(self, change: EntityChange) -> None:
+        now = self.clock()
+        for sub in self.registry.snapshot:
+            if not matcher.is_live(sub, now):
+                continue
+            if not matcher.triggers(sub, change, self._query(sub)):
+                continue
+            with self._trigger_lock:
+                if matcher.throttled(sub, self._last_triggered.get(sub.id), now):
+                    continue
+                self._last_triggered[sub.id] = now
+            if sub.status is Status.ONESHOT:
+                self.registry.deactivate(sub.id)
+            self.delivery.enqueue(render.outgoing(sub, change))
+
+    def _query(self, sub: Subscription) -> Any:
+        if sub.condition.q is None:
+            return None
+        key = (sub.id, sub.condition.q)
+        query = self._queries.get(key)
+        if query is None:
+            query = self._queries[key] = self._parse_q(sub.condition.q)
+        return query
+
+    # --- CRUD (called by the blueprint) --------------------------------------------------
+    def create(self, tenant: Tenant, doc: Any) -> Subscription:
+        return self.registry.create(tenant, doc)
+
+    def update(self, sub_id: str, tenant: Tenant, patch: Any) -> Subscription:
+        sub = self.registry.update(sub_id, tenant.service, patch)
+        with self._trigger_lock:
+            self._last_triggered.pop(sub_id, None)
+        return sub
+
+    def delete(self, sub_id: str, tenant: Tenant) -> None:
+        self.registry.delete(sub_id, tenant.service)
+        self.delivery.forget(sub_id)
+        with self._trigger_lock:
+            self._last_triggered.pop(sub_id, None)
+
+    def get(self, sub_id: str, tenant: Tenant) -> tuple[Subscription, DeliveryStatus]:
+        return self.registry.get(sub_id, tenant.service)
+
+    def listing(self, tenant: Tenant, path_given: bool) -> list[tuple[Subscription, DeliveryStatus]]:
+        return self.registry.listing(tenant.service, tenant.service_path if path_given else None)
+
+    # --- delivery hooks (called by the lanes) --------------------------------------------
+    def current(self, sub_id: str) -> Subscription | None:
+        return self.registry.current(sub_id)
+
+    def sender_for(self, target: Target) -> Sender:
+        kind = type(target)
+        with self._sender_lock:
+            sender = self._senders.get(kind)
+            if sender is None:
+                sender = self._senders[kind] = _new_sender(kind)
+            return sender
+
+    def attempted(self, sub_id: str, result: Result) -> bool:
+        status = self.registry.record(sub_id, result, self.clock())
+        sub = self.registry.current(sub_id)
+        if status is None or sub is None:
+            return False
+        limit = sub.notification.max_fails_limit
+        if limit is not None and status.fails_counter > limit:
+            log.warning("subscription %s deactivated: failsCounter %d passes maxFailsLimit %d",
+                        sub_id, status.fails_counter, limit)
+            self.registry.deactivate(sub_id)
+            return False
+        return True
+
+    def dropped(self, sub_id: str, count: int) -> None:
+        if count:
+            log.warning("subscription %s: %d notification(s) dropped", sub_id, count)
+            self.registry.record_dropped(sub_id, count)
+
+
+def _new_sender(kind: type) -> Sender:
+    if kind is HttpTarget:
+        return HttpSender()
+    if kind is MqttTarget:
+        from engine.context_broker.subscriptions.mqtt import MqttSender
+
+        return MqttSender()
+    if kind is KafkaTarget:
+        from engine.context_broker.subscriptions.kafka import KafkaSender
+
+        return KafkaSender()
+    raise TypeError(f"no sender for {kind.__name__}")
