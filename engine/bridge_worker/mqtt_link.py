@@ -27,6 +27,7 @@ from paho.mqtt.subscribeoptions import SubscribeOptions
 
 from engine.bridge_worker.config import Direction, WorkerConfig
 from engine.bridge_worker.health import Health
+from engine.bridge_worker.ngsi_config import NgsiWorkerConfig
 
 log = logging.getLogger("plantkg.bridge.mqtt")
 
@@ -40,7 +41,9 @@ class MqttLink:
     """Owns the paho client. ``on_message``, ``on_puback`` and ``on_connection`` are set by the
     forwarding halves and called from paho's thread."""
 
-    def __init__(self, cfg: WorkerConfig, health: Health) -> None:
+    def __init__(self, cfg: WorkerConfig | NgsiWorkerConfig, health: Health,
+                 topics: list[tuple[str, int]] | None = None) -> None:
+        """``topics``: (topic, QoS) to subscribe; default: the MQTT -> Kafka routes of ``cfg``."""
         self.cfg = cfg
         self.health = health
         self.on_message: Callable[[mqtt.MQTTMessage], None] = lambda msg: None
@@ -48,10 +51,10 @@ class MqttLink:
         self.on_connection: list[Callable[[bool, int], None]] = []
         self.generation = 0
         self._publish_lock = threading.Lock()
-        self._subscriptions = [
-            (r.mqtt_topic, SubscribeOptions(qos=r.qos, noLocal=True))
-            for r in cfg.routes_of(Direction.MQTT_TO_KAFKA)
-        ]
+        if topics is None:
+            assert isinstance(cfg, WorkerConfig)
+            topics = [(r.mqtt_topic, r.qos) for r in cfg.routes_of(Direction.MQTT_TO_KAFKA)]
+        self._subscriptions = [(topic, SubscribeOptions(qos=qos, noLocal=True)) for topic, qos in topics]
         client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=cfg.client_id,
                              protocol=mqtt.MQTTv5, manual_ack=True)
         client.reconnect_delay_set(*RECONNECT_DELAY)

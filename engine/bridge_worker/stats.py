@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import asdict, dataclass, fields
+from dataclasses import MISSING, asdict, dataclass, fields
 from pathlib import Path
 
 STATS_FILE = "stats.json"
@@ -18,7 +18,10 @@ STATS_FILE = "stats.json"
 
 @dataclass(frozen=True)
 class WorkerStats:
-    """One snapshot. ``kafka_connected`` is None before the first probe of the Kafka cluster."""
+    """One snapshot. ``kafka_connected`` is None before the first probe of the Kafka cluster.
+    The fields with defaults are the MQTT <-> NGSI worker's (``mechanism`` "mqtt-ngsi"): messages
+    upserted, ``refused`` by the context broker (acknowledged, not retried), notifications
+    ``skipped`` (the loop rule), and whether the context broker answers."""
 
     bridge_id: str
     pid: int
@@ -30,10 +33,15 @@ class WorkerStats:
     retried: int
     last_error: str | None
     updated_at: float
+    mechanism: str = "mqtt-kafka"
+    ngsi_connected: bool | None = None
+    forwarded_mqtt_to_ngsi: int = 0
+    refused: int = 0
+    skipped: int = 0
 
     @property
     def forwarded(self) -> int:
-        return self.forwarded_mqtt_to_kafka + self.forwarded_kafka_to_mqtt
+        return self.forwarded_mqtt_to_kafka + self.forwarded_kafka_to_mqtt + self.forwarded_mqtt_to_ngsi
 
 
 def write_stats(state_dir: Path, stats: WorkerStats) -> None:
@@ -51,6 +59,7 @@ def read_stats(state_dir: Path) -> WorkerStats | None:
     except (OSError, ValueError):
         return None
     names = {f.name for f in fields(WorkerStats)}
-    if not isinstance(data, dict) or set(data) != names:
+    required = {f.name for f in fields(WorkerStats) if f.default is MISSING}
+    if not isinstance(data, dict) or not required <= set(data) <= names:
         return None
     return WorkerStats(**data)

@@ -1,0 +1,134 @@
+"""One MQTT <-> NGSI-v2 bridge worker (the paper's FIROS role): its MQTT connection, the MQTT ->
+NGSI lanes, the keeper of its context broker subscriptions (NGSI -> MQTT), a ``GET /version``
+probe of the context broker and the stats file, run until asked to stop.
+
+Ready (the agent reports RUNNING) means: MQTT connected with its subscriptions granted (if it
+forwards MQTT -> NGSI), the context broker answering ``GET /version``, and (if it forwards NGSI ->
+MQTT) its subscriptions made on the context broker. A stop (SIGTERM, SIGINT) takes no new message,
+waits (bounded) for the requests in flight and their PUBACKs, disconnects, and leaves the
+subscriptions in place: the bridge still exists. ``python -m engine.bridge_worker --remove
+worker.json`` deletes them when the bridge is deleted (:func:`remove_subscriptions`).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+
+from engine.bridge_worker.health import Health
+from engine.bridge_worker.mqtt_link import MqttLink
+from engine.bridge_worker.mqtt_to_ngsi import MqttToNgsi
+from engine.bridge_worker.ngsi_client import NgsiClient, NgsiError
+from engine.bridge_worker.ngsi_config import MECHANISM, NgsiDirection, NgsiWorkerConfig
+from engine.bridge_worker.ngsi_subscriptions import SubscriptionKeeper, apply_plan
+from engine.bridge_worker.stats import WorkerStats, write_stats
+
+log = logging.getLogger("plantkg.bridge")
+
+STOP_GRACE = 10.0
+PROBE_EVERY = 1.0
+
+
+class NgsiHealth(Health):
+    """:class:`Health` with the NGSI worker's flags and counters."""
+
+    def __init__(self, bridge_id: str) -> None:
+        super().__init__(bridge_id)
+        self.ngsi_connected: bool | None = None
+        self.subscriptions_made = False
+        self.forwarded_mqtt_to_ngsi = 0
+        self.refused = 0
+        self.skipped = 0
+
+    def ngsi_snapshot(self, *, needs_subscription: bool, needs_ngsi_subscriptions: bool,
+                      stopping: bool) -> WorkerStats:
+        with self._lock:
+            ready = (not stopping and self.mqtt_connected and self.ngsi_connected is True
+                     and (self.subscribed or not needs_subscription)
+                     and (self.subscriptions_made or not needs_ngsi_subscriptions))
+            return WorkerStats(
+                bridge_id=self.bridge_id, pid=os.getpid(), ready=ready,
+                mqtt_connected=self.mqtt_connected, kafka_connected=None,
+                forwarded_mqtt_to_kafka=0, forwarded_kafka_to_mqtt=0,
+                retried=self.retried, last_error=self.last_error, updated_at=time.time(),
+                mechanism=MECHANISM, ngsi_connected=self.ngsi_connected,
+                forwarded_mqtt_to_ngsi=self.forwarded_mqtt_to_ngsi, refused=self.refused,
+                skipped=self.skipped,
+            )
+
+
+class NgsiWorker:
+    def __init__(self, cfg: NgsiWorkerConfig) -> None:
+        self.cfg = cfg
+        self.health = NgsiHealth(cfg.bridge_id)
+        self.stopping = threading.Event()
+        inbound = cfg.routes_of(NgsiDirection.MQTT_TO_NGSI)
+        self.link = MqttLink(cfg, self.health, topics=[(r.mqtt_topic, r.qos) for r in inbound])
+        self.m2n = MqttToNgsi(cfg, self.link, self.health, self.stopping) if inbound else None
+        self.keeper = (SubscriptionKeeper(cfg, self.health, self.stopping)
+                       if cfg.routes_of(NgsiDirection.NGSI_TO_MQTT) else None)
+        self._probe = threading.Thread(target=self._probe_ngsi, name="ngsi-probe", daemon=True)
+
+    def run(self) -> None:
+        """Forward until :attr:`stopping` is set, then stop cleanly."""
+        self.cfg.state_dir.mkdir(parents=True, exist_ok=True)
+        self._write_stats()
+        if self.m2n:
+            self.m2n.start()
+        if self.keeper:
+            self.keeper.start()
+        self.link.start()
+        self._probe.start()
+        next_stats = 0.0
+        while not self.stopping.wait(0.05):
+            now = time.monotonic()
+            if now >= next_stats or self.health.changed.is_set():
+                self.health.changed.clear()
+                self._write_stats()
+                next_stats = now + self.cfg.stats_interval
+        self._shutdown()
+
+    def _shutdown(self) -> None:
+        log.info("stopping")
+        self._write_stats()
+        if self.m2n:
+            self.m2n.stop(time.monotonic() + STOP_GRACE)
+        self.link.stop()
+        self._write_stats()
+        log.info("stopped: %d forwarded MQTT -> NGSI, %d refused, %d notifications skipped",
+                 self.health.forwarded_mqtt_to_ngsi, self.health.refused, self.health.skipped)
+
+    def _write_stats(self) -> None:
+        snapshot = self.health.ngsi_snapshot(needs_subscription=self.m2n is not None,
+                                             needs_ngsi_subscriptions=self.keeper is not None,
+                                             stopping=self.stopping.is_set())
+        try:
+            write_stats(self.cfg.state_dir, snapshot)
+        except OSError as exc:
+            log.warning("cannot write stats: %s", exc)
+
+    def _probe_ngsi(self) -> None:
+        client = NgsiClient(self.cfg.ngsi_url, self.cfg.token_file, timeout=2.0)
+        try:
+            while not self.stopping.is_set():
+                try:
+                    client.version()
+                    self.health.set(ngsi_connected=True)
+                except NgsiError as exc:
+                    self.health.set(ngsi_connected=False)
+                    self.health.error(f"context broker {self.cfg.ngsi_url} does not answer: {exc.text}")
+                self.stopping.wait(PROBE_EVERY)
+        finally:
+            client.close()
+
+
+def remove_subscriptions(cfg: NgsiWorkerConfig) -> int:
+    """Delete every subscription this bridge owns on the context broker (the bridge is being
+    deleted); returns how many. Raises :class:`NgsiError` if the context broker does not answer."""
+    client = NgsiClient(cfg.ngsi_url, cfg.token_file)
+    try:
+        return len(apply_plan(client, cfg, remove_all=True).delete)
+    finally:
+        client.close()
