@@ -60,6 +60,7 @@ class Lane:
         self._lock = threading.Lock()
         self._queue: deque[Outgoing] = deque()
         self._thread: threading.Thread | None = None
+        self._sending: Outgoing | None = None  # the head while a send is under way: never dropped
         self._wake = threading.Event()
 
     def put(self, msg: Outgoing) -> None:
@@ -67,7 +68,10 @@ class Lane:
         with self._lock:
             self._queue.append(msg)
             while len(self._queue) > self._bound:
-                self._queue.popleft()
+                if self._queue[0] is self._sending:
+                    del self._queue[1]
+                else:
+                    self._queue.popleft()
                 dropped += 1
             if self._thread is None and not self._stop.is_set():
                 self._thread = threading.Thread(target=self._run, name=f"notify-{self.sub_id}",
@@ -98,8 +102,10 @@ class Lane:
         with self._lock:
             if not self._queue or self._stop.is_set():
                 self._thread = None
+                self._sending = None
                 return None
-            return self._queue[0]
+            self._sending = self._queue[0]
+            return self._sending
 
     def _pop(self, msg: Outgoing) -> None:
         with self._lock:

@@ -89,7 +89,10 @@ def _string(value: Any, path: str, *, max_len: int = MAX_ID, free_text: bool = F
 
 
 def _pattern(value: Any, path: str) -> str:
-    text = _string(value, path, max_len=MAX_ID, free_text=True)
+    """A regular expression (Orion's character restrictions do not apply to patterns)."""
+    if not isinstance(value, str) or not value:
+        raise _fail(path, f"must be a non-empty string, got {value!r}")
+    text = value
     try:
         re.compile(text)
     except re.error as err:
