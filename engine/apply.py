@@ -27,9 +27,9 @@ from dataclasses import dataclass, field, replace
 from enum import Enum
 from typing import Any, Protocol
 
-from engine.agents_config import AgentDirectory
+from engine.agents_config import AgentDirectory, AgentsConfigError
 from engine.errors import DispatchError, EngineError, TemporaryDispatchError
-from engine.model import Action, Change, DesiredState, ObservedState, Plan
+from engine.model import Action, BridgeMechanism, Change, DesiredState, ObservedState, Plan
 from engine.observed import observe
 from engine.plan import ALL_TOPIC_SETTINGS, NEW_BROKER_FIELDS, broker_of, destroy_plan, topic_settings
 from engine.plan import plan as make_plan
@@ -161,6 +161,10 @@ class Call:
     host: str
     verb: str
     args: tuple[Any, ...]
+    #: put_bridge of an mqtt-ngsi bridge: the host whose agent's token goes along as the remote
+    #: token (the context broker's write token), looked up only when the call is made, so no
+    #: token is ever part of a plan, an operation or an event.
+    remote_token_of: str | None = None
 
 
 @dataclass(frozen=True)
@@ -243,6 +247,8 @@ def _bridge_calls(change: Change, desired: DesiredState) -> tuple[Call, ...]:
     if spec is None:
         raise EngineError(f"the plan creates {change.address}, which the plant does not describe",
                           hint="make the plan again from the same plant")
+    if spec.mechanism is BridgeMechanism.NGSI:
+        return (Call(spec.local.host, "put_bridge", (spec,), remote_token_of=spec.remote.host),)
     return (Call(spec.local.host, "put_bridge", (spec,)),)
 
 
@@ -333,7 +339,11 @@ class _Runner:
             tally[0] += 1
             try:
                 client = self.directory.client_for(call.host)
-                getattr(client, call.verb)(*call.args)
+                if call.remote_token_of is not None:
+                    getattr(client, call.verb)(*call.args, remote_token=_token_of(self.directory,
+                                                                                  call.remote_token_of))
+                else:
+                    getattr(client, call.verb)(*call.args)
                 return
             except TemporaryDispatchError as exc:
                 with self.rng_lock:
@@ -347,6 +357,15 @@ class _Runner:
                 self.emit(ApplyEvent(EventKind.RETRY, op.change.address, op.change.action,
                                      spent, attempt, f"{exc.message}; retrying in {delay:.1f} s"))
                 self.sleep(delay)
+
+
+def _token_of(directory: AgentDirectory, host: str) -> str | None:
+    """The token of the agent at ``host`` (which a context broker there takes for writes), or
+    None if the engine knows none: the bridge then writes without one (an open context broker)."""
+    try:
+        return directory.token_for(host)
+    except AgentsConfigError:
+        return None
 
 
 def apply(

@@ -57,6 +57,9 @@ from engine.model import BridgeMechanism, to_dict
 log = logging.getLogger(__name__)
 
 MAX_BODY_BYTES = 1 << 20
+#: The bridge PUT's transport field carrying the remote (context broker's) token; not a spec field.
+REMOTE_TOKEN = "remote_token"
+MAX_TOKEN = 4096
 EXTENSION = "plantkg_agent"
 
 
@@ -174,8 +177,19 @@ def list_bridges() -> Response:
 
 @v1.put("/brokers/<broker_id>/bridges/<remote_id>")
 def put_bridge(broker_id: str, remote_id: str) -> Response:
-    """Make the bridge run: in the broker's own config (Mosquitto) or as a worker."""
-    spec = bridge_spec_from_json(_body())
+    """Make the bridge run: in the broker's own config (Mosquitto) or as a worker. The body is the
+    BridgeSpec, plus for mechanism mqtt-ngsi an optional transport field ``remote_token`` (the
+    context broker's write token), which is kept in the worker's folder and never echoed."""
+    body = _body()
+    remote_token = body.pop(REMOTE_TOKEN, None) if isinstance(body, dict) else None
+    spec = bridge_spec_from_json(body)
+    if remote_token is not None:
+        if spec.mechanism is not BridgeMechanism.NGSI:
+            raise WireError(REMOTE_TOKEN, f"only an mqtt-ngsi bridge takes one, not {spec.mechanism.value}")
+        if not isinstance(remote_token, str) or not remote_token.strip() or not remote_token.isprintable() \
+                or len(remote_token) > MAX_TOKEN:
+            raise WireError(REMOTE_TOKEN, f"must be a non-empty printable string of at most {MAX_TOKEN} characters")
+        remote_token = remote_token.strip()
     if (spec.local.id, spec.remote.id) != (_broker_id(broker_id), _broker_id(remote_id)):
         raise WireError("local", f"the bridge {spec.local.id} -> {spec.remote.id} differs from the "
                         f"URL ({broker_id} -> {remote_id})")
@@ -190,7 +204,7 @@ def put_bridge(broker_id: str, remote_id: str) -> Response:
                                   hint="PUT the broker first, then its bridges")
     if state.workers is None:
         raise EngineError("this agent runs no bridge workers", hint="start it with `plantkg agent`")
-    return jsonify(to_dict(state.workers.put(spec)))
+    return jsonify(to_dict(state.workers.put(spec, remote_token)))
 
 
 @v1.delete("/brokers/<broker_id>/bridges/<remote_id>")

@@ -100,9 +100,14 @@ class AgentClient:
             raise self._bad_answer("GET /v1/bridges", "no 'bridges' array")
         return [self._parse(observed_bridge_from_json, b, "GET /v1/bridges") for b in bridges]
 
-    def put_bridge(self, spec: BridgeSpec) -> ObservedBridge:
+    def put_bridge(self, spec: BridgeSpec, remote_token: str | None = None) -> ObservedBridge:
+        """PUT the bridge; ``remote_token`` (mqtt-ngsi: the context broker's write token) travels
+        as the body's transport field ``remote_token``, beside the spec, never inside it."""
         path = f"/v1/brokers/{_segment(spec.local.id)}/bridges/{_segment(spec.remote.id)}"
-        data = self._request("PUT", path, to_dict(spec), timeout=self.broker_timeout)
+        body = to_dict(spec)
+        if remote_token is not None:
+            body["remote_token"] = remote_token
+        data = self._request("PUT", path, body, timeout=self.broker_timeout)
         return self._parse(observed_bridge_from_json, data, path)
 
     def delete_bridge(self, local_id: str, remote_id: str) -> None:

@@ -112,16 +112,20 @@ _SCHEMAS: dict[str, Any] = {
         "properties": {
             "local": _ref("BridgeEnd"),
             "remote": _ref("BridgeEnd"),
-            "mechanism": {"type": "string", "enum": ["mosquitto", "mqtt-kafka"]},
+            "mechanism": {"type": "string", "enum": ["mosquitto", "mqtt-kafka", "mqtt-ngsi"]},
             "routes": {"type": "array", "minItems": 1, "items": {
                 "type": "object", "required": ["topic", "direction"],
                 "properties": {"topic": {"type": "string"},
                                "direction": {"type": "string", "enum": ["out", "in", "both"]},
                                "qos": {"type": "integer", "minimum": 0, "maximum": 2},
-                               "key": {"type": "string", "enum": ["mqtt-topic", "none"]}}}},
+                               "key": {"type": "string", "enum": ["mqtt-topic", "none"]},
+                               "entity_id": {"type": ["string", "null"],
+                                             "description": "mqtt-ngsi: the topic's NGSI entity"},
+                               "entity_type": {"type": ["string", "null"]}}}},
             "asserted": {"type": "boolean"},
         },
     },
+
     "ObservedBridge": {
         "type": "object", "required": ["spec", "status"],
         "properties": {
@@ -146,6 +150,15 @@ _SCHEMAS: dict[str, Any] = {
             "driver_errors": {"type": "object", "additionalProperties": {"type": "string"}},
         },
     },
+}
+
+#: The bridge PUT's body: a BridgeSpec plus (mqtt-ngsi only) the transport field remote_token, the
+#: context broker's write token, kept by the agent in the worker's folder (mode 0600), never returned.
+_SCHEMAS["BridgePut"] = {
+    **_SCHEMAS["BridgeSpec"],
+    "properties": {**_SCHEMAS["BridgeSpec"]["properties"],
+                   "remote_token": {"type": "string", "writeOnly": True,
+                                    "description": "mqtt-ngsi: the context broker's write token"}},
 }
 
 
@@ -234,11 +247,11 @@ def openapi_document(version: str) -> dict[str, Any]:
                     "operationId": "putBridge",
                     "summary": "Make the bridge from this broker to the remote one run (idempotent)",
                     "description": "mechanism mosquitto: rendered into the broker's config, which "
-                                   "restarts only if its config changed; mqtt-kafka: a supervised "
-                                   "worker process. A remote that is down is not an error: the "
-                                   "bridge connects when it comes up (status connecting).",
+                                   "restarts only if its config changed; mqtt-kafka and mqtt-ngsi: "
+                                   "a supervised worker process. A remote that is down is not an "
+                                   "error: the bridge connects when it comes up (status connecting).",
                     "requestBody": {"required": True, "content": {
-                        "application/json": {"schema": _ref("BridgeSpec")}}},
+                        "application/json": {"schema": _ref("BridgePut")}}},
                     "responses": {"200": _json(_ref("ObservedBridge"), "The bridge as observed"),
                                   **_error_responses(400, 401, 404, 409, 422, 503)},
                 },

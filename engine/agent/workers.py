@@ -1,9 +1,13 @@
-"""The agent's bridge workers: one supervised process per MQTT <-> Kafka bridge it carries.
+"""The agent's bridge workers: one supervised process per MQTT <-> Kafka or MQTT <-> NGSI bridge
+it carries.
 
 A worker bridge lives in ``<state-dir>/bridges/<local>--<remote>/``::
 
     spec.json     the BridgeSpec last PUT (its presence means "this worker should run")
-    worker.json   the worker's configuration (engine.bridge_worker.config.WorkerConfig)
+    worker.json   the worker's configuration (engine.bridge_worker.config.WorkerConfig, or
+                  engine.bridge_worker.ngsi_config.NgsiWorkerConfig for mechanism mqtt-ngsi)
+    remote.token  mqtt-ngsi only: the context broker's write token (the token of the agent that
+                  runs it), mode 0600, given with the PUT; absent for an open context broker
     pid.json      pid, start time, argv, restarts, config hash (as for brokers)
     stats.json    what the worker reports: readiness, counters, last error
     logs/bridge.log
@@ -13,12 +17,19 @@ idempotent (same config and a live process: nothing to do; else restart the work
 thread restarts a worker that exits with exponential backoff, and ``open`` re-adopts workers an
 earlier agent left running (pid, start time and command line must match). A worker whose remote is
 down keeps running and reconnecting: it shows as CONNECTING, not as failed.
+
+The remote token is a transport detail, never part of the spec: it is not in spec.json, in what
+the agent answers or in its log. A changed token restarts the worker (it is part of the config
+hash). Deleting an mqtt-ngsi bridge stops its worker, then runs ``python -m engine.bridge_worker
+--remove worker.json`` once to delete the bridge's subscriptions on the context broker (bounded;
+if the context broker is away they stay, and a later worker of the same bridge removes them).
 """
 
 from __future__ import annotations
 
 import logging
 import shutil
+import subprocess
 import sys
 import threading
 import time
@@ -27,7 +38,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from engine import process
-from engine.agent.folder import SPEC_FILE, BrokerFolder, PidRecord
+from engine.agent.folder import SPEC_FILE, BrokerFolder, PidRecord, write_atomic
 from engine.agent.procs import (
     AdoptedProcess,
     BrokerProcess,
@@ -41,9 +52,10 @@ from engine.agent.procs import (
 from engine.agent.supervision import backoff, start_supervisor
 from engine.agent.wire import bridge_spec_from_json
 from engine.bridge_worker.config import Direction, KeyMode, Route, WorkerConfig
+from engine.bridge_worker.ngsi_config import NgsiDirection, NgsiRoute, NgsiWorkerConfig
 from engine.bridge_worker.stats import read_stats
 from engine.drivers.base import LOGS_DIR, config_hash
-from engine.errors import EngineError
+from engine.errors import ConfigValueError, EngineError
 from engine.model import (
     BridgeDirection,
     BridgeMechanism,
@@ -59,6 +71,10 @@ log = logging.getLogger(__name__)
 WORKERS_DIR = "bridges"
 REMOVED_DIR = "removed"
 WORKER_FILE = "worker.json"
+TOKEN_FILE = "remote.token"
+#: Seconds the removal of an mqtt-ngsi bridge's subscriptions may take at delete.
+REMOVE_TIMEOUT = 15.0
+WORKER_MECHANISMS = (BridgeMechanism.WORKER, BridgeMechanism.NGSI)
 LOG_NAME = "bridge"
 STOP_GRACE = 10.0
 #: A worker that has not rewritten stats.json for this long is reported as not ready.
@@ -85,6 +101,47 @@ def worker_config(spec: BridgeSpec, state_dir: Path) -> WorkerConfig:
         kafka_bootstrap=f"{host_in_url(spec.remote.host)}:{spec.remote.port}",
         routes=tuple(routes), state_dir=state_dir,
     )
+
+
+def ngsi_worker_config(spec: BridgeSpec, state_dir: Path, token_file: Path | None) -> NgsiWorkerConfig:
+    """The NGSI worker's configuration for ``spec`` (local: the MQTT broker, remote: the context
+    broker). Each route is one topic and its entity (``entity_id``/``entity_type``, filled by
+    derive); ``out`` writes the entity from MQTT, ``in`` subscribes it to MQTT."""
+    routes: list[NgsiRoute] = []
+    for i, r in enumerate(spec.routes):
+        entity_id, entity_type = getattr(r, "entity_id", None), getattr(r, "entity_type", None)
+        if entity_id is None:
+            raise ConfigValueError(f"routes[{i}].entity_id", None,
+                                   f"an mqtt-ngsi route needs the NGSI entity of topic {r.topic!r}")
+        qos, entity_type = min(r.qos, 1), entity_type or "Thing"
+        if r.direction in (BridgeDirection.OUT, BridgeDirection.BOTH):
+            routes.append(NgsiRoute(r.topic, entity_id, entity_type, NgsiDirection.MQTT_TO_NGSI, qos))
+        if r.direction in (BridgeDirection.IN, BridgeDirection.BOTH):
+            routes.append(NgsiRoute(r.topic, entity_id, entity_type, NgsiDirection.NGSI_TO_MQTT, qos))
+    return NgsiWorkerConfig(
+        bridge_id=folder_name(spec.local.id, spec.remote.id),
+        mqtt_host=spec.local.host, mqtt_port=spec.local.port,
+        ngsi_url=f"http://{host_in_url(spec.remote.host)}:{spec.remote.port}",
+        routes=tuple(routes), state_dir=state_dir, token_file=token_file,
+    )
+
+
+def _config_text(spec: BridgeSpec, folder: Path, remote_token: str | None) -> str:
+    if spec.mechanism is BridgeMechanism.NGSI:
+        token_file = folder / TOKEN_FILE if remote_token is not None else None
+        return ngsi_worker_config(spec, folder, token_file).to_json()
+    if remote_token is not None:
+        raise ConfigValueError("remote_token", "(hidden)", "only an mqtt-ngsi bridge takes a remote token")
+    return worker_config(spec, folder).to_json()
+
+
+def _digest(folder: Path) -> str:
+    """The config hash of a worker folder: worker.json and the token (so a new token restarts)."""
+    files = {WORKER_FILE: (folder / WORKER_FILE).read_text(encoding="utf-8")}
+    token = folder / TOKEN_FILE
+    if token.exists():
+        files[TOKEN_FILE] = token.read_text(encoding="utf-8")
+    return config_hash(files)
 
 
 class WorkerFolder(BrokerFolder):
@@ -153,18 +210,21 @@ class WorkerManager:
 
     # --- API -------------------------------------------------------------------------------
 
-    def put(self, spec: BridgeSpec) -> ObservedBridge:
-        """Make the worker of ``spec`` run with its configuration (restarted if it changed)."""
-        if spec.mechanism is not BridgeMechanism.WORKER:
+    def put(self, spec: BridgeSpec, remote_token: str | None = None) -> ObservedBridge:
+        """Make the worker of ``spec`` run with its configuration (restarted if it changed).
+        ``remote_token``: the context broker's write token (mqtt-ngsi only; None: it is open)."""
+        if spec.mechanism not in WORKER_MECHANISMS:
             raise EngineError(f"{spec.address} is not a worker bridge", hint="a bug in the agent")
         key = folder_name(spec.local.id, spec.remote.id)
         folder = WorkerFolder(self.workers_dir / key)
-        config = worker_config(spec, folder.path)  # refuses bad values before anything changes
-        text = config.to_json()
+        text = _config_text(spec, folder.path, remote_token)  # refuses bad values before anything changes
         with self._lock:
             w = self._workers.setdefault(key, _Worker(spec, folder))
         with w.op:
-            digest = config_hash({WORKER_FILE: text})
+            files = {WORKER_FILE: text}
+            if remote_token is not None:
+                files[TOKEN_FILE] = remote_token
+            digest = config_hash(files)
             if w.proc is not None and w.proc.alive() and w.config_hash == digest:
                 if w.spec != spec:
                     w.folder.write_bridge(spec)
@@ -173,6 +233,10 @@ class WorkerManager:
             self._stop_proc(w)
             folder.path.mkdir(parents=True, exist_ok=True)
             folder.write_bridge(spec)
+            if remote_token is not None:
+                write_atomic(folder.path / TOKEN_FILE, remote_token, mode=0o600)
+            else:
+                (folder.path / TOKEN_FILE).unlink(missing_ok=True)
             folder.write_rendered({WORKER_FILE: text})
             self._set(w, spec=spec, failures=0, last_error=None)
             self._start(w, restart=False)
@@ -187,12 +251,29 @@ class WorkerManager:
             return False
         with w.op:
             self._stop_proc(w)
+            if w.spec.mechanism is BridgeMechanism.NGSI and (w.folder.path / WORKER_FILE).exists():
+                self._remove_subscriptions(w)
+            (w.folder.path / TOKEN_FILE).unlink(missing_ok=True)
             if w.folder.path.exists():
                 stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%S.%fZ")
                 target = self.state_dir / REMOVED_DIR / f"bridge.{key}.{stamp}"
                 target.parent.mkdir(parents=True, exist_ok=True)
                 shutil.move(str(w.folder.path), str(target))
         return True
+
+    def _remove_subscriptions(self, w: _Worker) -> None:
+        """Delete the bridge's subscriptions on the context broker (see the module docstring)."""
+        argv = [self.python, "-m", "engine.bridge_worker", "--remove", str(w.folder.path / WORKER_FILE)]
+        try:
+            done = subprocess.run(argv, cwd=w.folder.path, capture_output=True, text=True,
+                                  timeout=REMOVE_TIMEOUT, check=False)
+        except subprocess.TimeoutExpired:
+            log.warning("bridge %s: removing its context broker subscriptions took more than %.0f s; "
+                        "a later worker of this bridge removes them", w.spec.address, REMOVE_TIMEOUT)
+            return
+        if done.returncode != 0:
+            log.warning("bridge %s: its context broker subscriptions stay (a later worker of this "
+                        "bridge removes them): %s", w.spec.address, done.stderr.strip()[-500:])
 
     def list(self) -> list[ObservedBridge]:
         return [self._observe(w) for w in sorted(self._all(), key=lambda w: w.spec.address)]
@@ -213,11 +294,10 @@ class WorkerManager:
 
     def _start(self, w: _Worker, *, restart: bool) -> None:
         argv = self._argv(w)
-        text = (w.folder.path / WORKER_FILE).read_text(encoding="utf-8")
+        digest = _digest(w.folder.path)
         child = process.spawn(argv, log_dir=w.folder.path / LOGS_DIR, name=LOG_NAME, cwd=w.folder.path)
         proc = SpawnedProcess(child)
         restarts = w.restarts + (1 if restart else 0)
-        digest = config_hash({WORKER_FILE: text})
         try:
             w.folder.write_pid(PidRecord(pid=proc.pid, start_ticks=proc.start_ticks, argv=tuple(argv),
                                          restarts=restarts, config_hash=digest))
