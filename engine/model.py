@@ -49,6 +49,8 @@ class BrokerSpec:
     host: str               # pk:ip — the agent is found there
     port: int               # pk:port
     persist_every: int | None = None  # pk:persistEvery — Mosquitto saves after this many changes
+    allow_anonymous: bool | None = None  # pk:allowAnonymous — a context broker takes writes without
+                                         # its agent's token (derive: false for a context broker)
 
     @property
     def address(self) -> str:
@@ -67,6 +69,8 @@ class TopicSpec:
     retention_ms: int | None = None        # Kafka
     qos: int | None = None                 # MQTT
     retain: bool | None = None             # MQTT
+    entity_id: str | None = None           # NGSI-v2 context broker: the topic's entity
+    entity_type: str | None = None         # NGSI-v2 context broker
 
     @property
     def address(self) -> str:
@@ -120,6 +124,8 @@ class BridgeRoute:
     direction: BridgeDirection
     qos: int = 1                 # MQTT QoS the bridge uses for this topic (pk:qos, default 1)
     key: str = "mqtt-topic"      # pk:kafkaKey: "mqtt-topic" (order kept per topic) or "none"
+    entity_id: str | None = None    # NGSI bridge: the entity the topic is (pk:entityId, defaults applied)
+    entity_type: str | None = None  # NGSI bridge: its type (pk:entityType, default "Thing")
 
 
 @dataclass(frozen=True)
@@ -176,6 +182,8 @@ class ObservedTopic:
     retention_ms: int | None = None
     qos: int | None = None
     retain: bool | None = None
+    entity_id: str | None = None
+    entity_type: str | None = None
 
 
 @dataclass(frozen=True)

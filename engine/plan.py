@@ -53,7 +53,7 @@ from engine.model import (
 
 #: Broker fields whose change needs a new broker process (the agent restarts it): Terraform's
 #: "forces replacement". Every other BrokerSpec field is changed in place.
-REPLACE_FIELDS: tuple[str, ...] = ("kind", "host", "port", "persist_every")
+REPLACE_FIELDS: tuple[str, ...] = ("kind", "host", "port", "persist_every", "allow_anonymous")
 #: Replace fields after which the broker starts empty (its topics are created again).
 NEW_BROKER_FIELDS: tuple[str, ...] = ("kind", "host")
 
@@ -62,6 +62,7 @@ NEW_BROKER_FIELDS: tuple[str, ...] = ("kind", "host")
 TOPIC_SETTINGS: Mapping[str, tuple[str, ...]] = {
     "kafka": ("partitions", "replication_factor", "retention_ms"),
     "mosquitto": ("qos", "retain"),
+    "ngsi-v2": ("entity_id", "entity_type"),
 }
 ALL_TOPIC_SETTINGS: tuple[str, ...] = tuple(
     f.name for f in fields(ObservedTopic) if f.name != "name"
@@ -89,9 +90,11 @@ def broker_essence(spec: BrokerSpec) -> dict[str, Any]:
 
 
 def bridge_essence(spec: BridgeSpec) -> dict[str, Any]:
-    """The fields of a bridge the plan compares: all but ``asserted`` (which is for people)."""
+    """The fields of a bridge the plan compares: all but ``asserted`` (which is for people), and
+    no unset optional route field (a route's entity id and type belong to NGSI bridges only)."""
     data = to_dict(spec)
     data.pop("asserted")
+    data["routes"] = [{k: v for k, v in route.items() if v is not None} for route in data["routes"]]
     return data
 
 

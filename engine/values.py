@@ -67,3 +67,22 @@ def check_user(field: str, value: object) -> str:
 def host_in_url(host: str) -> str:
     """``host`` as it appears in ``PROTOCOL://host:port`` (IPv6 in brackets)."""
     return f"[{host}]" if ipaddress.ip_address(host).version == 6 else host
+
+
+#: Orion's identifier rules (entity ids and types): 1 to 256 printable ASCII characters, none of
+#: ``< > " ' = ; ( )`` (forbidden everywhere) nor ``& ? / #`` (forbidden in identifiers), no blank.
+NGSI_ID_MAX = 256
+_NGSI_FORBIDDEN = frozenset('<>"\'=;()&?/#')
+
+
+def check_ngsi_id(field: str, value: object) -> str:
+    """An NGSI-v2 entity id or type as Orion accepts it (see ``NGSI_ID_MAX``)."""
+    if not isinstance(value, str):
+        raise ConfigValueError(field, value, "an NGSI identifier must be a string")
+    if not 1 <= len(value) <= NGSI_ID_MAX:
+        raise ConfigValueError(field, value, f"an NGSI identifier has 1 to {NGSI_ID_MAX} characters")
+    bad = next((c for c in value if not "!" <= c <= "~" or c in _NGSI_FORBIDDEN), None)
+    if bad is not None:
+        raise ConfigValueError(field, value, f"an NGSI identifier must not contain {bad!r} (only "
+                               "printable ASCII without blanks and < > \" ' = ; ( ) & ? / #)")
+    return value

@@ -30,7 +30,7 @@ from engine.model import (
     ObservedTopic,
     TopicSpec,
 )
-from engine.values import check_host, check_port
+from engine.values import check_host, check_ngsi_id, check_port
 
 #: pk:id as the shapes allow it (pks:PlantElement-idValue); ids name folders on the agent.
 BROKER_ID = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,127}")
@@ -116,8 +116,9 @@ def broker_spec_from_json(data: Any, where: str = "", *, strict: bool = True) ->
     persist = _typed(data, "persist_every", (int,), where, optional=True)
     if persist is not None and not 1 <= persist <= 1_000_000:
         raise WireError(_join(where, "persist_every"), "must be in 1..1000000")
+    anonymous = _typed(data, "allow_anonymous", (bool,), where, optional=True)
     return BrokerSpec(id=broker_id, iri=iri, name=name, kind=kind, host=host, port=port,
-                      persist_every=persist)
+                      persist_every=persist, allow_anonymous=anonymous)
 
 
 def topic_spec_from_json(data: Any, where: str = "") -> TopicSpec:
@@ -129,7 +130,8 @@ def topic_spec_from_json(data: Any, where: str = "") -> TopicSpec:
     ints = {k: _typed(data, k, (int,), where, optional=True)
             for k in ("partitions", "replication_factor", "retention_ms", "qos")}
     retain = _typed(data, "retain", (bool,), where, optional=True)
-    return TopicSpec(broker_id=broker_id, name=name, iri=iri, retain=retain, **ints)
+    return TopicSpec(broker_id=broker_id, name=name, iri=iri, retain=retain, **ints,
+                     **_entity(data, where))
 
 
 def observed_topic_from_json(data: Any, where: str = "") -> ObservedTopic:
@@ -138,7 +140,16 @@ def observed_topic_from_json(data: Any, where: str = "") -> ObservedTopic:
     ints = {k: _typed(data, k, (int,), where, optional=True)
             for k in ("partitions", "replication_factor", "retention_ms", "qos")}
     retain = _typed(data, "retain", (bool,), where, optional=True)
-    return ObservedTopic(name=name, retain=retain, **ints)
+    return ObservedTopic(name=name, retain=retain, **ints, **_entity(data, where))
+
+
+def _entity(data: dict[str, Any], where: str) -> dict[str, str | None]:
+    """``entity_id`` / ``entity_type`` of a topic or route (NGSI), each absent or an Orion id."""
+    out: dict[str, str | None] = {}
+    for name in ("entity_id", "entity_type"):
+        value = _typed(data, name, (str,), where, optional=True)
+        out[name] = None if value is None else _checked(where, check_ngsi_id, name, value)
+    return out
 
 
 def observed_broker_from_json(data: Any, where: str = "") -> ObservedBroker:
@@ -199,7 +210,7 @@ def _bridge_route(data: Any, where: str, strict: bool) -> BridgeRoute:
     if key not in ("mqtt-topic", "none"):
         raise WireError(_join(where, "key"), "must be 'mqtt-topic' or 'none'")
     return BridgeRoute(topic=topic, direction=_enum(data, "direction", BridgeDirection, where),
-                       qos=qos, key=key)
+                       qos=qos, key=key, **_entity(data, where))
 
 
 def bridge_spec_from_json(data: Any, where: str = "", *, strict: bool = True) -> BridgeSpec:

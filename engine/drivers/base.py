@@ -33,6 +33,8 @@ DATA_DIR = "data"
 #: Topic fields that only Kafka uses, and those that only MQTT uses.
 KAFKA_TOPIC_FIELDS = ("partitions", "replication_factor", "retention_ms")
 MQTT_TOPIC_FIELDS = ("qos", "retain")
+#: Topic fields that only an NGSI-v2 context broker uses (the topic's entity).
+NGSI_TOPIC_FIELDS = ("entity_id", "entity_type")
 
 
 @runtime_checkable
@@ -137,7 +139,7 @@ def _is_control(char: str) -> bool:
 
 def check_topic_fields(topic: TopicSpec, kind: str, applicable: tuple[str, ...]) -> None:
     """Refuse a TopicSpec field set for another broker kind, and out-of-range values."""
-    for field in (*KAFKA_TOPIC_FIELDS, *MQTT_TOPIC_FIELDS):
+    for field in (*KAFKA_TOPIC_FIELDS, *MQTT_TOPIC_FIELDS, *NGSI_TOPIC_FIELDS):
         value = getattr(topic, field)
         if value is not None and field not in applicable:
             raise ConfigValueError(field, value, f"does not apply to a {kind} broker")

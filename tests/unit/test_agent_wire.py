@@ -50,3 +50,45 @@ def test_a_bad_status_in_an_answer() -> None:
     answer = {**to_dict(ObservedBroker(SPEC, BrokerStatus.RUNNING)), "status": "sleeping"}
     with pytest.raises(WireError, match="status"):
         observed_broker_from_json(answer)
+
+
+# --- NGSI: a context broker's allow_anonymous, a topic's entity, an NGSI bridge route ---------
+
+NGSI = BrokerSpec("cb", "urn:plant:cb", "Context broker", "ngsi-v2", "127.0.0.3", 1026,
+                  allow_anonymous=False)
+
+
+def test_ngsi_fields_round_trip() -> None:
+    from engine.agent.wire import bridge_spec_from_json
+    from engine.model import BridgeDirection, BridgeEnd, BridgeMechanism, BridgeRoute, BridgeSpec
+
+    assert broker_spec_from_json(to_dict(NGSI)) == NGSI
+    topic = TopicSpec("cb", "agv/1/status", "urn:t", entity_id="urn:ngsi-ld:AGV:1", entity_type="AGV")
+    assert topic_spec_from_json(to_dict(topic)) == topic
+    observed = ObservedBroker(NGSI, BrokerStatus.RUNNING,
+                              (ObservedTopic("agv/1/status", entity_id="urn:ngsi-ld:AGV:1", entity_type="AGV"),))
+    assert observed_broker_from_json(to_dict(observed)) == observed
+    bridge = BridgeSpec(BridgeEnd("mqtt", "mosquitto", "127.0.0.2", 1883), BridgeEnd("cb", "ngsi-v2", "127.0.0.3", 1026),
+                        BridgeMechanism.NGSI,
+                        (BridgeRoute("agv/1/status", BridgeDirection.OUT, 1, "mqtt-topic", "urn:ngsi-ld:AGV:1", "AGV"),))
+    assert bridge_spec_from_json(to_dict(bridge)) == bridge
+
+
+@pytest.mark.parametrize(("changes", "field"), [
+    ({"entity_id": "has space"}, "entity_id"),
+    ({"entity_id": "a/b"}, "entity_id"),
+    ({"entity_id": "x" * 257}, "entity_id"),
+    ({"entity_type": "T(1)"}, "entity_type"),
+    ({"entity_type": 3}, "entity_type"),
+])
+def test_bad_entity_fields_are_refused_naming_the_field(changes: dict, field: str) -> None:
+    body = {**to_dict(TopicSpec("cb", "t", "urn:t")), **changes}
+    with pytest.raises(WireError) as info:
+        topic_spec_from_json(body)
+    assert info.value.field == field
+
+
+def test_allow_anonymous_must_be_a_boolean() -> None:
+    with pytest.raises(WireError) as info:
+        broker_spec_from_json({**to_dict(NGSI), "allow_anonymous": "yes"})
+    assert info.value.field == "allow_anonymous"
