@@ -124,12 +124,12 @@ class Lane:
             if result.ok or not result.retry:
                 self._pop(msg)
                 attempt = 0
-            else:
+            if not keep_going:  # deactivated (maxFailsLimit): what is left will not be sent
+                self._hooks.dropped(self.sub_id, self.discard())
+            elif result.retry and not result.ok:
                 attempt += 1
                 self._wake.clear()
                 self._wake.wait(self._backoff(attempt))
-            if not keep_going:
-                self._hooks.dropped(self.sub_id, self.discard())
 
 
 class Delivery:
