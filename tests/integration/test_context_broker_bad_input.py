@@ -1,0 +1,171 @@
+"""The context broker, judged from outside: every malformed request of
+``tests/cases/ngsi/bad-requests.json`` against the real process.
+
+Each case says what Orion answers (status, ``error`` name) and, where plantkg must say more than
+Orion does, which words the description has to hold (the forbidden character, its field, its
+position). A case whose answer differs from Orion carries ``xfail`` in the data: a disagreement
+the server's owner has to fix, kept visible as ``xfail(strict=True)`` so the fix is noticed.
+
+After the cases the store must hold exactly what it was seeded with (no half-done write), and the
+server's log must hold no traceback.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from benchmarks.context_broker_rig import ContextBroker, Reply, raw_request
+
+pytestmark = pytest.mark.integration
+
+CASES_FILE = Path(__file__).resolve().parents[1] / "cases" / "ngsi" / "bad-requests.json"
+DATA = json.loads(CASES_FILE.read_text(encoding="utf-8"))
+SEED: list[dict[str, Any]] = DATA["seed"]
+
+
+def _params() -> list[Any]:
+    out = []
+    for case in DATA["cases"]:
+        marks = [pytest.mark.xfail(strict=True, reason=case["xfail"])] if "xfail" in case else []
+        out.append(pytest.param(case, id=case["name"], marks=marks))
+    return out
+
+
+def body_of(case: dict[str, Any]) -> bytes | None:
+    if "body_json" in case:
+        return json.dumps(case["body_json"]).encode("utf-8")
+    if "body_fill" in case:
+        fill = case["body_fill"]
+        prefix, suffix = fill["prefix"].encode(), fill["suffix"].encode()
+        return prefix + fill["fill"].encode() * (fill["size"] - len(prefix) - len(suffix)) + suffix
+    if "body" in case:
+        return case["body"].encode("utf-8")
+    return None
+
+
+def send(broker: ContextBroker, case: dict[str, Any]) -> Reply:
+    headers = dict(case["headers"])
+    auth = case.get("auth", True)
+    if auth is True:
+        headers.update(broker.auth)
+    elif auth == "wrong":
+        headers["Authorization"] = "Bearer " + "x" * 43
+    body = body_of(case)
+    if case.get("raw"):
+        head = "\r\n".join([f"{case['method']} {case['path']} HTTP/1.1", f"Host: {broker.host}:{broker.port}",
+                            *(f"{k}: {v}" for k, v in headers.items())])
+        return raw_request(broker.host, broker.port, head, body or b"")
+    http = broker.http()
+    try:
+        return http.request(case["method"], case["path"], body, headers)
+    finally:
+        http.close()
+
+
+def seed(broker: ContextBroker) -> None:
+    http = broker.http()
+    try:
+        for entity in SEED:
+            reply = http.request("POST", "/v2/entities", json.dumps(entity),
+                                 {"Content-Type": "application/json", **broker.auth})
+            assert reply.status == 201, (reply.status, reply.body)
+    finally:
+        http.close()
+
+
+def entities(broker: ContextBroker) -> list[dict[str, Any]]:
+    http = broker.http()
+    try:
+        reply = http.request("GET", "/v2/entities?limit=1000", headers=broker.auth)
+    finally:
+        http.close()
+    assert reply.status == 200, (reply.status, reply.body)
+    return sorted(reply.json(), key=lambda e: e["id"])
+
+
+def comparable(entity: dict[str, Any]) -> dict[str, Any]:
+    """An entity as seeded: id, type, and each attribute's type and value (metadata aside)."""
+    return {k: (v if k in ("id", "type") else {"type": v.get("type"), "value": v.get("value")})
+            for k, v in entity.items()}
+
+
+@pytest.fixture(scope="module")
+def broker(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ContextBroker]:
+    rig = ContextBroker(tmp_path_factory.mktemp("context-broker")).start()
+    try:
+        seed(rig)
+        yield rig
+    finally:
+        child = rig.child
+        rig.stop()
+        assert child is None or not child.group_alive(), "the context broker survived stop()"
+
+
+def check(case: dict[str, Any], reply: Reply) -> None:
+    expect = case["expect"]
+    where = f"{case['method']} {case['path'][:80]} -> {reply.status} {reply.body[:300]!r}"
+    assert reply.status == expect["status"], where
+    assert (reply.header("content-type") or "").startswith("application/json"), where
+    body = json.loads(reply.body)
+    assert isinstance(body, dict) and isinstance(body.get("error"), str), where
+    if "error" in expect:
+        accepted = expect["error"] if isinstance(expect["error"], list) else [expect["error"]]
+        assert body["error"] in accepted, where
+        assert isinstance(body.get("description"), str) and body["description"], where
+    for part in expect.get("description", []):
+        assert part.lower() in body["description"].lower(), f"description lacks {part!r}: {where}"
+    if "allow" in expect:
+        allow = {m.strip().upper() for m in (reply.header("allow") or "").split(",") if m.strip()}
+        assert set(expect["allow"]) <= allow, f"Allow {allow}: {where}"
+
+
+@pytest.mark.parametrize("case", _params())
+def test_bad_request_is_refused_as_orion_does(broker: ContextBroker, case: dict[str, Any]) -> None:
+    check(case, send(broker, case))
+
+
+def test_store_unchanged_and_no_traceback_after_every_case(broker: ContextBroker) -> None:
+    """All the cases again, in a row on one server: the store answers exactly the seed, and the
+    server logged no traceback for any of them."""
+    for case in DATA["cases"]:
+        reply = send(broker, case)
+        assert reply.status < 500, f"{case['name']}: {reply.status} {reply.body[:300]!r}"
+    assert [comparable(e) for e in entities(broker)] == [comparable(e) for e in SEED]
+    log = broker.log_text()
+    assert "Traceback" not in log, log[-4000:]
+
+
+def test_batch_with_one_bad_entity_changes_nothing(broker: ContextBroker) -> None:
+    """Orion parses the whole batch before writing any entity: one entity with a forbidden
+    character in its id is a 400, and the good entity next to it is not written either."""
+    case = next(c for c in DATA["cases"] if c["name"] == "batch-one-bad-entity")
+    before = entities(broker)
+    check(case, send(broker, case))
+    assert entities(broker) == before
+
+
+def test_batch_update_with_a_missing_entity_is_a_partial_update(broker: ContextBroker) -> None:
+    """Orion's ``update`` batch is one PATCH per entity: an entity that does not exist makes the
+    answer 422 ``PartialUpdate`` naming it, and the entities that exist are updated
+    (orion-api.md, "Update POST /v2/op/update")."""
+    http = broker.http()
+    try:
+        reply = http.request("POST", "/v2/op/update", json.dumps({"actionType": "update", "entities": [
+            {"id": "Room2", "type": "Room", "pressure": {"type": "Number", "value": 712}},
+            {"id": "NoSuchRoom", "type": "Room", "pressure": {"type": "Number", "value": 1}}]}),
+            {"Content-Type": "application/json", **broker.auth})
+        assert reply.status == 422, (reply.status, reply.body)
+        body = reply.json()
+        assert body["error"] == "PartialUpdate" and "NoSuchRoom" in body["description"], body
+        room2 = http.request("GET", "/v2/entities/Room2/attrs/pressure/value", headers=broker.auth)
+        assert room2.status == 200 and room2.json() == 712, (room2.status, room2.body)
+        assert http.request("GET", "/v2/entities/NoSuchRoom", headers=broker.auth).status == 404
+    finally:
+        http.request("PUT", "/v2/entities/Room2/attrs/pressure/value", "711",
+                     {"Content-Type": "application/json", **broker.auth})
+        http.close()
