@@ -26,10 +26,7 @@ Usage: ``python -m benchmarks.bench_context_broker [--clients 1 8 32] [--duratio
 from __future__ import annotations
 
 import argparse
-import concurrent.futures as cf
 import json
-import multiprocessing
-import os
 import random
 import sys
 import tempfile
@@ -45,11 +42,12 @@ from benchmarks import bridge_rig as rig
 from benchmarks import context_broker_load as load
 from benchmarks.common import RESULTS, command_line, machine, summarize, write_results
 from benchmarks.context_broker_rig import ContextBroker, Http
-from engine import process
+from engine import parts, process
 
 JSON = {"Content-Type": "application/json"}
 SENDER_THREADS = 4
 STATES = ("idle", "moving", "charging", "loading", "error")
+START_MARGIN = 2.0  # s for the worker processes to start and connect before a window opens
 GOAL_UPDATES_PER_S = 2000.0
 GOAL_NOTIFY_P99_MS = 50.0
 GOAL_QUERY_P99_MS = 100.0
@@ -65,7 +63,7 @@ def _ok(reply_status: int, expected: int, what: str, body: bytes = b"") -> None:
 # -- updates/s ---------------------------------------------------------------------------------
 
 def updates_study(cb: ContextBroker, mq: rig.Mosquitto, clients_list: list[int], duration: float,
-                  max_processes: int) -> list[dict[str, Any]]:
+                  max_processes: int, work: Path) -> list[dict[str, Any]]:
     http = cb.http()
     try:
         for k in range(max(clients_list)):
@@ -76,48 +74,57 @@ def updates_study(cb: ContextBroker, mq: rig.Mosquitto, clients_list: list[int],
     finally:
         http.close()
     rows = []
-    ctx = multiprocessing.get_context("spawn")
-    with cf.ProcessPoolExecutor(max_workers=max_processes, mp_context=ctx) as pool:
-        _warm(pool, max_processes)
-        for clients in clients_list:
-            split = load.split_clients(clients, max_processes)
-            ids = iter(f"bench-u-{k}" for k in range(clients))
-            groups = [[next(ids) for _ in range(n)] for n in split]
-            rows.append(_window(pool, "context-broker", clients, duration, cb.child, lambda start, g=groups: [
-                pool.submit(load.http_updates, cb.host, cb.port, cb.auth, group, start, duration) for group in g]))
-            rows.append(_window(pool, "mosquitto", clients, duration, mq.child, lambda start, s=split: [
-                pool.submit(load.mqtt_publishes, mq.host, mq.port, n, "bench/cb-baseline", start, duration, w)
-                for w, n in enumerate(s)]))
+    for clients in clients_list:
+        split = load.split_clients(clients, max_processes)
+        ids = iter(f"bench-u-{k}" for k in range(clients))
+        groups = [",".join(next(ids) for _ in range(n)) for n in split]
+        rows.append(_window(work, "context-broker", clients, duration, cb.child, [
+            ["http", "--host", cb.host, "--port", str(cb.port), "--token-file", str(cb.token_file),
+             "--entities", group] for group in groups]))
+        rows.append(_window(work, "mosquitto", clients, duration, mq.child, [
+            ["mqtt", "--host", mq.host, "--port", str(mq.port), "--threads", str(n), "--worker", str(w)]
+            for w, n in enumerate(split)]))
     base = {r["clients"]: r["per_s"] for r in rows if r["target"] == "mosquitto"}
     for row in rows:
         row["vs_mosquitto"] = row["per_s"] / base[row["clients"]] if base.get(row["clients"]) else None
     return rows
 
 
-def _warm(pool: cf.ProcessPoolExecutor, n: int) -> None:
-    """Start every worker process before anything is timed (spawned interpreters import first)."""
-    for f in [pool.submit(os.getpid) for _ in range(4 * n)]:
-        f.result(timeout=120)
-
-
-def _window(pool: cf.ProcessPoolExecutor, target: str, clients: int, duration: float,
-            server: process.Child | None, submit: Callable[[float], list[cf.Future[load.WorkerResult]]]
-            ) -> dict[str, Any]:
+def _window(work: Path, target: str, clients: int, duration: float, server: process.Child | None,
+            worker_args: list[list[str]]) -> dict[str, Any]:
+    """Run one worker process per ``worker_args`` over a window of ``duration`` s opening
+    ``START_MARGIN`` s from now; the server's CPU seconds are read at the window's edges."""
     assert server is not None
-    start = time.time() + 1.0  # time for the workers to connect before the window opens
-    futures = submit(start)
-    load._wait_until(start)
-    server_cpu0 = load.group_cpu_seconds(server.pid)
-    load._wait_until(start + duration)
-    server_cpu = load.group_cpu_seconds(server.pid) - server_cpu0
-    results = [f.result(timeout=duration + 120) for f in futures]
+    start = time.time() + START_MARGIN
+    folder = work / f"{target}-{clients}"
+    children, results = [], []
+    try:
+        for w, extra in enumerate(worker_args):
+            result = folder / f"worker-{w}.json"
+            children.append((process.spawn(
+                [sys.executable, "-m", "benchmarks.context_broker_load", *extra, "--start-at", repr(start),
+                 "--duration", str(duration), "--result", str(result)],
+                log_dir=folder, name=f"worker-{w}", cwd=parts.repo_root()), result))
+        load._wait_until(start)
+        server_cpu0 = load.group_cpu_seconds(server.pid)
+        load._wait_until(start + duration)
+        server_cpu = load.group_cpu_seconds(server.pid) - server_cpu0
+        for child, result in children:
+            process.wait_until(lambda c=child: not c.running(), duration + 120, 0.05,
+                               what=f"load worker {child.name} to finish")
+            if child.popen.returncode != 0 or not result.is_file():
+                raise RuntimeError(f"load worker {child.name} failed ({child.popen.returncode}): {child.log_tail()}")
+            results.append(load.read_result(result))
+    finally:
+        for child, _ in children:
+            process.stop(child)
     completed = sum(r.completed for r in results)
-    errors = sum(r.errors for r in results)
     gen_cpu = sum(r.cpu_s for r in results)
     rate = load.rate_summary(completed, duration, gen_cpu)
     return {"target": target, "clients": clients, "processes": len(results), "duration_s": duration,
-            "completed": completed, "errors": errors,
+            "completed": completed, "errors": sum(r.errors for r in results),
             "first_error": next((r.first_error for r in results if r.first_error), ""),
+            "worker_late_s": max(r.late_s for r in results),
             "per_s": rate["per_s"], "generator_cpu_pct_of_core": rate["cpu_pct_of_core"],
             "server_cpu_pct_of_core": load.rate_summary(completed, duration, server_cpu)["cpu_pct_of_core"]}
 
@@ -377,12 +384,13 @@ def to_markdown(data: dict[str, Any]) -> str:
               for g in data["goals"]]
     lines += ["", f"## Updates per second ({data['duration_s']} s windows; one request or QoS-1 publish in "
               "flight per client; CPU in % of one core over the window)", "",
-              "| target | clients | worker processes | per s | vs Mosquitto | errors | generator CPU % | server CPU % |",
-              "|---|---|---|---|---|---|---|---|"]
+              "| target | clients | worker processes | per s | vs Mosquitto | errors | generator CPU % | server CPU % | "
+              "workers late s |", "|---|---|---|---|---|---|---|---|---|"]
     for r in data["updates"]:
         vs = "-" if r["vs_mosquitto"] is None else f"{r['vs_mosquitto']:.2f}"
         lines.append(f"| {r['target']} | {r['clients']} | {r['processes']} | {r['per_s']:.0f} | {vs} | {r['errors']} | "
-                     f"{r['generator_cpu_pct_of_core']:.0f} | {r['server_cpu_pct_of_core']:.0f} |")
+                     f"{r['generator_cpu_pct_of_core']:.0f} | {r['server_cpu_pct_of_core']:.0f} | "
+                     f"{r.get('worker_late_s', 0.0):.2f} |")
     lines += ["", "## Notification latency (paced; ms from just before the PATCH / publish to the MQTT message's "
               "arrival)", "",
               "| path | offered/s | achieved/s | max sender lag ms | received | lost | dup | p50 ms | p99 ms | max ms |",
@@ -413,7 +421,7 @@ def measure(args: argparse.Namespace, work: Path, argv: list[str] | None) -> dic
         data: dict[str, Any] = {"benchmark": "context_broker", "machine": machine(),
                                 "command": command_line("benchmarks.bench_context_broker", argv),
                                 "duration_s": args.duration, "max_processes": args.max_processes}
-        data["updates"] = updates_study(cb, mq, args.clients, args.duration, args.max_processes)
+        data["updates"] = updates_study(cb, mq, args.clients, args.duration, args.max_processes, work)
         data["notification"] = notification_study(cb, mq, args.notifications, args.rate)
         data["query"] = query_study(cb, args.entities, args.requests)
         if "Traceback" in cb.log_text():

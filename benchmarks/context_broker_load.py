@@ -10,16 +10,22 @@ Both return :class:`WorkerResult`: completed requests, errors, and the worker pr
 seconds over the measured window, so the benchmark can show that the load generator was not the
 bottleneck (its CPU use next to the server's, :func:`group_cpu_seconds`).
 
-Workers are spawned processes (not threads of the benchmark) so 32 clients are not serialized by
-one interpreter lock; :func:`split_clients` spreads the clients over at most a few processes.
-Pure helpers (:func:`split_clients`, :func:`pace_time`, :func:`rate_summary`) are unit tested.
+Workers are processes of their own (``python -m benchmarks.context_broker_load http|mqtt ...``,
+started by the benchmark through engine.process, so none is left behind), not threads of the
+benchmark, so 32 clients are not serialized by one interpreter lock; :func:`split_clients` spreads
+the clients over at most a few processes. A worker writes its :class:`WorkerResult` as JSON to
+``--result``; it reads the bearer token from ``--token-file`` (never on a command line). Pure
+helpers (:func:`split_clients`, :func:`pace_time`, :func:`rate_summary`) are unit tested.
 """
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
 import http.client
 import json
 import os
+import sys
 import resource
 import threading
 import time
@@ -34,6 +40,7 @@ class WorkerResult:
     first_error: str
     cpu_s: float
     window_s: float
+    late_s: float = 0.0  # how long after the window opened the worker's clients were ready
 
 
 def split_clients(clients: int, max_processes: int) -> list[int]:
@@ -172,8 +179,44 @@ def _run_threads(workers: list[threading.Thread], counts: list[int], errors: lis
     for t in workers:
         t.start()
     _wait_until(start_at)
+    late = max(0.0, time.time() - start_at)
     cpu0 = _cpu_now()
     for t in workers:
         t.join()
     cpu = _cpu_now() - cpu0
-    return WorkerResult(sum(counts), sum(errors), first_error[0] if first_error else "", cpu, duration)
+    return WorkerResult(sum(counts), sum(errors), first_error[0] if first_error else "", cpu, duration, late)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="one load generator worker of the context broker benchmark")
+    parser.add_argument("kind", choices=["http", "mqtt"])
+    parser.add_argument("--host", required=True)
+    parser.add_argument("--port", type=int, required=True)
+    parser.add_argument("--start-at", type=float, required=True, help="epoch seconds the window opens")
+    parser.add_argument("--duration", type=float, required=True)
+    parser.add_argument("--result", type=Path, required=True, help="where to write the result as JSON")
+    parser.add_argument("--token-file", type=Path, help="http: the bearer token")
+    parser.add_argument("--entities", default="", help="http: comma-separated entity ids, one client each")
+    parser.add_argument("--threads", type=int, default=1, help="mqtt: publishing clients")
+    parser.add_argument("--topic", default="bench/cb-baseline")
+    parser.add_argument("--worker", type=int, default=0)
+    args = parser.parse_args(argv)
+    if args.kind == "http":
+        headers = {}
+        if args.token_file:
+            headers["Authorization"] = "Bearer " + args.token_file.read_text(encoding="utf-8").strip()
+        result = http_updates(args.host, args.port, headers, [e for e in args.entities.split(",") if e],
+                              args.start_at, args.duration)
+    else:
+        result = mqtt_publishes(args.host, args.port, args.threads, args.topic, args.start_at, args.duration,
+                                args.worker)
+    args.result.write_text(json.dumps(dataclasses.asdict(result)), encoding="utf-8")
+    return 0
+
+
+def read_result(path: Path) -> WorkerResult:
+    return WorkerResult(**json.loads(path.read_text(encoding="utf-8")))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

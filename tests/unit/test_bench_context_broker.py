@@ -80,6 +80,6 @@ def test_markdown_has_goal_verdicts_and_every_row() -> None:
     data["goals"] = bench.goals(data)
     text = bench.to_markdown(data)
     assert "| update -> MQTT notification p99 at 500 updates/s | 60.0 ms (lost 0) | < 50 ms, none lost | **not met** |" in text
-    assert "| context-broker | 8 | 1 | 2400 | 0.10 | 0 | 20 | 95 |" in text
+    assert "| context-broker | 8 | 1 | 2400 | 0.10 | 0 | 20 | 95 | 0.00 |" in text
     assert "| mosquitto | 1 | 1 | 9000 |" in text
     assert "| GET /v2/entities/{id} | 1 | - | 500.00 | 900.00 | 900.00 |" in text
