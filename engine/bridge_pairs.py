@@ -9,14 +9,18 @@ messages); a worker bridging MQTT and Kafka both ways skips what it wrote itself
 
 - Mechanism, from the brokers' inferred classes (the ontology decides what a broker is):
   two ``pk:MqttBroker`` -> Mosquitto's own bridge; an MQTT and a ``pk:KafkaBroker`` -> a bridge
-  worker. Two Kafka brokers would need MirrorMaker 2, which plantkg does not run: refused.
+  worker; an MQTT and a ``pk:ContextBroker`` -> an MQTT <-> NGSI worker. Two Kafka brokers would
+  need MirrorMaker 2, which plantkg does not run; a context broker bridges to MQTT only (Kafka or
+  another context broker: route the topic through an MQTT broker): refused, with what to do.
 - Carrier (``local``): a worker runs beside the MQTT broker; a one-way Mosquitto bridge is carried
   by its source (it pushes); a two-way one by the broker with the smaller id — unless that would
   make it connect to an IPv6 address, which Mosquitto's bridge cannot (its ``address`` line takes
   no IPv6 literal): then by the other, and if both are IPv6 (or a one-way bridge's target is) the
-  bridge is refused here, before anything is deployed.
+  bridge is refused here, before anything is deployed. An ``external`` broker (``pk:external``,
+  not deployed by plantkg) never carries a bridge: its agent does not exist.
 - Each shared topic is a :class:`BridgeRoute` with its direction seen from the carrier, the topic's
-  ``pk:qos`` (default 1: at-least-once) and, for a worker, its ``pk:kafkaKey``.
+  ``pk:qos`` (default 1: at-least-once) and, for a worker, its ``pk:kafkaKey``; for an NGSI worker
+  the entity the topic is on the context broker (id and type, defaults applied by derive).
 """
 
 from __future__ import annotations
@@ -38,17 +42,20 @@ from engine.model import (
 #: The inferred broker classes a bridge mechanism is chosen from (as engine.rules_fast.short_name writes them).
 MQTT_CLASS = "pk:MqttBroker"
 KAFKA_CLASS = "pk:KafkaBroker"
+NGSI_CLASS = "pk:ContextBroker"
 DEFAULT_QOS = 1
 DEFAULT_KEY = "mqtt-topic"
 
 
 class BridgeNotSupportedError(EngineError):
-    """A bridge between two brokers of classes plantkg cannot bridge (two Kafka brokers)."""
+    """A bridge between two brokers of classes plantkg cannot bridge (two Kafka brokers, a context
+    broker and anything but MQTT, an external broker that would have to carry it)."""
 
-    def __init__(self, a: str, c: str, why: str) -> None:
+    def __init__(self, a: str, c: str, why: str, hint: str | None = None) -> None:
         super().__init__(f"bridge {a} -> {c}: {why}",
-                         hint="remove the pk:bridgesTo, or route the topic through an MQTT broker "
-                              "(for a bridge the rules derive: move the publisher or subscriber)")
+                         hint=hint or "remove the pk:bridgesTo, or route the topic through an MQTT "
+                                      "broker (for a bridge the rules derive: move the publisher or "
+                                      "subscriber)")
 
 
 @dataclass(frozen=True)
@@ -63,10 +70,13 @@ class DirectedBridge:
 
 @dataclass(frozen=True)
 class TopicOptions:
-    """What a bridge needs of a topic: its MQTT QoS and Kafka key mode, if the plant sets them."""
+    """What a bridge needs of a topic: its MQTT QoS and Kafka key mode, if the plant sets them, and
+    the NGSI entity it is on a context broker (derive applies the entity defaults)."""
 
     qos: int | None = None
     kafka_key: str | None = None
+    entity_id: str | None = None
+    entity_type: str | None = None
 
 
 def pair_bridges(
@@ -74,20 +84,23 @@ def pair_bridges(
     brokers: Mapping[str, BrokerSpec],
     classes: Mapping[str, frozenset[str]],
     options: Mapping[str, TopicOptions],
+    external: frozenset[str] = frozenset(),
 ) -> list[BridgeSpec]:
-    """One BridgeSpec per unordered broker pair, sorted by address."""
+    """One BridgeSpec per unordered broker pair, sorted by address; ``external`` brokers (ids)
+    are not deployed by plantkg, so they never carry one."""
     pairs: dict[frozenset[str], list[DirectedBridge]] = defaultdict(list)
     for bridge in directed:
         pairs[frozenset((bridge.source, bridge.target))].append(bridge)
-    specs = [_pair(sorted(ds, key=lambda d: d.source), brokers, classes, options)
+    specs = [_pair(sorted(ds, key=lambda d: d.source), brokers, classes, options, external)
              for ds in pairs.values()]
     return sorted(specs, key=lambda s: s.address)
 
 
 def _pair(ds: list[DirectedBridge], brokers: Mapping[str, BrokerSpec],
-          classes: Mapping[str, frozenset[str]], options: Mapping[str, TopicOptions]) -> BridgeSpec:
+          classes: Mapping[str, frozenset[str]], options: Mapping[str, TopicOptions],
+          external: frozenset[str]) -> BridgeSpec:
     first = ds[0]
-    mechanism, local = _mechanism_and_carrier(first.source, first.target, ds, classes, brokers)
+    mechanism, local = _mechanism_and_carrier(first.source, first.target, ds, classes, brokers, external)
     remote = first.target if local == first.source else first.source
     out = set().union(*(d.topics for d in ds if d.source == local))
     into = set().union(*(d.topics for d in ds if d.source == remote))
@@ -98,18 +111,26 @@ def _pair(ds: list[DirectedBridge], brokers: Mapping[str, BrokerSpec],
         opts = options.get(topic, TopicOptions())
         key = (opts.kafka_key or DEFAULT_KEY) if mechanism is BridgeMechanism.WORKER else DEFAULT_KEY
         qos = DEFAULT_QOS if opts.qos is None else opts.qos
-        routes.append(BridgeRoute(topic, direction, qos, key))
+        ngsi = mechanism is BridgeMechanism.NGSI
+        routes.append(BridgeRoute(topic, direction, qos, key,
+                                  entity_id=opts.entity_id if ngsi else None,
+                                  entity_type=opts.entity_type if ngsi else None))
     return BridgeSpec(local=_end(brokers[local]), remote=_end(brokers[remote]), mechanism=mechanism,
                       routes=tuple(routes), asserted=any(d.asserted for d in ds))
 
 
 def _mechanism_and_carrier(a: str, c: str, ds: list[DirectedBridge], classes: Mapping[str, frozenset[str]],
-                           brokers: Mapping[str, BrokerSpec]) -> tuple[BridgeMechanism, str]:
+                           brokers: Mapping[str, BrokerSpec],
+                           external: frozenset[str]) -> tuple[BridgeMechanism, str]:
     mqtt = {b for b in (a, c) if MQTT_CLASS in classes.get(b, frozenset())}
     kafka = {b for b in (a, c) if KAFKA_CLASS in classes.get(b, frozenset())}
+    ngsi = {b for b in (a, c) if NGSI_CLASS in classes.get(b, frozenset())}
     if len(mqtt) == 2:
         sources = sorted({d.source for d in ds})
-        carriers = [s for s in sources if not _ipv6(brokers[c if s == a else a].host)]
+        deployed = [s for s in sources if s not in external]
+        if not deployed:
+            raise _external_carrier(a, c, sources[0])
+        carriers = [s for s in deployed if not _ipv6(brokers[c if s == a else a].host)]
         if not carriers:
             target = c if sources[0] == a else a
             raise BridgeNotSupportedError(a, c, f"Mosquitto's bridge cannot connect to broker "
@@ -117,13 +138,31 @@ def _mechanism_and_carrier(a: str, c: str, ds: list[DirectedBridge], classes: Ma
                                           "(its 'address' takes no IPv6 literal); give it an IPv4 "
                                           "address")
         return BridgeMechanism.MOSQUITTO, carriers[0]
-    if len(mqtt) == 1 and len(kafka) == 1:
-        return BridgeMechanism.WORKER, next(iter(mqtt))
+    if len(mqtt) == 1 and (len(kafka) == 1 or len(ngsi) == 1):
+        carrier = next(iter(mqtt))
+        if carrier in external:
+            raise _external_carrier(a, c, carrier)
+        return (BridgeMechanism.WORKER if kafka else BridgeMechanism.NGSI), carrier
     if len(kafka) == 2:
         raise BridgeNotSupportedError(a, c, "a bridge between two Kafka brokers is not supported "
                                       "yet (plantkg does not run Kafka MirrorMaker 2)")
-    raise BridgeNotSupportedError(a, c, "plantkg bridges an MQTT broker to an MQTT or a Kafka "
-                                  "broker; these brokers are not both of such classes")
+    if ngsi and (kafka or len(ngsi) == 2):
+        other = "a Kafka broker" if kafka else "another context broker"
+        raise BridgeNotSupportedError(
+            a, c, f"a context broker bridges to an MQTT broker only, not to {other}",
+            hint="route the topic through an MQTT broker: the publisher and the subscriber each "
+                 "send to (or bridge with) a Mosquitto broker, which bridges to the context broker "
+                 "and to the other broker; or remove the pk:bridgesTo")
+    raise BridgeNotSupportedError(a, c, "plantkg bridges an MQTT broker to an MQTT, a Kafka or a "
+                                  "context broker; these brokers are not both of such classes")
+
+
+def _external_carrier(a: str, c: str, carrier: str) -> BridgeNotSupportedError:
+    return BridgeNotSupportedError(
+        a, c, f"the bridge would run beside broker {carrier!r}, which is pk:external (plantkg does "
+              "not deploy it, so no agent of plantkg can carry the bridge)",
+        hint=f"let a broker plantkg deploys carry it: drop pk:external from {carrier!r}, or put "
+             "a deployed MQTT broker between the two")
 
 
 def _ipv6(host: str) -> bool:

@@ -4,12 +4,17 @@
 run), only what the ontology concluded:
 
 - a :class:`BrokerSpec` for every ``pk:DeployedBroker`` (kind = ``pk:brokerType``, host =
-  ``pk:ip``, port = ``pk:port``);
+  ``pk:ip``, port = ``pk:port``; ``allow_anonymous`` = ``pk:allowAnonymous``, false on a
+  ``pk:ContextBroker`` that does not say, so a plan shows that writes need the token). A broker
+  marked ``pk:external`` runs outside plantkg: it is left out of the brokers (and topics) to
+  deploy, but can be the far end of a bridge;
 - a :class:`TopicSpec` for every ``pk:mustCarry(broker, topic)``, with the topic settings that
   apply to the broker's kind. Which settings apply is read from the broker's inferred classes:
   ``pk:KafkaBroker pk:topicSetting pk:partitions`` (``ontology/plantkg-rules.ttl``). A setting
   property maps to the TopicSpec field of the same name in snake case (``pk:replicationFactor`` →
-  ``replication_factor``), so a new setting is Turtle plus a model field, not a branch here;
+  ``replication_factor``), so a new setting is Turtle plus a model field, not a branch here. On a
+  ``pk:ContextBroker`` a topic is an entity, and its defaults are applied here so plans show the
+  real entity: type "Thing", id ``urn:ngsi-ld:<type>:<topic name with / replaced by :>``;
 - a :class:`BridgeSpec` for every pair of brokers joined by ``pk:requiresBridge`` (either way),
   forwarding the topics both brokers must carry, its mechanism chosen from the brokers' inferred
   classes (:mod:`engine.bridge_pairs`), ``asserted`` when the plant states ``pk:bridgesTo``.
@@ -23,21 +28,26 @@ from __future__ import annotations
 
 import re
 from collections import defaultdict
-from dataclasses import fields
+from dataclasses import fields, replace
 from typing import Iterable
 
 import pyoxigraph as ox
 
-from engine.errors import EngineError
+from engine.errors import ConfigValueError, EngineError
 from engine.bridge_pairs import DirectedBridge, TopicOptions, pair_bridges
 from engine.model import BrokerSpec, DesiredState, TopicSpec
 from engine.reason import INFERRED, input_graphs, is_reasoned
 from engine.rules_fast import short_name
 from engine.rules_tbox import dataset_options
+from engine.values import check_ngsi_id
 from kg.load import PlantGraph
 from kg.namespaces import PK, XSD
 
-__all__ = ["DeriveError", "NotReasonedError", "derive"]
+__all__ = ["DeriveError", "NotReasonedError", "default_entity_id", "derive"]
+
+#: The inferred class of brokers whose topics are NGSI entities, and the entity defaults.
+CONTEXT_BROKER = "pk:ContextBroker"
+DEFAULT_ENTITY_TYPE = "Thing"
 
 _PREFIXES = {"pk": str(PK)}
 _TOPIC_FIELDS = {f.name for f in fields(TopicSpec)} - {"broker_id", "name", "iri"}
@@ -46,10 +56,11 @@ _INTEGERS = {str(XSD[t]) for t in ("integer", "int", "long", "short", "byte", "n
                                     "unsignedByte", "negativeInteger", "nonPositiveInteger")}
 
 BROKERS = """
-SELECT ?b ?id ?name ?kind ?ip ?port ?persist WHERE {
+SELECT ?b ?id ?name ?kind ?ip ?port ?persist ?anonymous ?external WHERE {
     ?b a pk:DeployedBroker .
     OPTIONAL { ?b pk:id ?id } OPTIONAL { ?b pk:name ?name } OPTIONAL { ?b pk:brokerType ?kind }
     OPTIONAL { ?b pk:ip ?ip } OPTIONAL { ?b pk:port ?port } OPTIONAL { ?b pk:persistEvery ?persist }
+    OPTIONAL { ?b pk:allowAnonymous ?anonymous } OPTIONAL { ?b pk:external ?external }
 }"""
 
 TOPICS = """
@@ -82,7 +93,7 @@ SELECT DISTINCT ?a ?c ?t ?qos ?key WHERE {
 CLASSES = """
 SELECT ?b ?class WHERE {
     ?b a pk:DeployedBroker ; a ?class .
-    FILTER (?class IN (pk:MqttBroker, pk:KafkaBroker))
+    FILTER (?class IN (pk:MqttBroker, pk:KafkaBroker, pk:ContextBroker))
 }"""
 
 
@@ -114,19 +125,29 @@ def derive(plant: PlantGraph) -> DesiredState:
     def select(query: str) -> Iterable[ox.QuerySolution]:
         return store.query(query, prefixes=_PREFIXES, **options)  # type: ignore[arg-type]
 
-    brokers = _brokers(plant, select(BROKERS))
+    classes: dict[str, set[str]] = defaultdict(set)
+    for row in select(CLASSES):
+        classes[row["b"].value].add(short_name(row["class"].value))
+    brokers, external = _brokers(plant, select(BROKERS), classes)
     by_iri = {b.iri: b for b in brokers}
     topics = _topics(plant, select(TOPICS), select(SETTINGS), by_iri)
+    iri_of = {b.id: b.iri for b in brokers}
+    topics = [_with_entity(plant, t) if CONTEXT_BROKER in classes[iri_of[t.broker_id]] else t
+              for t in topics]
     names = {t.iri: t.name for t in topics}
+    entities = {t.iri: t for t in topics if t.entity_id is not None}
     shared: dict[tuple[str, str], set[str]] = defaultdict(set)
     topic_options: dict[str, TopicOptions] = {}
     for row in select(SHARED):
         t = row["t"].value
         if t in names:
             shared[(row["a"].value, row["c"].value)].add(names[t])
+            entity = entities.get(t)
             topic_options[names[t]] = TopicOptions(
                 qos=int(row["qos"].value) if row["qos"] is not None else None,
-                kafka_key=row["key"].value if row["key"] is not None else None)
+                kafka_key=row["key"].value if row["key"] is not None else None,
+                entity_id=entity.entity_id if entity else None,
+                entity_type=entity.entity_type if entity else None)
     directed = []
     for row in select(BRIDGES):
         a, c = row["a"].value, row["c"].value
@@ -135,17 +156,37 @@ def derive(plant: PlantGraph) -> DesiredState:
                               "is at one end of a required bridge but is not a deployed broker")
         directed.append(DirectedBridge(by_iri[a].id, by_iri[c].id, frozenset(shared[(a, c)]),
                                        asserted=row["asserted"].value == "true"))
-    classes: dict[str, set[str]] = defaultdict(set)
-    for row in select(CLASSES):
-        if row["b"].value in by_iri:
-            classes[by_iri[row["b"].value].id].add(short_name(row["class"].value))
     bridges = pair_bridges(directed, {b.id: b for b in brokers},
-                           {k: frozenset(v) for k, v in classes.items()}, topic_options)
+                           {b.id: frozenset(classes[b.iri]) for b in brokers}, topic_options,
+                           external=frozenset(by_iri[iri].id for iri in external))
+    deployed = [b for b in brokers if b.iri not in external]
+    outside = {by_iri[iri].id for iri in external}
     return DesiredState(
-        brokers=tuple(sorted(brokers, key=lambda b: b.address)),
-        topics=tuple(sorted(topics, key=lambda t: t.address)),
+        brokers=tuple(sorted(deployed, key=lambda b: b.address)),
+        topics=tuple(sorted((t for t in topics if t.broker_id not in outside), key=lambda t: t.address)),
         bridges=tuple(bridges),
     )
+
+
+def default_entity_id(entity_type: str, topic_name: str) -> str:
+    """The entity a topic is on a context broker when the plant sets no ``pk:entityId``:
+    ``urn:ngsi-ld:<type>:<topic name with every / replaced by :>``."""
+    return f"urn:ngsi-ld:{entity_type}:{topic_name.replace('/', ':')}"
+
+
+def _with_entity(plant: PlantGraph, topic: TopicSpec) -> TopicSpec:
+    """``topic`` (on a context broker) with the entity defaults applied and checked."""
+    entity_type = topic.entity_type or DEFAULT_ENTITY_TYPE
+    entity_id = topic.entity_id or default_entity_id(entity_type, topic.name)
+    for prop, value in (("entityType", entity_type), ("entityId", entity_id)):
+        try:
+            check_ngsi_id(prop, value)
+        except ConfigValueError as exc:
+            how = "" if prop == "entityType" or topic.entity_id else " (minted from the topic name)"
+            raise DeriveError(_name(plant, ox.NamedNode(topic.iri)),
+                              f"pk:{prop} {value!r}{how} is not an NGSI identifier: {exc.problem}; "
+                              f"set pk:{prop} on the topic") from None
+    return replace(topic, entity_id=entity_id, entity_type=entity_type)
 
 
 def _name(plant: PlantGraph, node: object) -> str:
@@ -165,24 +206,37 @@ def _one(plant: PlantGraph, node: object, prop: str, values: set[object]) -> ox.
     return value
 
 
-def _brokers(plant: PlantGraph, rows: Iterable[ox.QuerySolution]) -> list[BrokerSpec]:
+def _brokers(plant: PlantGraph, rows: Iterable[ox.QuerySolution],
+             classes: dict[str, set[str]]) -> tuple[list[BrokerSpec], set[str]]:
+    """The deployed brokers' specs, and the IRIs of those marked ``pk:external``."""
     values: dict[ox.NamedNode, dict[str, set[object]]] = defaultdict(lambda: defaultdict(set))
     for row in rows:
         slot = values[row["b"]]
-        for var in ("id", "name", "kind", "ip", "port", "persist"):
+        for var in ("id", "name", "kind", "ip", "port", "persist", "anonymous", "external"):
             if row[var] is not None:
                 slot[var].add(row[var])
     out = []
+    external = set()
     props = {"id": "id", "name": "name", "kind": "brokerType", "ip": "ip", "port": "port"}
     for node, slot in values.items():
         got = {var: _one(plant, node, prop, slot[var]) for var, prop in props.items()}
         port = _integer(plant, node, "port", got["port"])
         persist = (_integer(plant, node, "persistEvery", _one(plant, node, "persistEvery", slot["persist"]))
                    if slot["persist"] else None)
+        anonymous = (_boolean(plant, node, "allowAnonymous", _one(plant, node, "allowAnonymous", slot["anonymous"]))
+                     if slot["anonymous"] else (False if CONTEXT_BROKER in classes[node.value] else None))
+        if slot["external"] and _boolean(plant, node, "external", _one(plant, node, "external", slot["external"])):
+            external.add(node.value)
         out.append(BrokerSpec(id=got["id"].value, iri=node.value, name=got["name"].value,
                               kind=got["kind"].value, host=got["ip"].value, port=port,
-                              persist_every=persist))
-    return _unique(out, "broker")
+                              persist_every=persist, allow_anonymous=anonymous))
+    return _unique(out, "broker"), external
+
+
+def _boolean(plant: PlantGraph, node: object, prop: str, literal: ox.Literal) -> bool:
+    if literal.datatype.value != str(XSD.boolean) or literal.value not in ("true", "false", "1", "0"):
+        raise DeriveError(_name(plant, node), f"pk:{prop} {literal} is not a boolean")
+    return literal.value in ("true", "1")
 
 
 def _topics(plant: PlantGraph, rows: Iterable[ox.QuerySolution], settings: Iterable[ox.QuerySolution],

@@ -86,3 +86,56 @@ def test_two_kafka_brokers_are_refused_by_name() -> None:
 def test_brokers_of_no_known_class_are_refused() -> None:
     with pytest.raises(BridgeNotSupportedError, match="not both of such classes"):
         pair_bridges([d("a", "b", "t")], BROKERS, {"a": MQTT}, {})
+
+
+# --- context brokers (pk:ContextBroker) and external brokers ---------------------------------
+
+NGSI = frozenset({"pk:ContextBroker"})
+CB = {**BROKERS,
+      "cb": BrokerSpec("cb", "urn:cb", "CB", "ngsi-v2", "127.0.0.6", 1026, allow_anonymous=False),
+      "cb2": BrokerSpec("cb2", "urn:cb2", "CB2", "ngsi-v2", "127.0.0.7", 1026)}
+CB_CLASSES = {**CLASSES, "cb": NGSI, "cb2": NGSI}
+ENTITY = {"status": TopicOptions(qos=0, entity_id="urn:ngsi-ld:AGV:agv:1", entity_type="AGV"),
+          "motion": TopicOptions(entity_id="urn:ngsi-ld:Thing:motion", entity_type="Thing")}
+
+
+def test_mqtt_and_context_broker_get_an_ngsi_worker_beside_the_mqtt_broker() -> None:
+    [spec] = pair_bridges([d("a", "cb", "status", asserted=False), d("cb", "a", "motion", asserted=False)],
+                          CB, CB_CLASSES, ENTITY)
+    assert (spec.local.id, spec.remote.id, spec.mechanism) == ("a", "cb", BridgeMechanism.NGSI)
+    assert (spec.remote.kind, spec.remote.host, spec.remote.port) == ("ngsi-v2", "127.0.0.6", 1026)
+    assert [(r.topic, r.direction.value, r.qos, r.entity_id, r.entity_type) for r in spec.routes] == [
+        ("motion", "in", 1, "urn:ngsi-ld:Thing:motion", "Thing"),
+        ("status", "out", 0, "urn:ngsi-ld:AGV:agv:1", "AGV")]
+
+
+def test_the_mqtt_side_carries_an_ngsi_bridge_whichever_way_it_was_stated() -> None:
+    [spec] = pair_bridges([d("cb", "b", "motion")], CB, CB_CLASSES, ENTITY)
+    assert (spec.local.id, spec.remote.id) == ("b", "cb")
+    assert spec.routes[0].direction is BridgeDirection.IN
+
+
+def test_entity_fields_only_go_to_ngsi_routes() -> None:
+    [spec] = pair_bridges([d("a", "k", "status")], CB, CB_CLASSES, ENTITY)
+    assert spec.mechanism is BridgeMechanism.WORKER
+    assert (spec.routes[0].entity_id, spec.routes[0].entity_type) == (None, None)
+
+
+@pytest.mark.parametrize(("pair", "other"), [(("k", "cb"), "a Kafka broker"),
+                                             (("cb", "cb2"), "another context broker")])
+def test_a_context_broker_bridges_to_mqtt_only(pair: tuple[str, str], other: str) -> None:
+    with pytest.raises(BridgeNotSupportedError, match=f"MQTT broker only, not to {other}") as info:
+        pair_bridges([d(*pair, "t")], CB, CB_CLASSES, {})
+    assert "route the topic through an MQTT broker" in (info.value.hint or "")
+
+
+def test_an_external_broker_is_a_far_end_but_never_a_carrier() -> None:
+    [spec] = pair_bridges([d("a", "cb", "status")], CB, CB_CLASSES, ENTITY, external=frozenset({"cb"}))
+    assert (spec.local.id, spec.remote.id) == ("a", "cb")
+    [two_way] = pair_bridges([d("a", "b", "t"), d("b", "a", "t")], CB, CB_CLASSES, {},
+                             external=frozenset({"a"}))
+    assert two_way.local.id == "b"  # not the smaller id: that broker is external
+    with pytest.raises(BridgeNotSupportedError, match="'a', which is pk:external"):
+        pair_bridges([d("a", "cb", "status")], CB, CB_CLASSES, ENTITY, external=frozenset({"a"}))
+    with pytest.raises(BridgeNotSupportedError, match="'a', which is pk:external"):
+        pair_bridges([d("a", "b", "t")], CB, CB_CLASSES, {}, external=frozenset({"a"}))

@@ -161,3 +161,82 @@ def test_a_setting_without_a_model_field_is_refused(tmp_path: Path) -> None:
     body = PLANT + 'pk:KafkaBroker pk:topicSetting pk:valueTopic . :archive pk:valueTopic "x" .\n'
     with pytest.raises(DeriveError, match="value_topic"):
         derive(reasoned(tmp_path, body))
+
+
+# --- context brokers: entity defaults, allowAnonymous, external ------------------------------
+
+#: Mosquitto and a context broker; an AGV publishes its status on MQTT, the planner subscribes on
+#: the context broker and publishes its orders there, which the AGV subscribes to on MQTT.
+NGSI_PLANT = """
+:mq a pk:Broker ; pk:id "mq" ; pk:name "mq" ; pk:brokerType "mosquitto" ; pk:ip "127.0.0.2" ; pk:port 1883 .
+:cb a pk:Broker ; pk:id "cb" ; pk:name "cb" ; pk:brokerType "ngsi-v2" ; pk:ip "127.0.0.3" ; pk:port 1026 .
+:status a pk:Topic ; pk:id "status" ; pk:name "agv/1/status" ; pk:qos 0 .
+:order a pk:Topic ; pk:id "order" ; pk:name "agv/1/order" ; pk:entityId "urn:ngsi-ld:Order:agv1" ;
+    pk:entityType "Order" .
+:agv a pk:Resource ; pk:id "agv" ; pk:name "agv" ; pk:sendsTo :mq ; pk:publishes :status ; pk:subscribes :order .
+:planner a pk:Resource ; pk:id "planner" ; pk:name "planner" ; pk:sendsTo :cb ; pk:subscribes :status ;
+    pk:publishes :order .
+"""
+
+
+def test_a_context_broker_topic_is_an_entity_with_defaults_applied(tmp_path: Path) -> None:
+    state = derive(reasoned(tmp_path, NGSI_PLANT))
+    assert state.broker("cb") == BrokerSpec("cb", EX + "cb", "cb", "ngsi-v2", "127.0.0.3", 1026,
+                                            allow_anonymous=False)
+    assert state.broker("mq").allow_anonymous is None  # type: ignore[union-attr]
+    assert state.topics_of("cb") == (
+        TopicSpec("cb", "agv/1/order", EX + "order", entity_id="urn:ngsi-ld:Order:agv1", entity_type="Order"),
+        TopicSpec("cb", "agv/1/status", EX + "status", entity_id="urn:ngsi-ld:Thing:agv:1:status",
+                  entity_type="Thing"))
+    assert state.topics_of("mq")[1] == TopicSpec("mq", "agv/1/status", EX + "status", qos=0)
+    [bridge] = state.bridges
+    assert (bridge.local.id, bridge.remote.id, bridge.mechanism, bridge.asserted) == (
+        "mq", "cb", BridgeMechanism.NGSI, False)
+    # R1 requires the bridge both ways (status out, order in), and a bridge forwards every topic
+    # both brokers carry: both topics flow both ways (the worker skips what it wrote itself)
+    assert bridge.routes == (
+        BridgeRoute("agv/1/order", BridgeDirection.BOTH, 1, "mqtt-topic", "urn:ngsi-ld:Order:agv1", "Order"),
+        BridgeRoute("agv/1/status", BridgeDirection.BOTH, 0, "mqtt-topic", "urn:ngsi-ld:Thing:agv:1:status", "Thing"))
+
+
+def test_hermit_derives_the_same_ngsi_state(tmp_path: Path) -> None:
+    assert derive(reasoned(tmp_path, NGSI_PLANT, "owlready2")) == derive(reasoned(tmp_path, NGSI_PLANT))
+
+
+def test_allow_anonymous_is_read(tmp_path: Path) -> None:
+    body = NGSI_PLANT.replace("pk:port 1026 .", "pk:port 1026 ; pk:allowAnonymous true .")
+    assert derive(reasoned(tmp_path, body)).broker("cb").allow_anonymous is True  # type: ignore[union-attr]
+
+
+def test_an_external_context_broker_is_not_deployed_but_is_bridged_to(tmp_path: Path) -> None:
+    body = NGSI_PLANT.replace("pk:port 1026 .", "pk:port 1026 ; pk:external true .")
+    state = derive(reasoned(tmp_path, body))
+    assert [b.id for b in state.brokers] == ["mq"]
+    assert {t.broker_id for t in state.topics} == {"mq"}
+    [bridge] = state.bridges
+    assert (bridge.local.id, bridge.remote.id, bridge.remote.port) == ("mq", "cb", 1026)
+    assert bridge.routes[1].entity_id == "urn:ngsi-ld:Thing:agv:1:status"
+    # external false is the default: deployed
+    body = NGSI_PLANT.replace("pk:port 1026 .", "pk:port 1026 ; pk:external false .")
+    assert [b.id for b in derive(reasoned(tmp_path, body)).brokers] == ["cb", "mq"]
+
+
+def test_an_external_broker_cannot_carry_a_bridge(tmp_path: Path) -> None:
+    body = NGSI_PLANT.replace("pk:port 1883 .", "pk:port 1883 ; pk:external true .")
+    with pytest.raises(BridgeNotSupportedError, match="'mq', which is pk:external"):
+        derive(reasoned(tmp_path, body))
+
+
+def test_an_entity_id_minted_from_an_unusable_topic_name_is_refused_by_name(tmp_path: Path) -> None:
+    body = NGSI_PLANT.replace('pk:name "agv/1/status"', 'pk:name "agv/1/status?x"')
+    with pytest.raises(DeriveError, match=r"status.*pk:entityId 'urn:ngsi-ld:Thing:agv:1:status\?x' "
+                                          r"\(minted from the topic name\)") as info:
+        derive(reasoned(tmp_path, body))
+    assert "set pk:entityId on the topic" in str(info.value)
+
+
+def test_a_context_broker_cannot_bridge_to_kafka(tmp_path: Path) -> None:
+    body = NGSI_PLANT.replace('"mosquitto" ; pk:ip "127.0.0.2"', '"kafka" ; pk:ip "127.0.0.2"')
+    body = body.replace('pk:name "agv/1/status"', 'pk:name "agv.1.status"').replace('pk:name "agv/1/order"', 'pk:name "agv.1.order"')
+    with pytest.raises(BridgeNotSupportedError, match="MQTT broker only, not to a Kafka broker"):
+        derive(reasoned(tmp_path, body))
