@@ -274,18 +274,18 @@ def test_essence_ignores_names_and_follows_the_listener(driver: Driver) -> None:
 
 def test_registry_from_entry_points() -> None:
     registry = DriverRegistry.from_entry_points()
-    assert registry.kinds() == ["kafka", "mosquitto"], registry.errors
+    assert registry.kinds() == ["kafka", "mosquitto", "ngsi-v2"], registry.errors
     assert isinstance(registry.get("kafka"), KafkaDriver)
     assert isinstance(registry.get("mosquitto"), Driver)
     assert "mosquitto" in registry and "rabbitmq" not in registry
-    with pytest.raises(UnknownDriverError, match="installed: kafka, mosquitto"):
+    with pytest.raises(UnknownDriverError, match="installed: kafka, mosquitto, ngsi-v2"):
         registry.get("rabbitmq")
 
 
 def test_registries_are_independent() -> None:
     only = DriverRegistry([MosquittoDriver(run_as=None)])
     assert only.kinds() == ["mosquitto"]
-    assert DriverRegistry.from_entry_points().kinds() == ["kafka", "mosquitto"]
+    assert DriverRegistry.from_entry_points().kinds() == ["kafka", "mosquitto", "ngsi-v2"]
     with pytest.raises(ValueError, match="two drivers"):
         DriverRegistry([MosquittoDriver(), MosquittoDriver()])
     with pytest.raises(TypeError):

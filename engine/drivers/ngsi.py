@@ -1,0 +1,148 @@
+"""The NGSI-v2 context broker driver: ``python -m engine.context_broker`` (FIWARE Orion's REST API).
+
+plantkg's own context broker (:mod:`engine.context_broker`) is a process the agent runs like any
+broker: one listener on the spec's address and port, its entities in ``<broker dir>/data/``, its
+log in ``<broker dir>/logs/ngsi-v2.log``. Writes need ``Authorization: Bearer <token>`` with the
+token of the broker's own agent (so the engine, which reads every agent's token file from
+agents.toml, can write to it), unless the plant says ``pk:allowAnonymous true`` (``--open``).
+
+A context broker holds entities, not topics: a topic it carries is one entity (``entity_id``,
+``entity_type``, filled by derive), which needs no creation. So topics are implicit, as on MQTT:
+:meth:`NgsiDriver.ensure_topic` checks the entity's identifiers against Orion's rules and the agent
+records the result. Health is a real ``GET /version`` answered 200 with an ``orion`` object, the
+check FiLiP's client makes first, not just an open port.
+
+The agent's token file is ``<state dir>/token`` (the agent's default; the broker folder is
+``<state dir>/brokers/<id>/``); an agent started with another ``--token-file`` passes it in the
+environment variable ``PLANTKG_AGENT_TOKEN_FILE``.
+"""
+
+from __future__ import annotations
+
+import http.client
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+from engine import netutil
+from engine.drivers.base import (
+    DATA_DIR,
+    NGSI_TOPIC_FIELDS,
+    check_text,
+    check_topic_fields,
+    log_file,
+    refuse_bridges,
+    spec_essence,
+)
+from engine.errors import ConfigValueError
+from engine.model import BridgeSpec, BrokerSpec, ObservedTopic, TopicSpec
+from engine.values import check_host, check_ngsi_id, check_path, check_port
+
+#: The module the agent runs (``python -m``), and the agent's token file name in its state dir.
+SERVER_MODULE = "engine.context_broker"
+TOKEN_FILE = "token"
+TOKEN_FILE_ENV = "PLANTKG_AGENT_TOKEN_FILE"
+#: How much of a /version answer health reads (Orion's is a few hundred bytes).
+MAX_VERSION_BYTES = 65_536
+
+
+class NgsiDriver:
+    """plantkg's NGSI-v2 context broker, started as ``python -m engine.context_broker``."""
+
+    kind = "ngsi-v2"
+    implicit_topics = True
+    start_deadline = 15.0
+    stop_grace = 10.0
+
+    def __init__(self, *, python: str | None = None, token_file: Path | None = None) -> None:
+        """``python``: the interpreter (default: the agent's own, so the server runs from the same
+        installation). ``token_file``: the write token (default: see the module docstring)."""
+        self.python = python or sys.executable
+        self._token_file = token_file
+
+    def validate(self, spec: BrokerSpec) -> None:
+        check_host("host", spec.host)
+        check_port("port", spec.port)
+        if spec.allow_anonymous is not None and not isinstance(spec.allow_anonymous, bool):
+            raise ConfigValueError("allow_anonymous", spec.allow_anonymous, "must be true or false")
+        if spec.persist_every is not None:
+            raise ConfigValueError("persist_every", spec.persist_every,
+                                   "does not apply to a context broker (it saves every write)")
+
+    def render_config(self, spec: BrokerSpec, broker_dir: Path,
+                      bridges: tuple[BridgeSpec, ...] = ()) -> dict[str, str]:
+        """No file: everything is on the command line. Bridges run as workers beside MQTT."""
+        self.validate(spec)
+        check_path("broker_dir", broker_dir)
+        refuse_bridges(self.kind, bridges)
+        return {}
+
+    def token_file(self, broker_dir: Path) -> Path:
+        """The agent's token file, which the context broker reads its write token from."""
+        if self._token_file is not None:
+            return self._token_file
+        configured = os.environ.get(TOKEN_FILE_ENV)
+        if configured:
+            return Path(configured)
+        return broker_dir.parent.parent / TOKEN_FILE
+
+    def command(self, spec: BrokerSpec, broker_dir: Path) -> list[str]:
+        self.validate(spec)
+        check_path("broker_dir", broker_dir)
+        argv = [self.python, "-m", SERVER_MODULE, "--host", spec.host, "--port", str(spec.port),
+                "--data-dir", str(broker_dir / DATA_DIR), "--log-file", str(log_file(broker_dir, self.kind))]
+        if spec.allow_anonymous:
+            return [*argv, "--open"]
+        token = check_path("token_file", self.token_file(broker_dir))
+        if not token.is_file():
+            raise ConfigValueError("token_file", str(token),
+                                   "the agent's token file is missing, and the context broker needs "
+                                   f"it for writes (set {TOKEN_FILE_ENV}, or pk:allowAnonymous true)")
+        return [*argv, "--token-file", str(token)]
+
+    def prepare(self, spec: BrokerSpec, broker_dir: Path) -> None:
+        """The data folder the entities are stored in."""
+        (broker_dir / DATA_DIR).mkdir(parents=True, exist_ok=True)
+
+    def health(self, spec: BrokerSpec, timeout: float) -> bool:
+        """``GET /version`` answered 200 with a JSON object holding an ``orion`` object."""
+        if not netutil.port_open(spec.host, spec.port, timeout=min(timeout, 0.5)):
+            return False
+        conn = http.client.HTTPConnection(spec.host, spec.port, timeout=max(timeout, 0.05))
+        try:
+            conn.request("GET", "/version", headers={"Accept": "application/json"})
+            answer = conn.getresponse()
+            body = answer.read(MAX_VERSION_BYTES)
+            if answer.status != 200:
+                return False
+            data = json.loads(body)
+            return isinstance(data, dict) and isinstance(data.get("orion"), dict)
+        except (OSError, ValueError, http.client.HTTPException):
+            return False
+        finally:
+            conn.close()
+
+    def ensure_topic(self, spec: BrokerSpec, topic: TopicSpec) -> ObservedTopic:
+        """Check the topic's entity (no creation: an entity appears with its first write)."""
+        check_text("name", topic.name)
+        check_topic_fields(topic, self.kind, NGSI_TOPIC_FIELDS)
+        for field in NGSI_TOPIC_FIELDS:
+            value = getattr(topic, field)
+            if value is None:
+                raise ConfigValueError(field, None, "a topic on a context broker needs its entity "
+                                       "id and type (plantkg derive fills them in)")
+            check_ngsi_id(field, value)
+        return ObservedTopic(name=topic.name, entity_id=topic.entity_id, entity_type=topic.entity_type)
+
+    def delete_topic(self, spec: BrokerSpec, name: str) -> None:
+        """Nothing on the broker: the entity is data, and stays until someone deletes it."""
+        check_text("name", name)
+
+    def observe_topics(self, spec: BrokerSpec) -> list[ObservedTopic]:
+        return []
+
+    def essence(self, spec: BrokerSpec) -> dict[str, Any]:
+        """Listener and whether writes need the token: both are on the command line."""
+        return {**spec_essence(spec), "allow_anonymous": bool(spec.allow_anonymous)}

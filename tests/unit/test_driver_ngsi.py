@@ -1,0 +1,222 @@
+"""The NGSI-v2 context broker driver: command line, refusals, topics as entities, essence, health.
+
+The server itself (engine.context_broker) is started for real by
+tests/integration/test_context_broker_agent.py; here health is checked against plain HTTP servers
+that answer /version in ways a context broker would not (and one that answers like Orion), so what
+health accepts is pinned down without a broker process.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import sys
+import threading
+from collections.abc import Iterator
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+
+import pytest
+
+from engine import netutil
+from engine.drivers.base import Driver
+from engine.drivers.ngsi import TOKEN_FILE_ENV, NgsiDriver
+from engine.errors import ConfigValueError
+from engine.model import (
+    BridgeDirection,
+    BridgeEnd,
+    BridgeMechanism,
+    BridgeRoute,
+    BridgeSpec,
+    BrokerSpec,
+    ObservedTopic,
+    TopicSpec,
+)
+
+
+def cb_spec(**changes) -> BrokerSpec:
+    values = dict(id="cb", iri="https://example.org/plant#cb", name="Context broker", kind="ngsi-v2",
+                  host="127.0.0.3", port=11026, allow_anonymous=False)
+    return BrokerSpec(**{**values, **changes})
+
+
+@pytest.fixture
+def broker_dir(tmp_path: Path) -> Path:
+    """``<state dir>/brokers/cb`` with the agent's token file at ``<state dir>/token``."""
+    folder = tmp_path / "brokers" / "cb"
+    folder.mkdir(parents=True)
+    (tmp_path / "token").write_text("x" * 32 + "\n")
+    return folder
+
+
+def test_is_a_driver_registered_as_its_kind() -> None:
+    driver = NgsiDriver()
+    assert isinstance(driver, Driver)
+    assert (driver.kind, driver.implicit_topics) == ("ngsi-v2", True)
+
+
+def test_command_uses_the_agents_token_file(broker_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv(TOKEN_FILE_ENV, raising=False)
+    argv = NgsiDriver().command(cb_spec(), broker_dir)
+    assert argv == [sys.executable, "-m", "engine.context_broker", "--host", "127.0.0.3", "--port", "11026",
+                    "--data-dir", str(broker_dir / "data"), "--log-file", str(broker_dir / "logs" / "ngsi-v2.log"),
+                    "--token-file", str(broker_dir.parent.parent / "token")]
+
+
+def test_an_agent_with_another_token_file_passes_it_in_the_environment(
+        broker_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    other = tmp_path / "elsewhere" / "agent.token"
+    other.parent.mkdir()
+    other.write_text("y" * 32)
+    monkeypatch.setenv(TOKEN_FILE_ENV, str(other))
+    assert NgsiDriver().command(cb_spec(), broker_dir)[-2:] == ["--token-file", str(other)]
+
+
+def test_allow_anonymous_opens_writes_and_needs_no_token(tmp_path: Path) -> None:
+    folder = tmp_path / "brokers" / "cb"  # no token file anywhere
+    argv = NgsiDriver().command(cb_spec(allow_anonymous=True), folder)
+    assert argv[-1] == "--open" and "--token-file" not in argv
+
+
+def test_a_missing_token_file_is_refused_naming_what_to_do(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv(TOKEN_FILE_ENV, raising=False)
+    with pytest.raises(ConfigValueError) as info:
+        NgsiDriver().command(cb_spec(), tmp_path / "brokers" / "cb")
+    assert info.value.field == "token_file" and "pk:allowAnonymous" in str(info.value)
+
+
+def test_prepare_makes_the_data_folder_and_nothing_is_rendered(broker_dir: Path) -> None:
+    driver = NgsiDriver()
+    driver.prepare(cb_spec(), broker_dir)
+    driver.prepare(cb_spec(), broker_dir)  # idempotent
+    assert (broker_dir / "data").is_dir()
+    assert driver.render_config(cb_spec(), broker_dir) == {}
+
+
+def test_bridges_are_not_native() -> None:
+    bridge = BridgeSpec(BridgeEnd("m", "mosquitto", "127.0.0.2", 1883), BridgeEnd("cb", "ngsi-v2", "127.0.0.3", 1026),
+                        BridgeMechanism.NGSI, (BridgeRoute("t", BridgeDirection.OUT, 1, "mqtt-topic", "urn:x", "Thing"),))
+    with pytest.raises(ConfigValueError) as info:
+        NgsiDriver().render_config(cb_spec(), Path("/state/brokers/cb"), (bridge,))
+    assert info.value.field == "bridges"
+
+
+@pytest.mark.parametrize(("changes", "field"), [
+    ({"port": 0}, "port"),
+    ({"port": "1026"}, "port"),
+    ({"host": "orion.local"}, "host"),
+    ({"host": "127.0.0.1\n--open"}, "host"),
+    ({"allow_anonymous": "yes"}, "allow_anonymous"),
+    ({"persist_every": 1}, "persist_every"),
+])
+def test_bad_broker_values_are_refused(changes: dict, field: str) -> None:
+    with pytest.raises(ConfigValueError) as info:
+        NgsiDriver().validate(cb_spec(**changes))
+    assert info.value.field == field
+
+
+def test_an_unsafe_broker_folder_is_refused() -> None:
+    with pytest.raises(ConfigValueError):
+        NgsiDriver().command(cb_spec(allow_anonymous=True), Path("relative/brokers/cb"))
+    with pytest.raises(ConfigValueError):
+        NgsiDriver().command(cb_spec(allow_anonymous=True), Path("/state/bro\nkers/cb"))
+
+
+# --- topics are entities --------------------------------------------------------------------
+
+def topic(**changes) -> TopicSpec:
+    values = dict(broker_id="cb", name="agv/1/status", iri="urn:t",
+                  entity_id="urn:ngsi-ld:Thing:agv:1:status", entity_type="Thing")
+    return TopicSpec(**{**values, **changes})
+
+
+def test_ensure_topic_checks_and_returns_the_entity() -> None:
+    assert NgsiDriver().ensure_topic(cb_spec(), topic()) == ObservedTopic(
+        "agv/1/status", entity_id="urn:ngsi-ld:Thing:agv:1:status", entity_type="Thing")
+    NgsiDriver().delete_topic(cb_spec(), "agv/1/status")  # nothing to do, no error
+    assert NgsiDriver().observe_topics(cb_spec()) == []
+
+
+@pytest.mark.parametrize(("changes", "field"), [
+    ({"entity_id": None}, "entity_id"),
+    ({"entity_type": None}, "entity_type"),
+    ({"entity_id": "urn:agv 1"}, "entity_id"),
+    ({"entity_id": "urn:agv/1"}, "entity_id"),
+    ({"entity_id": "a" * 257}, "entity_id"),
+    ({"entity_type": "AGV;drop"}, "entity_type"),
+    ({"entity_type": "Fahrzeug\u00e4"}, "entity_type"),
+    ({"qos": 1}, "qos"),
+    ({"partitions": 3}, "partitions"),
+    ({"name": "a\nb"}, "name"),
+])
+def test_bad_topics_are_refused_naming_the_field(changes: dict, field: str) -> None:
+    with pytest.raises(ConfigValueError) as info:
+        NgsiDriver().ensure_topic(cb_spec(), topic(**changes))
+    assert info.value.field == field
+
+
+def test_the_longest_entity_id_is_accepted() -> None:
+    NgsiDriver().ensure_topic(cb_spec(), topic(entity_id="e" * 256))
+
+
+# --- essence --------------------------------------------------------------------------------
+
+def test_essence_is_the_listener_and_the_write_policy() -> None:
+    driver = NgsiDriver()
+    spec = cb_spec()
+    assert driver.essence(spec) == {"kind": "ngsi-v2", "host": "127.0.0.3", "port": 11026, "allow_anonymous": False}
+    assert driver.essence(cb_spec(name="Other", iri="urn:o")) == driver.essence(spec)
+    assert driver.essence(cb_spec(allow_anonymous=None)) == driver.essence(spec)  # unset: token needed
+    assert driver.essence(cb_spec(allow_anonymous=True)) != driver.essence(spec)
+    assert driver.essence(cb_spec(port=11027)) != driver.essence(spec)
+
+
+# --- health ---------------------------------------------------------------------------------
+
+def _server(status: int, body: bytes) -> ThreadingHTTPServer:
+    class Handler(BaseHTTPRequestHandler):
+        def do_GET(self) -> None:  # noqa: N802 - http.server's name
+            self.send_response(status if self.path == "/version" else 404)
+            self.send_header("Content-Type", "application/json")
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, *args: object) -> None:
+            pass
+
+    return ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+
+
+@pytest.fixture
+def http_server(request: pytest.FixtureRequest) -> Iterator[int]:
+    status, body = request.param
+    server = _server(status, body)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield server.server_address[1]
+    finally:
+        server.shutdown()
+        server.server_close()
+        thread.join(5)
+
+
+ORION_VERSION = json.dumps({"orion": {"version": "3.10.1", "uptime": "0 d, 0 h, 0 m, 1 s"}}).encode()
+
+
+@pytest.mark.parametrize(("http_server", "healthy"), [
+    ((200, ORION_VERSION), True),
+    ((200, b'{"version": "1.0"}'), False),        # some other JSON service
+    ((200, b'{"orion": "3.10.1"}'), False),       # orion must be an object
+    ((200, b"<html>it works</html>"), False),     # a web server
+    ((503, ORION_VERSION), False),                 # up, but says it is not ready
+], indirect=["http_server"])
+def test_health_is_a_version_answer_with_an_orion_object(http_server: int, healthy: bool) -> None:
+    assert NgsiDriver().health(cb_spec(host="127.0.0.1", port=http_server), 1.0) is healthy
+
+
+def test_nothing_listening_or_a_silent_listener_is_not_healthy() -> None:
+    assert NgsiDriver().health(cb_spec(host="127.0.0.1", port=netutil.free_port()), 0.5) is False
+    with socket.create_server(("127.0.0.1", 0)) as server:  # accepts, never answers
+        assert NgsiDriver().health(cb_spec(host="127.0.0.1", port=server.getsockname()[1]), 0.3) is False
