@@ -40,16 +40,6 @@ HOST = "127.0.0.1"
 ACME = Tenant("acme", "/plant")
 
 
-class EqualsQuery:
-    """``attr==value`` (the real q language is engine.context_broker.q, tested on its own)."""
-
-    def __init__(self, text: str) -> None:
-        self.attr, self.value = text.split("==", 1)
-
-    def matches(self, entity: Any) -> bool:
-        return str((entity.get(self.attr) or {}).get("value")) == self.value
-
-
 # --- an HTTP receiver ----------------------------------------------------------------------
 
 class Receiver:
@@ -112,7 +102,7 @@ class Broker:
     """The subscription service behind real HTTP; ``change`` plays the entity layer."""
 
     def __init__(self, data_dir: Path) -> None:
-        self.service = SubscriptionService(data_dir, parse_q=EqualsQuery)
+        self.service = SubscriptionService(data_dir)
         self.service.start()
         app = Flask("context-broker-test")
         app.register_blueprint(self.service.blueprint())

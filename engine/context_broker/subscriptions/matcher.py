@@ -11,7 +11,7 @@ Orion's rules ("Notification Triggering", "Subscriptions based in alteration typ
   changed, so the two are the same here); the default is create + change, so deletes notify only
   when asked for;
 - condition attrs: one of them is among the changed attributes (empty: any; ignored for deletes);
-- expression ``q``: matches the entity after the change;
+- expression ``q`` and ``mq``: match the entity after the change;
 - state: ``active`` or ``oneshot``, not past ``expires``, and not inside the ``throttling``
   period since the last notification it triggered.
 """
@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import re
 from functools import lru_cache
+from collections.abc import Sequence
 from typing import Any, Protocol
 
 from engine.context_broker.contract import EntityChange
@@ -79,12 +80,13 @@ def throttled(sub: Subscription, last_triggered: float | None, now: float) -> bo
     return bool(sub.throttling) and last_triggered is not None and now - last_triggered < sub.throttling
 
 
-def triggers(sub: Subscription, change: EntityChange, query: Query | None) -> bool:
-    """Tenant, subject, alteration, condition attrs and q (state and throttling are separate)."""
+def triggers(sub: Subscription, change: EntityChange, queries: Sequence[Query] = ()) -> bool:
+    """Tenant, subject, alteration, condition attrs and the parsed q/mq ``queries`` (state and
+    throttling are separate)."""
     if sub.tenant != change.tenant:
         return False
     if not any(selects(s, change.entity_id, change.entity_type) for s in sub.entities):
         return False
     if not alteration_fires(sub, change) or not attrs_fire(sub, change):
         return False
-    return query is None or bool(query.matches(dict(change.entity)))
+    return all(query.matches(change.entity) for query in queries)

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
 from typing import Any
 
 from engine.context_broker.contract import Tenant
+from engine.context_broker.dates import from_epoch
 
 
 class Status(str, enum.Enum):
@@ -63,6 +63,7 @@ class Condition:
     alterations: frozenset[Alteration] = DEFAULT_ALTERATIONS
     alterations_given: bool = False
     notify_on_metadata_change: bool = True
+    mq: str | None = None
 
 
 @dataclass(frozen=True)
@@ -152,8 +153,7 @@ class DeliveryStatus:
 
 def iso(ts: float) -> str:
     """Orion's timestamp form: ``2026-11-24T16:30:00.000Z``."""
-    dt = datetime.fromtimestamp(ts, tz=timezone.utc)
-    return dt.strftime("%Y-%m-%dT%H:%M:%S.") + f"{dt.microsecond // 1000:03d}Z"
+    return from_epoch(ts)
 
 
 def shown_status(sub: Subscription, delivery: DeliveryStatus, now: float) -> str:
@@ -217,8 +217,9 @@ def render(sub: Subscription, delivery: DeliveryStatus, now: float) -> dict[str,
         out["description"] = sub.description
     condition: dict[str, Any] = {"attrs": list(sub.condition.attrs),
                                  "notifyOnMetadataChange": sub.condition.notify_on_metadata_change}
-    if sub.condition.q is not None:
-        condition["expression"] = {"q": sub.condition.q}
+    expression = {k: v for k, v in (("q", sub.condition.q), ("mq", sub.condition.mq)) if v is not None}
+    if expression:
+        condition["expression"] = expression
     if sub.condition.alterations_given:
         condition["alterationTypes"] = sorted(a.value for a in sub.condition.alterations)
     out["subject"] = {"entities": [_render_entity(e) for e in sub.entities],

@@ -3,8 +3,7 @@
 Every refusal is an :class:`NgsiError` 400 whose description starts with the offending field's
 path (``notification.mqtt.qos: ...``) and says what is allowed, so a client never has to guess
 (Orion's most heard complaint is a bare "Invalid characters"). Orion features plantkg does not
-implement (``mq``, geo-queries, JEXL, ``mqttCustom``, ``kafkaCustom``, custom payloads, Kafka
-SASL) are refused by name rather than silently ignored. The read-only delivery fields a client may
+implement (geo-queries, JEXL, ``mqttCustom``, ``kafkaCustom``, custom payloads, Kafka SASL) are refused by name rather than silently ignored. The read-only delivery fields a client may
 echo back from a ``GET`` (``timesSent``, ``lastSuccess``, ...) are ignored, as Orion does.
 """
 
@@ -12,11 +11,11 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable, Mapping
-from datetime import datetime, timezone
 from typing import Any
 from urllib.parse import urlsplit
 
-from engine.context_broker.contract import Tenant, bad_request, NgsiError
+from engine.context_broker.contract import NgsiError, Tenant, bad_request
+from engine.context_broker.dates import parse_datetime
 from engine.context_broker.subscriptions.model import (
     Alteration, AttrsFormat, Condition, DEFAULT_ALTERATIONS, EntitySelector, HttpTarget,
     KafkaTarget, MqttTarget, Notification, Status, Subscription, Target,
@@ -34,7 +33,6 @@ NOT_SUPPORTED = {
     "mqttCustom": "use notification.mqtt (custom MQTT payloads are not implemented)",
     "kafkaCustom": "use notification.kafka (custom Kafka payloads are not implemented)",
     "jexlExpression": "use expression.q",
-    "mq": "metadata queries are not implemented; use q",
     "georel": "geo-queries are not implemented",
     "geometry": "geo-queries are not implemented",
     "coords": "geo-queries are not implemented",
@@ -43,7 +41,8 @@ NOT_SUPPORTED = {
     "ngsi": "custom payloads are not implemented; the notification is Orion's default",
 }
 KAFKA_TOPIC = re.compile(r"[A-Za-z0-9._-]{1,249}")
-QParser = Callable[[str], Any]
+#: ``parse_q(text)`` for ``q``, ``parse_q(text, metadata=True)`` for ``mq`` (engine.context_broker.q).
+QParser = Callable[..., Any]
 
 
 def _fail(path: str, message: str) -> NgsiError:
@@ -127,16 +126,14 @@ def _names(value: Any, path: str, *, allow_empty: bool = True) -> tuple[str, ...
 
 
 def parse_expires(value: Any, path: str = "expires") -> float:
-    """An ISO 8601 date or date-time (``Z`` or an offset; none means UTC) as epoch seconds."""
+    """An ISO 8601 date or date-time as Orion reads it (``Z`` or an offset; none means UTC), as
+    epoch seconds."""
     if not isinstance(value, str) or not value:
         raise _fail(path, f"must be an ISO 8601 date-time string, got {_kind(value)}")
-    try:
-        dt = datetime.fromisoformat(value)
-    except ValueError:
+    dt = parse_datetime(value)
+    if dt is None:
         raise _fail(path, f"{value!r} is not an ISO 8601 date-time (e.g. "
-                          "2030-04-05T14:00:00.000Z)") from None
-    if dt.tzinfo is None:
-        dt = dt.replace(tzinfo=timezone.utc)
+                          "2030-04-05T14:00:00.000Z)")
     return dt.timestamp()
 
 
@@ -174,19 +171,14 @@ def _condition(value: Any, parse_q: QParser) -> Condition:
         raise _fail(path, "must not be empty: leave it out to notify on any attribute")
     _known(obj, path, {"attrs", "expression", "alterationTypes", "notifyOnMetadataChange"})
     attrs = _names(obj["attrs"], f"{path}.attrs") if "attrs" in obj else ()
-    q = None
+    q = mq = None
     if "expression" in obj:
         expr = _object(obj["expression"], f"{path}.expression")
-        _known(expr, f"{path}.expression", {"q"})
-        if "q" not in expr:
-            raise _fail(f"{path}.expression", "must not be empty: give q")
-        q = expr["q"]
-        if not isinstance(q, str) or not q.strip():
-            raise _fail(f"{path}.expression.q", f"must be a non-empty string, got {q!r}")
-        try:
-            parse_q(q)
-        except NgsiError as err:
-            raise _fail(f"{path}.expression.q", err.description) from None
+        _known(expr, f"{path}.expression", {"q", "mq"})
+        if not expr:
+            raise _fail(f"{path}.expression", "must not be empty: give q or mq")
+        q = _query(expr, "q", path, parse_q)
+        mq = _query(expr, "mq", path, parse_q)
     alterations, given = DEFAULT_ALTERATIONS, False
     if "alterationTypes" in obj:
         names = _names(obj["alterationTypes"], f"{path}.alterationTypes", allow_empty=False)
@@ -198,7 +190,21 @@ def _condition(value: Any, parse_q: QParser) -> Condition:
         alterations, given = frozenset(known[n] for n in names), True
     notify_md = (_bool(obj["notifyOnMetadataChange"], f"{path}.notifyOnMetadataChange")
                  if "notifyOnMetadataChange" in obj else True)
-    return Condition(attrs, q, alterations, given, notify_md)
+    return Condition(attrs, q, alterations, given, notify_md, mq)
+
+
+def _query(expr: Mapping[str, Any], name: str, path: str, parse_q: QParser) -> str | None:
+    if name not in expr:
+        return None
+    text = expr[name]
+    where = f"{path}.expression.{name}"
+    if not isinstance(text, str) or not text.strip():
+        raise _fail(where, f"must be a non-empty string, got {text!r}")
+    try:
+        parse_q(text, metadata=True) if name == "mq" else parse_q(text)
+    except NgsiError as err:
+        raise _fail(where, err.description) from None
+    return text
 
 
 def _http_url(value: Any, path: str) -> str:

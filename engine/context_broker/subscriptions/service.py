@@ -46,7 +46,7 @@ class SubscriptionService:
         self.clock = clock
         self._parse_q = parse_q or _default_parse_q
         self.registry = Registry(Path(data_dir), self._parse_q)
-        self._queries: dict[tuple[str, str], Any] = {}
+        self._queries: dict[tuple[str, bool], Any] = {}
         self._last_triggered: dict[str, float] = {}
         self._trigger_lock = threading.Lock()
         self._senders: dict[type, Sender] = senders or {}
@@ -102,14 +102,19 @@ class SubscriptionService:
                 self.registry.deactivate(sub.id)
             self.delivery.enqueue(render.outgoing(sub, change))
 
-    def _query(self, sub: Subscription) -> Any:
-        if sub.condition.q is None:
-            return None
-        key = (sub.id, sub.condition.q)
-        query = self._queries.get(key)
-        if query is None:
-            query = self._queries[key] = self._parse_q(sub.condition.q)
-        return query
+    def _query(self, sub: Subscription) -> tuple[Any, ...]:
+        """The subscription's parsed q and mq (parsed once per text)."""
+        out = []
+        for text, metadata in ((sub.condition.q, False), (sub.condition.mq, True)):
+            if text is None:
+                continue
+            key = (text, metadata)
+            query = self._queries.get(key)
+            if query is None:
+                query = self._queries[key] = (self._parse_q(text, metadata=True) if metadata
+                                              else self._parse_q(text))
+            out.append(query)
+        return tuple(out)
 
     # --- CRUD (called by the blueprint) --------------------------------------------------
     def create(self, tenant: Tenant, doc: Any) -> Subscription:

@@ -1,24 +1,22 @@
-"""Shared helpers of the subscription unit tests: a small stand-in for the q language (the real
-one is engine.context_broker.q, tested on its own), subscription documents, entity changes."""
+"""Shared helpers of the subscription unit tests: subscription documents, entity changes, and
+the q language the subscriptions use (engine.context_broker.q, tested on its own)."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from engine.context_broker.contract import EntityChange, NgsiError, Tenant
+from engine.context_broker.contract import EntityChange, Tenant
+from engine.context_broker.q import parse_q
 
 
-class EqualsQuery:
-    """``attr==value`` only: enough to see that the subscription engine consults q."""
-
-    def __init__(self, text: str) -> None:
-        if "==" not in text:
-            raise NgsiError(400, "BadRequest", f"invalid query expression: {text!r}")
-        self.attr, self.value = text.split("==", 1)
-
-    def matches(self, entity: Any) -> bool:
-        attr = entity.get(self.attr)
-        return isinstance(attr, dict) and str(attr.get("value")) == self.value
+def queries(sub: Any) -> tuple[Any, ...]:
+    """The parsed q and mq of a subscription, as the service builds them."""
+    out = []
+    if sub.condition.q is not None:
+        out.append(parse_q(sub.condition.q))
+    if sub.condition.mq is not None:
+        out.append(parse_q(sub.condition.mq, metadata=True))
+    return tuple(out)
 
 
 def doc(**overrides: Any) -> dict[str, Any]:

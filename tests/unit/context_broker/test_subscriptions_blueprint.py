@@ -12,14 +12,14 @@ from flask.testing import FlaskClient
 
 from engine.context_broker.subscriptions import SubscriptionService
 
-from .sub_helpers import EqualsQuery, doc
+from .sub_helpers import doc
 
 ACME = {"Fiware-Service": "acme", "Fiware-ServicePath": "/plant"}
 
 
 @pytest.fixture
 def client(tmp_path: Path) -> Iterator[FlaskClient]:
-    service = SubscriptionService(tmp_path, parse_q=EqualsQuery)
+    service = SubscriptionService(tmp_path)
     app = Flask("test")
     app.register_blueprint(service.blueprint())
     yield app.test_client()

@@ -7,22 +7,23 @@ from typing import Any
 
 import pytest
 
+from engine.context_broker.q import parse_q
 from engine.context_broker.contract import Tenant
 from engine.context_broker.subscriptions import matcher, render
 from engine.context_broker.subscriptions.model import Subscription
 from engine.context_broker.subscriptions.parse import parse_subscription
 
-from .sub_helpers import EqualsQuery, change, doc, entity
+from .sub_helpers import change, doc, entity, queries
 
 HTTP = {"http": {"url": "http://127.0.0.1:1028/accumulate"}}
 
 
 def sub(tenant: Tenant = Tenant(), **overrides: Any) -> Subscription:
-    return parse_subscription(doc(**overrides), sub_id="a" * 24, tenant=tenant, parse_q=EqualsQuery)
+    return parse_subscription(doc(**overrides), sub_id="a" * 24, tenant=tenant, parse_q=parse_q)
 
 
 def triggers(s: Subscription, c) -> bool:
-    return matcher.triggers(s, c, EqualsQuery(s.condition.q) if s.condition.q else None)
+    return matcher.triggers(s, c, queries(s))
 
 
 ROOM = {"entities": [{"id": "Room1", "type": "Room"}]}
@@ -43,7 +44,11 @@ MATCH_CASES: list[tuple[str, dict[str, Any], Any, bool]] = [
     ("nothing written", ROOM, change(changed=set()), False),
     ("forced update with nothing written", ROOM, change(changed=set(), forced=True), True),
     ("q matches after the change", {**ROOM, "condition": {"expression": {"q": "temperature==23"}}}, change(), True),
-    ("q does not match", {**ROOM, "condition": {"expression": {"q": "temperature==40"}}}, change(), False),
+    ("q does not match", {**ROOM, "condition": {"expression": {"q": "temperature>40"}}}, change(), False),
+    ("q range and a second statement", {**ROOM, "condition": {"expression": {"q": "temperature==20..25;humidity<80"}}}, change(), True),
+    ("mq on metadata", {**ROOM, "condition": {"expression": {"mq": "temperature.unit=='C'"}}},
+     change(entity(temperature=23) | {"temperature": {"type": "Number", "value": 23, "metadata": {"unit": {"type": "Text", "value": "C"}}}}), True),
+    ("mq miss", {**ROOM, "condition": {"expression": {"mq": "temperature.unit=='F'"}}}, change(), False),
     ("attrs and q both needed", {**ROOM, "condition": {"attrs": ["humidity"], "expression": {"q": "temperature==23"}}},
      change(changed={"temperature"}), False),
     ("create fires by default", ROOM, change(created=True), True),

@@ -7,19 +7,20 @@ from typing import Any
 
 import pytest
 
+from engine.context_broker.q import parse_q
 from engine.context_broker.contract import NgsiError, Tenant
 from engine.context_broker.subscriptions.model import (
     Alteration, AttrsFormat, DeliveryStatus, HttpTarget, KafkaTarget, MqttTarget, Status, render,
 )
 from engine.context_broker.subscriptions.parse import merge_patch, parse_subscription
 
-from .sub_helpers import EqualsQuery, doc
+from .sub_helpers import doc
 
 HTTP = {"http": {"url": "http://127.0.0.1:1028/accumulate"}}
 
 
 def parse(d: Any):
-    return parse_subscription(d, sub_id="0" * 24, tenant=Tenant("acme", "/plant"), parse_q=EqualsQuery)
+    return parse_subscription(d, sub_id="0" * 24, tenant=Tenant("acme", "/plant"), parse_q=parse_q)
 
 
 # (name, document, check on the parsed subscription)
@@ -31,8 +32,10 @@ GOOD: list[tuple[str, dict[str, Any], Any]] = [
     ("no type means any type", doc(subject={"entities": [{"id": "Room1"}]}),
      lambda s: s.entities[0].type is None),
     ("condition attrs and q", doc(subject={"entities": [{"id": "R"}], "condition": {
-        "attrs": ["temperature"], "expression": {"q": "temperature==40"}}}),
-     lambda s: s.condition.attrs == ("temperature",) and s.condition.q == "temperature==40"),
+        "attrs": ["temperature"], "expression": {"q": "temperature>40"}}}),
+     lambda s: s.condition.attrs == ("temperature",) and s.condition.q == "temperature>40"),
+    ("q and mq", doc(subject={"entities": [{"id": "R"}], "condition": {"expression": {"q": "a", "mq": "a.unit=='C'"}}}),
+     lambda s: (s.condition.q, s.condition.mq) == ("a", "a.unit=='C'")),
     ("empty condition attrs = any", doc(subject={"entities": [{"id": "R"}], "condition": {"attrs": []}}),
      lambda s: s.condition.attrs == ()),
     ("alteration types", doc(subject={"entities": [{"id": "R"}], "condition": {
@@ -92,8 +95,10 @@ BAD: list[tuple[str, Any, str]] = [
     ("unknown subject field", doc(subject={"entities": [{"id": "a"}], "foo": 1}), "subject.foo: unknown field"),
     ("empty condition", doc(subject={"entities": [{"id": "a"}], "condition": {}}), "subject.condition: must not be empty"),
     ("empty expression", doc(subject={"entities": [{"id": "a"}], "condition": {"expression": {}}}), "subject.condition.expression: must not be empty"),
-    ("bad q", doc(subject={"entities": [{"id": "a"}], "condition": {"expression": {"q": "temperature>"}}}), "subject.condition.expression.q: invalid query"),
-    ("mq not supported", doc(subject={"entities": [{"id": "a"}], "condition": {"expression": {"mq": "a.b==1"}}}), "subject.condition.expression.mq: not supported"),
+    ("bad q", doc(subject={"entities": [{"id": "a"}], "condition": {"expression": {"q": "temperature>"}}}),
+     "subject.condition.expression.q: q: statement 'temperature>' at character 0: no value after"),
+    ("bad mq", doc(subject={"entities": [{"id": "a"}], "condition": {"expression": {"mq": "a.b==1;;"}}}), "subject.condition.expression.mq: mq: empty statement"),
+    ("geo not supported", doc(subject={"entities": [{"id": "a"}], "condition": {"expression": {"georel": "near"}}}), "subject.condition.expression.georel: not supported"),
     ("jexl not supported", doc(subject={"entities": [{"id": "a"}], "condition": {"jexlExpression": "a"}}), "subject.condition.jexlExpression: not supported"),
     ("bad alteration", doc(subject={"entities": [{"id": "a"}], "condition": {"alterationTypes": ["entityMoved"]}}), "subject.condition.alterationTypes[0]: unknown alteration type"),
     ("no transport", doc(notification={"attrs": []}), "notification: give exactly one of http"),

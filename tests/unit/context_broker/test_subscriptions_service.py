@@ -20,7 +20,7 @@ from engine.context_broker.subscriptions.delivery import backoff_delay
 from engine.context_broker.subscriptions.model import HttpTarget, render
 from engine.context_broker.subscriptions.result import Result
 
-from .sub_helpers import EqualsQuery, change, doc, entity
+from .sub_helpers import change, doc, entity
 
 
 class FakeClock:
@@ -75,7 +75,7 @@ def sender() -> ScriptedSender:
 
 @pytest.fixture
 def service(tmp_path: Path, clock: FakeClock, sender: ScriptedSender) -> Iterator[SubscriptionService]:
-    svc = SubscriptionService(tmp_path, clock=clock, parse_q=EqualsQuery, backoff=lambda attempt: 0.01,
+    svc = SubscriptionService(tmp_path, clock=clock, backoff=lambda attempt: 0.01,
                               senders={HttpTarget: sender}, queue_bound=50)
     svc.start()
     yield svc
@@ -196,7 +196,7 @@ def test_a_blocked_receiver_does_not_hold_up_another_subscription(service, sende
 
 
 def test_full_queue_drops_the_oldest_and_counts_them(tmp_path, clock, sender) -> None:
-    svc = SubscriptionService(tmp_path, clock=clock, parse_q=EqualsQuery, backoff=lambda a: 0.01,
+    svc = SubscriptionService(tmp_path, clock=clock, backoff=lambda a: 0.01,
                               senders={HttpTarget: sender}, queue_bound=3)
     try:
         sub = svc.create(Tenant(), http_doc())
@@ -225,13 +225,13 @@ def test_max_fails_limit_deactivates(service, sender) -> None:
 
 
 def test_subscriptions_and_counters_survive_a_restart(tmp_path, clock, sender) -> None:
-    svc = SubscriptionService(tmp_path, clock=clock, parse_q=EqualsQuery, senders={HttpTarget: sender})
+    svc = SubscriptionService(tmp_path, clock=clock, senders={HttpTarget: sender})
     sub = svc.create(Tenant("acme", "/plant"), http_doc(description="kept"))
     svc.entity_changed(change(entity(temperature=1), tenant=Tenant("acme", "/plant")))
     wait_for(lambda: len(sender.values(URL_A)) == 1, "one notification")
     wait_for(lambda: svc.registry.status_of(sub.id).times_sent == 1, "the counter")
     svc.close()
-    again = SubscriptionService(tmp_path, clock=clock, parse_q=EqualsQuery, senders={HttpTarget: sender})
+    again = SubscriptionService(tmp_path, clock=clock, senders={HttpTarget: sender})
     try:
         view = shown_tenant(again, sub.id, Tenant("acme", "/plant"))
         assert view["description"] == "kept" and view["notification"]["timesSent"] == 1
