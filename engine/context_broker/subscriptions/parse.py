@@ -190,6 +190,10 @@ def _condition(value: Any, parse_q: QParser) -> Condition:
         alterations, given = frozenset(known[n] for n in names), True
     notify_md = (_bool(obj["notifyOnMetadataChange"], f"{path}.notifyOnMetadataChange")
                  if "notifyOnMetadataChange" in obj else True)
+    if not notify_md:
+        raise _fail(f"{path}.notifyOnMetadataChange", "false is not supported by plantkg's context "
+                    "broker (a write reports the attributes it wrote, not whether only metadata "
+                    "changed); leave it out or set it true")
     return Condition(attrs, q, alterations, given, notify_md, mq)
 
 

@@ -100,6 +100,8 @@ BAD: list[tuple[str, Any, str]] = [
     ("bad mq", doc(subject={"entities": [{"id": "a"}], "condition": {"expression": {"mq": "a.b==1;;"}}}), "subject.condition.expression.mq: mq: empty statement"),
     ("geo not supported", doc(subject={"entities": [{"id": "a"}], "condition": {"expression": {"georel": "near"}}}), "subject.condition.expression.georel: not supported"),
     ("jexl not supported", doc(subject={"entities": [{"id": "a"}], "condition": {"jexlExpression": "a"}}), "subject.condition.jexlExpression: not supported"),
+    ("notifyOnMetadataChange false", doc(subject={"entities": [{"id": "a"}], "condition": {"notifyOnMetadataChange": False}}),
+     "subject.condition.notifyOnMetadataChange: false is not supported"),
     ("bad alteration", doc(subject={"entities": [{"id": "a"}], "condition": {"alterationTypes": ["entityMoved"]}}), "subject.condition.alterationTypes[0]: unknown alteration type"),
     ("no transport", doc(notification={"attrs": []}), "notification: give exactly one of http"),
     ("two transports", doc(notification={**HTTP, "mqtt": {"url": "mqtt://h", "topic": "t"}}), "notification: give exactly one of http, httpCustom, mqtt, kafka (got http, mqtt)"),
