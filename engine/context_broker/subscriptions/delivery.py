@@ -158,6 +158,10 @@ class Delivery:
         if lane is not None:
             lane.discard()
 
+    def discard(self, sub_id: str) -> int:
+        lane = self._lanes.get(sub_id)
+        return lane.discard() if lane else 0
+
     def pending(self, sub_id: str) -> int:
         lane = self._lanes.get(sub_id)
         return lane.pending() if lane else 0

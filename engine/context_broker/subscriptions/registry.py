@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from engine.context_broker.contract import NgsiError, Tenant, not_found
+from engine.errors import EngineError
 from engine.context_broker.subscriptions.model import DeliveryStatus, Status, Subscription
 from engine.context_broker.subscriptions.parse import QParser, merge_patch, parse_subscription
 from engine.context_broker.subscriptions.result import Result
@@ -34,6 +35,15 @@ from engine.context_broker.subscriptions.result import Result
 SUBSCRIPTIONS_FILE = "subscriptions.json"
 STATUS_FILE = "subscription-status.json"
 NOT_FOUND = "The requested subscription has not been found. Check id"
+
+
+class SubscriptionStoreError(EngineError):
+    """The stored subscriptions cannot be read back (a damaged or hand-edited file)."""
+
+    def __init__(self, path: Path, problem: str) -> None:
+        super().__init__(f"{path}: {problem}",
+                         hint="fix or remove that entry (or restore the file); the context broker "
+                              "does not start with subscriptions it cannot read")
 
 
 def new_id() -> str:
@@ -79,16 +89,32 @@ class Registry:
     def _load(self) -> None:
         path = self._dir / SUBSCRIPTIONS_FILE
         if path.exists():
-            for item in json.loads(path.read_text(encoding="utf-8"))["subscriptions"]:
-                tenant = Tenant(item["service"], item["servicePath"])
-                self._docs[item["id"]] = {"tenant": tenant, "doc": item["doc"]}
-                self._subs[item["id"]] = parse_subscription(
-                    item["doc"], sub_id=item["id"], tenant=tenant, parse_q=self._parse_q)
+            try:
+                items = json.loads(path.read_text(encoding="utf-8"))["subscriptions"]
+            except (ValueError, KeyError, TypeError) as err:
+                raise SubscriptionStoreError(path, f"not a subscriptions file: {err}") from None
+            for item in items:
+                try:
+                    tenant = Tenant(item["service"], item["servicePath"])
+                    sub = parse_subscription(item["doc"], sub_id=item["id"], tenant=tenant,
+                                             parse_q=self._parse_q)
+                except (KeyError, TypeError) as err:
+                    raise SubscriptionStoreError(path, f"entry without {err}") from None
+                except NgsiError as err:
+                    raise SubscriptionStoreError(
+                        path, f"subscription {item['id']} is not valid: {err.description}") from None
+                self._docs[sub.id] = {"tenant": tenant, "doc": item["doc"]}
+                self._subs[sub.id] = sub
         status_path = self._dir / STATUS_FILE
         if status_path.exists():
-            for sub_id, data in json.loads(status_path.read_text(encoding="utf-8")).items():
-                if sub_id in self._subs:
-                    self._status[sub_id] = DeliveryStatus.from_json(data)
+            try:
+                stored = json.loads(status_path.read_text(encoding="utf-8"))
+                for sub_id, data in stored.items():
+                    if sub_id in self._subs:
+                        self._status[sub_id] = DeliveryStatus.from_json(data)
+            except (ValueError, AttributeError, TypeError):
+                # only counters: start them again rather than refuse to start
+                self._status = {}
         self.snapshot = tuple(self._subs.values())
 
     def _save(self) -> None:

@@ -124,6 +124,9 @@ class SubscriptionService:
         sub = self.registry.update(sub_id, tenant.service, patch)
         with self._trigger_lock:
             self._last_triggered.pop(sub_id, None)
+        if isinstance(patch, dict) and patch.get("status") == Status.INACTIVE.value:
+            # deactivated by its owner: what is still queued is not sent (and counted as dropped)
+            self.dropped(sub_id, self.delivery.discard(sub_id))
         return sub
 
     def delete(self, sub_id: str, tenant: Tenant) -> None:

@@ -251,3 +251,28 @@ def test_backoff_schedule() -> None:
     assert [backoff_delay(n) for n in range(0, 9)] == [0.0, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 30.0, 30.0]
     assert backoff_delay(10_000) == 30.0
     assert backoff_delay(3, base=1.0, cap=3.0) == 3.0
+
+
+def test_deactivating_drops_what_is_queued(service, sender) -> None:
+    sub = service.create(Tenant(), http_doc())
+    sender.script[URL_A] = [Result.temporary("down")] * 10_000
+    for t in (1, 2, 3):
+        service.entity_changed(change(entity(temperature=t)))
+    wait_for(lambda: len(sender.values(URL_A)) >= 2, "retries")
+    service.update(sub.id, Tenant(), {"status": "inactive"})
+    assert service.delivery.pending(sub.id) == 0
+    assert shown(service, sub.id)["notification"]["droppedNotifications"] == 3
+
+
+@pytest.mark.parametrize("content,problem", [
+    ("{", "not a subscriptions file"),
+    ('{"version": 1, "subscriptions": [{"id": "ab", "service": "", "servicePath": "/", "doc": {}}]}',
+     "subscription ab is not valid: empty payload"),
+])
+def test_a_damaged_store_is_refused_naming_the_file(tmp_path, content, problem) -> None:
+    from engine.context_broker.subscriptions.registry import SubscriptionStoreError
+
+    (tmp_path / "subscriptions.json").write_text(content)
+    with pytest.raises(SubscriptionStoreError) as info:
+        SubscriptionService(tmp_path)
+    assert str(tmp_path / "subscriptions.json") in str(info.value) and problem in str(info.value)
