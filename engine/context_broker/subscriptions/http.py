@@ -12,9 +12,8 @@ from __future__ import annotations
 
 import http.client
 import socket
-import urllib.error
-import urllib.request
-from urllib.parse import urlencode, urlsplit, urlunsplit
+import threading
+from urllib.parse import SplitResult, urlencode, urlsplit, urlunsplit
 
 from engine.context_broker.subscriptions.model import HttpTarget
 from engine.context_broker.subscriptions.render import Outgoing
@@ -23,14 +22,6 @@ from engine.context_broker.subscriptions.result import Result
 DEFAULT_TIMEOUT = 5.0
 PROTECTED = {"ngsiv2-attrsformat", "fiware-correlator"}
 RETRIED_4XX = {408, 425, 429}
-
-
-class _NoRedirect(urllib.request.HTTPRedirectHandler):
-    def redirect_request(self, *args, **kwargs):  # type: ignore[no-untyped-def]
-        return None  # a 3xx is the receiver's answer, not something to follow
-
-
-_OPENER = urllib.request.build_opener(_NoRedirect, urllib.request.ProxyHandler({}))
 
 
 def request_url(target: HttpTarget) -> str:
@@ -62,27 +53,63 @@ def classify(code: int) -> Result:
 
 
 class HttpSender:
+    """Keeps one connection per receiver (scheme, host, port) and lane thread (HTTP/1.1
+    keep-alive; a receiver that closes it gets a new one per request). A reused connection that
+    the receiver closed meanwhile is retried once on a fresh one before it counts as a failure."""
+
+    def __init__(self) -> None:
+        self._local = threading.local()
+
+    def _connection(self, parts: SplitResult, timeout: float) -> tuple[http.client.HTTPConnection, bool]:
+        pool: dict[tuple[str, str, int], http.client.HTTPConnection] = self._local.__dict__.setdefault("pool", {})
+        port = parts.port or (443 if parts.scheme == "https" else 80)
+        key = (parts.scheme, parts.hostname or "", port)
+        conn = pool.get(key)
+        reused = conn is not None
+        if conn is None:
+            cls = http.client.HTTPSConnection if parts.scheme == "https" else http.client.HTTPConnection
+            conn = pool[key] = cls(parts.hostname or "", port, timeout=timeout)
+        conn.timeout = timeout
+        if conn.sock is not None:
+            conn.sock.settimeout(timeout)
+        return conn, reused
+
+    def _drop(self, parts: SplitResult) -> None:
+        pool = self._local.__dict__.get("pool", {})
+        port = parts.port or (443 if parts.scheme == "https" else 80)
+        conn = pool.pop((parts.scheme, parts.hostname or "", port), None)
+        if conn is not None:
+            conn.close()
+
     def send(self, target: HttpTarget, msg: Outgoing) -> Result:
         timeout = target.timeout_ms / 1000 if target.timeout_ms else DEFAULT_TIMEOUT
         body = None if target.method in ("GET", "HEAD") else msg.body
-        req = urllib.request.Request(request_url(target), data=body, method=target.method,
-                                     headers=request_headers(target, msg))
-        try:
-            with _OPENER.open(req, timeout=timeout) as resp:
+        url = request_url(target)
+        parts = urlsplit(url)
+        path = urlunsplit(("", "", parts.path or "/", parts.query, ""))
+        headers = request_headers(target, msg)
+        for attempt in (1, 2):
+            conn, reused = self._connection(parts, timeout)
+            try:
+                conn.request(target.method, path, body=body, headers=headers)
+                resp = conn.getresponse()
                 resp.read()
                 return classify(resp.status)
-        except urllib.error.HTTPError as err:
-            err.close()
-            return classify(err.code)
-        except (TimeoutError, socket.timeout):
-            return Result.temporary(f"Timeout was reached ({timeout:g} s)")
-        except urllib.error.URLError as err:
-            reason = err.reason
-            if isinstance(reason, (TimeoutError, socket.timeout)):
+            except (TimeoutError, socket.timeout):
+                self._drop(parts)
                 return Result.temporary(f"Timeout was reached ({timeout:g} s)")
-            return Result.temporary(f"Couldn't connect to server: {reason}")
-        except (OSError, http.client.HTTPException) as err:
-            return Result.temporary(f"HTTP exchange failed: {type(err).__name__}: {err}")
+            except (http.client.RemoteDisconnected, BrokenPipeError, ConnectionResetError) as err:
+                self._drop(parts)
+                if reused and attempt == 1:
+                    continue  # the receiver closed an idle keep-alive connection: once more, fresh
+                return Result.temporary(f"HTTP exchange failed: {type(err).__name__}: {err}")
+            except ConnectionRefusedError as err:
+                self._drop(parts)
+                return Result.temporary(f"Couldn't connect to server: {err}")
+            except (OSError, http.client.HTTPException) as err:
+                self._drop(parts)
+                return Result.temporary(f"Couldn't connect to server: {type(err).__name__}: {err}")
+        return Result.temporary("HTTP exchange failed")  # not reached
 
     def close(self) -> None:
-        return None
+        return None  # connections belong to the lane threads and close with them
