@@ -3,10 +3,11 @@
 :class:`~.service.SubscriptionService` is the part the app wires in: its Flask blueprint serves
 ``/v2/subscriptions``, its ``entity_changed`` is the :class:`~engine.context_broker.contract.ChangeListener`
 the entity layer calls after each durable write. Inside, one module per job: :mod:`.model`
-(frozen dataclasses, rendering), :mod:`.parse` (validation), :mod:`.matcher` (which
+(frozen dataclasses, rendering), :mod:`.parse` with :mod:`.fields` and :mod:`.parse_targets`
+(validation), :mod:`.matcher` (which
 subscriptions a change triggers), :mod:`.render` (the notification), :mod:`.registry` (durable
 CRUD and delivery status), :mod:`.delivery` (per-subscription lanes, retries with backoff) and
-the senders :mod:`.http`, :mod:`.mqtt`, :mod:`.kafka`. See docs/context-broker.md.
+the senders :mod:`.http`, :mod:`.mqtt`, :mod:`.kafka`. See docs/context-broker-subscriptions.md.
 """
 
 from engine.context_broker.subscriptions.service import SubscriptionService
