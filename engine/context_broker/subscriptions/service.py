@@ -88,19 +88,27 @@ class SubscriptionService:
 
     # --- the ChangeListener --------------------------------------------------------------
     def entity_changed(self, change: EntityChange) -> None:
+        """Match the change against every subscription and queue what it triggers. Called on the
+        writing request's thread after the write is durable: it never raises (a subscription
+        that cannot be evaluated is logged and skipped; the write has happened either way)."""
         now = self.clock()
         for sub in self.registry.snapshot:
-            if not matcher.is_live(sub, now):
-                continue
-            if not matcher.triggers(sub, change, self._query(sub)):
-                continue
-            with self._trigger_lock:
-                if matcher.throttled(sub, self._last_triggered.get(sub.id), now):
-                    continue
-                self._last_triggered[sub.id] = now
-            if sub.status is Status.ONESHOT:
-                self.registry.deactivate(sub.id)
-            self.delivery.enqueue(render.outgoing(sub, change))
+            try:
+                self._offer(sub, change, now)
+            except Exception:  # noqa: BLE001 - one subscription must not fail a durable write
+                log.exception("subscription %s: could not evaluate a change of %s", sub.id,
+                              change.entity_id)
+
+    def _offer(self, sub: Subscription, change: EntityChange, now: float) -> None:
+        if not matcher.is_live(sub, now) or not matcher.triggers(sub, change, self._query(sub)):
+            return
+        with self._trigger_lock:
+            if matcher.throttled(sub, self._last_triggered.get(sub.id), now):
+                return
+            self._last_triggered[sub.id] = now
+        if sub.status is Status.ONESHOT:
+            self.registry.deactivate(sub.id)
+        self.delivery.enqueue(render.outgoing(sub, change))
 
     def _query(self, sub: Subscription) -> tuple[Any, ...]:
         """The subscription's parsed q and mq (parsed once per text)."""

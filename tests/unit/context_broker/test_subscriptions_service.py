@@ -276,3 +276,12 @@ def test_a_damaged_store_is_refused_naming_the_file(tmp_path, content, problem) 
     with pytest.raises(SubscriptionStoreError) as info:
         SubscriptionService(tmp_path)
     assert str(tmp_path / "subscriptions.json") in str(info.value) and problem in str(info.value)
+
+
+def test_a_change_that_cannot_be_rendered_does_not_fail_the_write(service, sender) -> None:
+    service.create(Tenant(), http_doc())
+    broken = change({"id": "Room1"}, changed={"temperature"})   # no type: matching raises KeyError
+    service.entity_changed(broken)                               # logged, not raised
+    service.entity_changed(change(entity(temperature=5)))
+    wait_for(lambda: len(sender.values(URL_A)) >= 1, "the next notification")
+    assert sender.values(URL_A) == [5]
