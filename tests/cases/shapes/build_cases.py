@@ -187,6 +187,17 @@ ex:installed a pk:Property ;
 """
 
 
+#: A context broker (pk:brokerType "ngsi-v2") carrying the MQTT topic cell1/robot/command, whose
+#: minted entity id urn:ngsi-ld:Thing:cell1:robot:command is valid; cases add it with ``add``.
+CB = """ex:cb1 a pk:Broker ;
+    pk:id "cb1" ;
+    pk:name "fleet-context" ;
+    pk:brokerType "ngsi-v2" ;
+    pk:ip "127.0.0.7" ;
+    pk:port 1026 ;
+    pk:hasTopic ex:command ."""
+
+
 @dataclass
 class R:
     """One expected result; ``focus``/``value`` starting with ``ex:`` are plant IRIs."""
@@ -848,6 +859,102 @@ ex:kafka1 pk:bridgesTo ex:kafka2 .""",
     Case("topic-not-carried", "a topic no broker carries (a warning)",
          add='ex:orphan a pk:Topic ;\n    pk:id "t-orphan" ;\n    pk:name "orphan" .',
          expected=[R("ex:orphan", None, "ex:orphan", "Topic-carried", "SPARQL", W)]),
+    # --- Context brokers (pk:brokerType "ngsi-v2"): broker settings, topics as entities ---
+    Case("context-broker-valid", "a context broker carrying a topic as a named entity, open for writes (no result)",
+         edits=[("pk:retain true .", 'pk:retain true ;\n    pk:entityId "urn:ngsi-ld:Robot:r1" ;\n    pk:entityType "Robot" .')],
+         add=CB + '\nex:cb1 pk:allowAnonymous true ;\n    pk:external false .'),
+    Case("context-broker-minted-id", "a context broker carrying a topic without entityId (minted: no result)",
+         add=CB),
+    Case("context-broker-allowAnonymous-twice", "a context broker with two allowAnonymous values",
+         add=CB + "\nex:cb1 pk:allowAnonymous true , false .",
+         expected=[R("ex:cb1", "allowAnonymous", None, "Broker-allowAnonymous", "MaxCount")]),
+    Case("context-broker-allowAnonymous-not-boolean", "allowAnonymous \"yes\"",
+         add=CB + '\nex:cb1 pk:allowAnonymous "yes" .',
+         expected=[R("ex:cb1", "allowAnonymous", "yes", "Broker-allowAnonymous", "Datatype")]),
+    Case("context-broker-allowAnonymous-on-mosquitto", "allowAnonymous on a Mosquitto broker (means nothing there)",
+         add="ex:mqtt2 pk:allowAnonymous true .",
+         expected=[R("ex:mqtt2", "allowAnonymous", "true", "Broker-allowAnonymousContextOnly", "SPARQL")]),
+    Case("context-broker-persistEvery", "a Mosquitto save policy on a context broker",
+         add=CB + "\nex:cb1 pk:persistEvery 1 .",
+         expected=[R("ex:cb1", "persistEvery", "1", "Broker-persistEveryNotContext", "SPARQL")]),
+    Case("broker-external-valid", "an external Kafka broker (used, not deployed: no result)",
+         edits=[('pk:ip "127.0.0.4" ;', 'pk:ip "127.0.0.4" ;\n    pk:external true ;')]),
+    Case("broker-external-twice", "a broker both external and not",
+         edits=[('pk:ip "127.0.0.4" ;', 'pk:ip "127.0.0.4" ;\n    pk:external true , false ;')],
+         expected=[R("ex:kafka1", "external", None, "Broker-external", "MaxCount")]),
+    Case("broker-external-not-boolean", "external 1 (an integer, not a boolean)",
+         edits=[('pk:ip "127.0.0.4" ;', 'pk:ip "127.0.0.4" ;\n    pk:external 1 ;')],
+         expected=[R("ex:kafka1", "external", "1", "Broker-external", "Datatype")]),
+    Case("defined-class-contradicts-brokerType-context", "a mosquitto broker asserted to be a pk:ContextBroker",
+         edits=[("ex:mqtt2 a pk:Broker ;", "ex:mqtt2 a pk:Broker , pk:ContextBroker ;")],
+         expected=[R("ex:mqtt2", "brokerType", "mosquitto", "ContextBroker-brokerType", "In")]),
+    Case("defined-class-context-only", "a context broker typed only pk:ContextBroker, not pk:Broker",
+         add=CB.replace("ex:cb1 a pk:Broker ;", "ex:cb1 a pk:ContextBroker ;"),
+         expected=[R("ex:cb1", None, "ex:cb1", "DefinedBrokerClass", "Class")]),
+    Case("topic-entityId-twice", "a topic with two entity ids",
+         edits=[("pk:retain true .", 'pk:retain true ;\n    pk:entityId "urn:a" , "urn:b" .')],
+         add=CB,
+         expected=[R("ex:command", "entityId", None, "Topic-entityId", "MaxCount")]),
+    Case("topic-entityId-not-string", "an entity id written as a number",
+         edits=[("pk:retain true .", "pk:retain true ;\n    pk:entityId 42 .")],
+         add=CB,
+         expected=[R("ex:command", "entityId", "42", "Topic-entityId", "Datatype")]),
+    Case("topic-entityId-forbidden-character", "an entity id with a space and a ? (Orion refuses both)",
+         edits=[("pk:retain true .", 'pk:retain true ;\n    pk:entityId "robot 1?" .')],
+         add=CB,
+         expected=[R("ex:command", "entityId", "robot 1?", "Topic-entityId", "Pattern")]),
+    Case("topic-entityId-too-long", "an entity id of 257 characters",
+         edits=[("pk:retain true .", f'pk:retain true ;\n    pk:entityId "{"e" * 257}" .')],
+         add=CB,
+         expected=[R("ex:command", "entityId", "e" * 257, "Topic-entityId", "Pattern")]),
+    Case("topic-entityId-longest", "an entity id of exactly 256 characters (no result)",
+         edits=[("pk:retain true .", f'pk:retain true ;\n    pk:entityId "{"e" * 256}" .')],
+         add=CB),
+    Case("topic-entityType-twice", "a topic with two entity types",
+         edits=[("pk:retain true .", 'pk:retain true ;\n    pk:entityType "Robot" , "Arm" .')],
+         add=CB,
+         expected=[R("ex:command", "entityType", None, "Topic-entityType", "MaxCount")]),
+    Case("topic-entityType-language-tagged", "an entity type with a language tag",
+         edits=[("pk:retain true .", 'pk:retain true ;\n    pk:entityType "Robot"@en .')],
+         add=CB,
+         expected=[R("ex:command", "entityType", "Robot", "Topic-entityType", "Datatype")]),
+    Case("topic-entityType-slash", "an entity type with a slash (then also the minted id is unusable: not reported)",
+         edits=[("pk:retain true .", 'pk:retain true ;\n    pk:entityType "robot/arm" .')],
+         add=CB,
+         expected=[R("ex:command", "entityType", "robot/arm", "Topic-entityType", "Pattern")]),
+    Case("topic-ngsi-minted-id-bad", "a topic only a context broker carries, named with a space and a ?",
+         add=CB.replace("pk:hasTopic ex:command .", "pk:hasTopic ex:command , ex:fleet .")
+             + '\nex:fleet a pk:Topic ;\n    pk:id "t-fleet" ;\n    pk:name "fleet status?" .',
+         expected=[R("ex:fleet", "name", "urn:ngsi-ld:Thing:fleet status?", "Topic-ngsiMintedId", "SPARQL")]),
+    Case("topic-ngsi-minted-id-too-long", "a topic whose minted entity id is 268 characters",
+         add=CB.replace("pk:hasTopic ex:command .", "pk:hasTopic ex:command , ex:fleet .")
+             + f'\nex:fleet a pk:Topic ;\n    pk:id "t-fleet" ;\n    pk:name "{"f" * 250}" .',
+         expected=[R("ex:fleet", "name", "urn:ngsi-ld:Thing:" + "f" * 250, "Topic-ngsiMintedId", "SPARQL")]),
+    Case("topic-ngsi-minted-id-set", "the same topic with pk:entityId set (no result)",
+         add=CB.replace("pk:hasTopic ex:command .", "pk:hasTopic ex:command , ex:fleet .")
+             + '\nex:fleet a pk:Topic ;\n    pk:id "t-fleet" ;\n    pk:name "fleet status?" ;\n    pk:entityId "urn:ngsi-ld:Fleet:status" .'),
+    Case("topic-ngsi-collision", "two topics on one context broker that mint the same entity (a/b and a:b)",
+         add=CB.replace("pk:hasTopic ex:command .", "pk:hasTopic ex:command , ex:ab , ex:ab2 .")
+             + '\nex:ab a pk:Topic ;\n    pk:id "t-ab" ;\n    pk:name "a/b" .'
+             + '\nex:ab2 a pk:Topic ;\n    pk:id "t-ab2" ;\n    pk:name "a:b" .',
+         expected=[R("ex:ab", "entityId", "urn:ngsi-ld:Thing:a:b", "Topic-ngsiCollision", "SPARQL"),
+                   R("ex:ab2", "entityId", "urn:ngsi-ld:Thing:a:b", "Topic-ngsiCollision", "SPARQL")]),
+    Case("topic-ngsi-collision-given-id", "a topic whose pk:entityId is another topic's minted id",
+         edits=[("pk:retain true .", 'pk:retain true ;\n    pk:entityId "urn:ngsi-ld:Thing:a:b" .')],
+         add=CB.replace("pk:hasTopic ex:command .", "pk:hasTopic ex:command , ex:ab .")
+             + '\nex:ab a pk:Topic ;\n    pk:id "t-ab" ;\n    pk:name "a/b" .',
+         expected=[R("ex:ab", "entityId", "urn:ngsi-ld:Thing:a:b", "Topic-ngsiCollision", "SPARQL"),
+                   R("ex:command", "entityId", "urn:ngsi-ld:Thing:a:b", "Topic-ngsiCollision", "SPARQL")]),
+    Case("topic-ngsi-same-id-other-type", "two topics with one entity id but different types (no result)",
+         add=CB.replace("pk:hasTopic ex:command .", "pk:hasTopic ex:command , ex:ab , ex:ab2 .")
+             + '\nex:ab a pk:Topic ;\n    pk:id "t-ab" ;\n    pk:name "a/b" ;\n    pk:entityId "urn:x" ;\n    pk:entityType "A" .'
+             + '\nex:ab2 a pk:Topic ;\n    pk:id "t-ab2" ;\n    pk:name "a:b" ;\n    pk:entityId "urn:x" ;\n    pk:entityType "B" .'),
+    Case("domain-entityId-on-broker", "pk:entityId (domain Topic) on a broker",
+         edits=[('pk:ip "127.0.0.4" ;', 'pk:ip "127.0.0.4" ;\n    pk:entityId "urn:x" ;')],
+         expected=[R("ex:kafka1", "entityId", "urn:x", "Topic-domain", "SPARQL")]),
+    Case("domain-allowAnonymous-on-topic", "pk:allowAnonymous (domain Broker) on a topic",
+         edits=[("pk:retain true .", "pk:retain true ;\n    pk:allowAnonymous true .")],
+         expected=[R("ex:command", "allowAnonymous", "true", "Broker-domain", "SPARQL")]),
 ]
 
 
