@@ -212,6 +212,7 @@ class ObservedBridge:
     forwarded: int | None = None        # messages forwarded (None: the mechanism does not count)
     retried: int | None = None
     last_error: str | None = None
+    refused: int | None = None          # messages the remote refused (mqtt-ngsi: a 4xx), acknowledged
 
 
 @dataclass(frozen=True)

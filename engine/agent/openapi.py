@@ -137,6 +137,9 @@ _SCHEMAS: dict[str, Any] = {
             "restarts": {"type": "integer"},
             "forwarded": _NULLABLE_INT,
             "retried": _NULLABLE_INT,
+            "refused": {"type": ["integer", "null"],
+                        "description": "mqtt-ngsi: messages the context broker refused (4xx), "
+                                       "acknowledged and not retried"},
             "last_error": {"type": ["string", "null"]},
         },
     },

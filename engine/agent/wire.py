@@ -244,5 +244,6 @@ def observed_bridge_from_json(data: Any, where: str = "") -> ObservedBridge:
         restarts=_typed(data, "restarts", (int,), where) if "restarts" in data else 0,
         forwarded=_typed(data, "forwarded", (int,), where, optional=True),
         retried=_typed(data, "retried", (int,), where, optional=True),
+        refused=_typed(data, "refused", (int,), where, optional=True),
         last_error=_typed(data, "last_error", (str,), where, optional=True),
     )

@@ -332,6 +332,7 @@ class WorkerManager:
             forwarded=stats.forwarded if stats is not None else None,
             retried=stats.retried if stats is not None else None,
             last_error=error,
+            refused=stats.refused if stats is not None and stats.mechanism == "mqtt-ngsi" else None,
         )
 
     # --- re-adoption and supervision ------------------------------------------------------

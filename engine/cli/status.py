@@ -72,9 +72,11 @@ def bridge_rows(desired: DesiredState, observed: ObservedState) -> list[dict[str
         rows.append({"bridge": spec.address, "mechanism": spec.mechanism.value,
                      "status": have.status.value, "routes": routes,
                      "forwarded": show(have.forwarded), "retried": show(have.retried),
-                     # a running bridge's last error is history (the worker keeps it): not shown
+                     # a running bridge's last error is history (the worker keeps it): not shown;
+                     # messages its remote refused (dropped, not retried) are shown while running
                      "error": (have.last_error.splitlines()[0][:60]
-                               if have.last_error and have.status.value != "running" else "")})
+                               if have.last_error and have.status.value != "running"
+                               else f"{have.refused} refused by the remote" if have.refused else "")})
     for have in observed.bridges:
         if have.spec.address not in wanted:
             rows.append({"bridge": have.spec.address, "mechanism": have.spec.mechanism.value,

@@ -452,7 +452,10 @@ def test_agent_runs_an_ngsi_bridge(tmp_path: Path, context_broker: ContextBroker
         wait_all(receiver.seqs, 100, "100 notifications")
         check("through the agent", receiver.seqs, 100)
         bridge = process.wait_until(running(100), 30.0, 0.2, what="the bridge running with its counters")
-        assert bridge.spec == spec and bridge.retried == 0
+        assert bridge.spec == spec and bridge.retried == 0 and bridge.refused == 0
+        publish(port, 1, rate=None, extra=lambda i: {"note": "a=b"}).join(60)  # "=" is refused
+        process.wait_until(lambda: [b.refused for b in agent.list_bridges()] == [1], 30.0, 0.2,
+                           what="the refused message counted")
         assert len(our_subscriptions(context_broker, "mqtt--cb")) == 1
 
         folder = fleet.agents["127.0.0.1"].state_dir / "bridges" / "mqtt--cb"

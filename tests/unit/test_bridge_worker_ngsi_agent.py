@@ -205,3 +205,16 @@ def test_the_client_sends_the_token_beside_the_spec(monkeypatch: pytest.MonkeyPa
     client.put_bridge(ngsi_spec(), remote_token="cb-secret")
     client.put_bridge(ngsi_spec())
     assert sent == [{**to_dict(ngsi_spec()), "remote_token": "cb-secret"}, to_dict(ngsi_spec())]
+
+
+def test_status_shows_what_the_remote_refused_while_running() -> None:
+    from engine.cli.status import bridge_rows
+
+    spec = ngsi_spec()
+    seen = ObservedBridge(spec, BridgeStatus.RUNNING, forwarded=10, retried=0, refused=3,
+                          last_error="message on 'agv/7/state' refused ...")
+    [row] = bridge_rows(DesiredState(bridges=(spec,)), ObservedState(bridges=(seen,)))
+    assert (row["forwarded"], row["retried"], row["error"]) == ("10", "0", "3 refused by the remote")
+    [quiet] = bridge_rows(DesiredState(bridges=(spec,)),
+                          ObservedState(bridges=(ObservedBridge(spec, BridgeStatus.RUNNING, refused=0),)))
+    assert quiet["error"] == ""
