@@ -5,7 +5,7 @@ One MQTT message becomes one upsert of its topic's entity (``POST /v2/entities?o
 - a JSON object: each top-level field one attribute, typed by its JSON type (``Number``,
   ``Text``, ``Boolean``, ``StructuredValue`` for objects and arrays, ``None`` for null);
 - anything else (other JSON, plain text): one attribute ``value`` of type ``Text`` holding the
-  payload as text;
+  payload as text (a JSON string: its content, without the quotes);
 - always ``TimeInstant`` (``DateTime``): when the worker received the message (ISO 8601, UTC).
 
 Orion's field syntax restrictions decide what is refused: an attribute name is 1..256 printable
