@@ -20,6 +20,13 @@ PKS = Namespace("https://w3id.org/plantkg/shapes#")
 GRAPH_ONTOLOGY = ONTOLOGY_IRI
 GRAPH_INFERRED = "https://w3id.org/plantkg/graph/inferred"
 GRAPH_OBSERVED = "https://w3id.org/plantkg/graph/observed"
+#: The NGSI-v2 context broker's context as RDF (docs/context-broker.md, "The context as RDF"):
+#: its vocabulary, the bases of minted entity/attribute/type IRIs and of the per-tenant graphs.
+NGSI = Namespace("https://w3id.org/plantkg/ngsi#")
+NGSI_ENTITY_BASE = "https://w3id.org/plantkg/ngsi/entity/"
+NGSI_TYPE_BASE = "https://w3id.org/plantkg/ngsi/type/"
+NGSI_GRAPH_BASE = "https://w3id.org/plantkg/graph/ngsi/"
+RDF_JSON = str(RDF) + "JSON"
 
 #: Prefixes offered to every SPARQL query (a user may still declare their own).
 PREFIXES: dict[str, str] = {
@@ -36,6 +43,10 @@ __all__ = [
     "GRAPH_INFERRED",
     "GRAPH_OBSERVED",
     "GRAPH_ONTOLOGY",
+    "NGSI",
+    "NGSI_ENTITY_BASE",
+    "NGSI_GRAPH_BASE",
+    "NGSI_TYPE_BASE",
     "ONTOLOGY_IRI",
     "OWL",
     "PK",
@@ -43,6 +54,7 @@ __all__ = [
     "PREFIXES",
     "RDF",
     "RDFS",
+    "RDF_JSON",
     "SH",
     "SWRL",
     "XSD",

@@ -1,0 +1,134 @@
+"""The context broker as a process: arguments, token, store, subscriptions, WSGI server, signals.
+
+``python -m engine.context_broker --host H --port P --data-dir D [--token-file F | --open]
+[--log-file L] [--allow-remote] [--threads N]``
+
+- Binds loopback unless ``--allow-remote`` (a non-loopback ``--host`` is refused otherwise).
+- Writes need ``Authorization: Bearer <token>`` (the first line of ``--token-file``) unless
+  ``--open``; one of the two must be given.
+- The store lives in ``D/oxigraph`` (``D/context.lock`` keeps a second process out, with a clear
+  message and exit code 2); subscriptions in ``D/subscriptions``.
+- Served by waitress (pure Python; it reads each request whole before a worker thread handles
+  it, so a slow client holds no worker); SIGTERM or SIGINT stop it cleanly (exit 0).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ipaddress
+import logging
+import signal
+import sys
+from pathlib import Path
+from types import FrameType
+
+from engine.context_broker.app import create_app
+from engine.context_broker.store import ContextStore, StoreLocked
+
+log = logging.getLogger("engine.context_broker")
+DEFAULT_THREADS = 8
+
+
+class ConfigError(Exception):
+    """A command line that cannot be run; the message says what to change."""
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="python -m engine.context_broker",
+                                     description="plantkg's NGSI-v2 context broker (Orion's API, RDF store)")
+    parser.add_argument("--host", default="127.0.0.1")
+    parser.add_argument("--port", type=int, default=1026)
+    parser.add_argument("--data-dir", type=Path, required=True)
+    parser.add_argument("--token-file", type=Path)
+    parser.add_argument("--open", action="store_true", help="writes need no token")
+    parser.add_argument("--log-file", type=Path)
+    parser.add_argument("--allow-remote", action="store_true", help="allow a non-loopback --host")
+    parser.add_argument("--threads", type=int, default=DEFAULT_THREADS)
+    return parser.parse_args(argv)
+
+
+def check_host(host: str, allow_remote: bool) -> None:
+    if host == "localhost" or allow_remote:
+        return
+    try:
+        loopback = ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        raise ConfigError(f"--host {host!r} is not an IP address: give a loopback address such as "
+                          "127.0.0.1 (or add --allow-remote)") from None
+    if not loopback:
+        raise ConfigError(f"--host {host} is not a loopback address: the context broker binds "
+                          "loopback only unless you add --allow-remote")
+
+
+def read_token(args: argparse.Namespace) -> str | None:
+    if args.open and args.token_file:
+        raise ConfigError("give either --token-file or --open, not both")
+    if args.open:
+        return None
+    if args.token_file is None:
+        raise ConfigError("writes need a token: give --token-file FILE (or --open to allow "
+                          "writes without one)")
+    try:
+        token = args.token_file.read_text(encoding="utf-8").strip().splitlines()
+    except OSError as err:
+        raise ConfigError(f"cannot read --token-file {args.token_file}: {err.strerror}") from None
+    if not token or not token[0].strip():
+        raise ConfigError(f"--token-file {args.token_file} is empty: write the token on its first line")
+    return token[0].strip()
+
+
+def _logging(log_file: Path | None) -> None:
+    handler: logging.Handler = (logging.FileHandler(log_file, encoding="utf-8") if log_file
+                                else logging.StreamHandler(sys.stderr))
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    root = logging.getLogger()
+    root.addHandler(handler)
+    root.setLevel(logging.INFO)
+
+
+class _Stop(Exception):
+    pass
+
+
+def _on_signal(signum: int, frame: FrameType | None) -> None:
+    raise _Stop(signal.Signals(signum).name)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    try:
+        check_host(args.host, args.allow_remote)
+        token = read_token(args)
+    except ConfigError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    _logging(args.log_file)
+    try:
+        store = ContextStore(args.data_dir)
+    except StoreLocked as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    from waitress import create_server
+
+    from engine.context_broker.subscriptions import SubscriptionService
+
+    subscriptions = SubscriptionService(args.data_dir / "subscriptions")
+    subscriptions.start()
+    app = create_app(store, token=token, listeners=[subscriptions],
+                     subscriptions_blueprint=subscriptions.blueprint())
+    server = create_server(app, host=args.host, port=args.port, threads=args.threads,
+                           ident="plantkg-context-broker", clear_untrusted_proxy_headers=True)
+    signal.signal(signal.SIGTERM, _on_signal)
+    signal.signal(signal.SIGINT, _on_signal)
+    log.info("context broker on http://%s:%d (data %s, %d entities, writes %s)", args.host,
+             args.port, args.data_dir, store.count(), "open" if token is None else "need a token")
+    try:
+        server.run()
+    except _Stop as stop:
+        log.info("%s: stopping", stop)
+    finally:
+        server.close()
+        subscriptions.close()
+        store.close()
+        log.info("stopped")
+    return 0
