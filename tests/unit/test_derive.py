@@ -240,3 +240,18 @@ def test_a_context_broker_cannot_bridge_to_kafka(tmp_path: Path) -> None:
     body = body.replace('pk:name "agv/1/status"', 'pk:name "agv.1.status"').replace('pk:name "agv/1/order"', 'pk:name "agv.1.order"')
     with pytest.raises(BridgeNotSupportedError, match="MQTT broker only, not to a Kafka broker"):
         derive(reasoned(tmp_path, body))
+
+
+def test_the_ngsi_plan_cases_start_from_the_agv_example() -> None:
+    """tests/cases/plan/ngsi-*: their desired state is what the example plant derives today."""
+    from tests.unit.plan_data import case_names, load_case
+
+    plant = load_plant([ROOT / "ontology" / "examples" / "agv-middleware.ttl"])
+    reason(plant)
+    state = derive(plant)
+    names = [n for n in case_names() if n.startswith("ngsi-")]
+    assert len(names) >= 4
+    for name in names:
+        assert load_case(name)[0] == state, name
+    [bridge] = state.bridges
+    assert (bridge.address, bridge.mechanism) == ("bridge.fleet-mqtt.fleet-context", BridgeMechanism.NGSI)
