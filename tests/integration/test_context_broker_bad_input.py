@@ -6,8 +6,10 @@ Orion does, which words the description has to hold (the forbidden character, it
 position). A case whose answer differs from Orion carries ``xfail`` in the data: a disagreement
 the server's owner has to fix, kept visible as ``xfail(strict=True)`` so the fix is noticed.
 
-After the cases the store must hold exactly what it was seeded with (no half-done write), and the
-server's log must hold no traceback.
+The cases share one server (a known disagreement may leave an entity behind there); the checks
+of state each start a fresh one: after every case the server should get right, its store holds
+exactly the seed (no half-done write) and its log no traceback; batches are all-or-nothing for a
+malformed payload and Orion's PartialUpdate for a missing entity.
 """
 
 from __future__ import annotations
@@ -43,6 +45,8 @@ def body_of(case: dict[str, Any]) -> bytes | None:
         fill = case["body_fill"]
         prefix, suffix = fill["prefix"].encode(), fill["suffix"].encode()
         return prefix + fill["fill"].encode() * (fill["size"] - len(prefix) - len(suffix)) + suffix
+    if "body_bytes_hex" in case:
+        return bytes.fromhex(case["body_bytes_hex"])
     if "body" in case:
         return case["body"].encode("utf-8")
     return None
@@ -85,7 +89,15 @@ def entities(broker: ContextBroker) -> list[dict[str, Any]]:
     finally:
         http.close()
     assert reply.status == 200, (reply.status, reply.body)
-    return sorted(reply.json(), key=lambda e: e["id"])
+    return sorted(strict_json(reply.body), key=lambda e: e["id"])
+
+
+def strict_json(data: bytes) -> Any:
+    """JSON as the standard defines it: Python's ``json`` would also take NaN and Infinity."""
+    def refuse(name: str) -> None:
+        raise ValueError(f"{name} is not JSON")
+
+    return json.loads(data, parse_constant=refuse)
 
 
 def comparable(entity: dict[str, Any]) -> dict[str, Any]:
@@ -94,9 +106,8 @@ def comparable(entity: dict[str, Any]) -> dict[str, Any]:
             for k, v in entity.items()}
 
 
-@pytest.fixture(scope="module")
-def broker(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ContextBroker]:
-    rig = ContextBroker(tmp_path_factory.mktemp("context-broker")).start()
+def running(folder: Path) -> Iterator[ContextBroker]:
+    rig = ContextBroker(folder).start()
     try:
         seed(rig)
         yield rig
@@ -106,12 +117,22 @@ def broker(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ContextBroker]:
         assert child is None or not child.group_alive(), "the context broker survived stop()"
 
 
+@pytest.fixture(scope="module")
+def broker(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ContextBroker]:
+    yield from running(tmp_path_factory.mktemp("context-broker"))
+
+
+@pytest.fixture
+def fresh_broker(tmp_path: Path) -> Iterator[ContextBroker]:
+    yield from running(tmp_path / "context-broker")
+
+
 def check(case: dict[str, Any], reply: Reply) -> None:
     expect = case["expect"]
     where = f"{case['method']} {case['path'][:80]} -> {reply.status} {reply.body[:300]!r}"
     assert reply.status == expect["status"], where
     assert (reply.header("content-type") or "").startswith("application/json"), where
-    body = json.loads(reply.body)
+    body = strict_json(reply.body)
     assert isinstance(body, dict) and isinstance(body.get("error"), str), where
     if "error" in expect:
         accepted = expect["error"] if isinstance(expect["error"], list) else [expect["error"]]
@@ -129,30 +150,34 @@ def test_bad_request_is_refused_as_orion_does(broker: ContextBroker, case: dict[
     check(case, send(broker, case))
 
 
-def test_store_unchanged_and_no_traceback_after_every_case(broker: ContextBroker) -> None:
-    """All the cases again, in a row on one server: the store answers exactly the seed, and the
-    server logged no traceback for any of them."""
+def test_store_unchanged_and_no_traceback_after_every_case(fresh_broker: ContextBroker) -> None:
+    """Every case the server is meant to get right (the known disagreements aside: each fails on
+    its own above), in a row on a fresh server: the store still answers exactly the seed (as
+    standard JSON), and the server logged no traceback."""
     for case in DATA["cases"]:
-        reply = send(broker, case)
+        if "xfail" in case:
+            continue
+        reply = send(fresh_broker, case)
         assert reply.status < 500, f"{case['name']}: {reply.status} {reply.body[:300]!r}"
-    assert [comparable(e) for e in entities(broker)] == [comparable(e) for e in SEED]
-    log = broker.log_text()
+    assert [comparable(e) for e in entities(fresh_broker)] == [comparable(e) for e in SEED]
+    log = fresh_broker.log_text()
     assert "Traceback" not in log, log[-4000:]
 
 
-def test_batch_with_one_bad_entity_changes_nothing(broker: ContextBroker) -> None:
+def test_batch_with_one_bad_entity_changes_nothing(fresh_broker: ContextBroker) -> None:
     """Orion parses the whole batch before writing any entity: one entity with a forbidden
     character in its id is a 400, and the good entity next to it is not written either."""
     case = next(c for c in DATA["cases"] if c["name"] == "batch-one-bad-entity")
-    before = entities(broker)
-    check(case, send(broker, case))
-    assert entities(broker) == before
+    before = entities(fresh_broker)
+    check(case, send(fresh_broker, case))
+    assert entities(fresh_broker) == before
 
 
-def test_batch_update_with_a_missing_entity_is_a_partial_update(broker: ContextBroker) -> None:
+def test_batch_update_with_a_missing_entity_is_a_partial_update(fresh_broker: ContextBroker) -> None:
     """Orion's ``update`` batch is one PATCH per entity: an entity that does not exist makes the
     answer 422 ``PartialUpdate`` naming it, and the entities that exist are updated
     (orion-api.md, "Update POST /v2/op/update")."""
+    broker = fresh_broker
     http = broker.http()
     try:
         reply = http.request("POST", "/v2/op/update", json.dumps({"actionType": "update", "entities": [
@@ -166,6 +191,4 @@ def test_batch_update_with_a_missing_entity_is_a_partial_update(broker: ContextB
         assert room2.status == 200 and room2.json() == 712, (room2.status, room2.body)
         assert http.request("GET", "/v2/entities/NoSuchRoom", headers=broker.auth).status == 404
     finally:
-        http.request("PUT", "/v2/entities/Room2/attrs/pressure/value", "711",
-                     {"Content-Type": "application/json", **broker.auth})
         http.close()

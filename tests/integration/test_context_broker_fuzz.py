@@ -65,6 +65,8 @@ def test_no_server_error_and_only_documented_status_codes(case: schemathesis.Cas
 def test_fuzzing_left_no_traceback_in_the_log(broker: ContextBroker) -> None:
     """Runs after the fuzz test in this module (file order): what the fuzzer sent was answered,
     never crashed a handler."""
-    assert broker.http().request("GET", "/version").status == 200
+    http = broker.http()
+    assert http.request("GET", "/version").status == 200
+    http.close()
     log = broker.log_text()
     assert "Traceback" not in log, log[-4000:]
