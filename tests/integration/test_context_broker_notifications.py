@@ -1,11 +1,15 @@
 """Subscriptions and notifications end to end, with real receivers.
 
-A subscription is created over real HTTP (the subscription blueprint in a Flask app served by
-Werkzeug on a free port), an entity change is handed to the service as the entity layer does
-(``entity_changed``), and what arrives is checked at real receivers: a small HTTP server in the
-test, a real Mosquitto (a paho subscriber), a real Kafka (a consumer). Also: a receiver that is
-down for a few seconds gets every notification afterwards, in order, with the outage shown on
-the subscription; a receiver that hangs does not delay another subscription.
+Most tests create a subscription over real HTTP (the subscription blueprint in a Flask app
+served by Werkzeug on a free port) and hand entity changes to the service as the entity layer
+does (``entity_changed``), so a test can shape the changes exactly; what arrives is checked at
+real receivers: a small HTTP server in the test, a real Mosquitto (a paho subscriber), a real
+Kafka (a consumer). A receiver that is down for a few seconds gets every notification
+afterwards, in order, with the outage shown on the subscription; a receiver that hangs does not
+delay another subscription. The last tests go through the real server process
+(``python -m engine.context_broker``, with its write token) driven by FiLiP: subscriptions
+posted, read and deleted, entity writes notified to an HTTP receiver and an MQTT subscriber,
+and subscriptions surviving a kill -9.
 """
 
 from __future__ import annotations
@@ -371,3 +375,112 @@ def test_kafka_notification(broker: Broker, kafka_broker) -> None:
     shown = shown_when(broker, sub_id, lambda v: v["notification"].get("timesSent") == 3,
                        "three Kafka notifications counted")
     assert shown["status"] == "active"
+
+
+# --- through the server process, driven by FiLiP ---------------------------------------------
+
+@pytest.fixture
+def server(tmp_path: Path, cleanup: list):
+    from benchmarks.context_broker_rig import ContextBroker
+
+    cb = ContextBroker(tmp_path / "context-broker").start()
+    cleanup.append(cb.stop)
+    return cb
+
+
+def filip_client(server: Any, tenant: Tenant = ACME) -> Any:
+    import requests
+    from filip.clients.ngsi_v2 import ContextBrokerClient
+    from filip.models.base import FiwareHeader
+
+    session = requests.Session()
+    session.headers.update(server.auth)          # writes need the broker's token
+    return ContextBrokerClient(url=server.url, session=session,
+                               fiware_header=FiwareHeader(service=tenant.service,
+                                                          service_path=tenant.service_path))
+
+
+def test_filip_end_to_end_through_the_server(server: Any, tmp_path: Path, cleanup: list) -> None:
+    from filip.clients.exceptions import BaseHttpClientException
+    from filip.models.ngsi_v2.context import ContextEntity
+    from filip.models.ngsi_v2.subscriptions import Subscription
+
+    rec = receiver(cleanup)
+    mosq = rig.Mosquitto(tmp_path / "mosquitto").start()
+    cleanup.append(mosq.stop)
+    got: queue.Queue[mqtt.MQTTMessage] = queue.Queue()
+    subscribed = threading.Event()
+    listener = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"e2e-{uuid.uuid4().hex[:8]}")
+    listener.on_message = lambda _c, _u, msg: got.put(msg)
+    listener.on_subscribe = lambda *_args: subscribed.set()
+    listener.on_connect = lambda c, *_args: c.subscribe("fleet/agv", qos=1)
+    listener.connect(HOST, mosq.port)
+    listener.loop_start()
+    cleanup.append(listener.loop_stop)
+    cleanup.append(listener.disconnect)
+    assert subscribed.wait(10), "no SUBACK from Mosquitto"
+
+    cb = filip_client(server)
+    http_sub = Subscription(
+        description="AGV state to the MES",
+        subject={"entities": [{"idPattern": "^AGV", "type": "AGV"}], "condition": {"attrs": ["state"]}},
+        notification={"http": {"url": rec.url}, "attrs": ["state", "battery"]},
+    )
+    http_id = cb.post_subscription(http_sub)             # FiLiP lists subscriptions first
+    with pytest.warns(UserWarning, match="existed already"):
+        assert cb.post_subscription(http_sub) == http_id  # ... and so does not post it twice
+    mqtt_id = cb.post_subscription(Subscription(
+        subject={"entities": [{"id": "AGV1", "type": "AGV"}]},
+        notification={"mqtt": {"url": f"mqtt://{HOST}:{mosq.port}", "topic": "fleet/agv", "qos": 1},
+                      "attrsFormat": "keyValues"},
+    ))
+    assert len({http_id, mqtt_id}) == 2 and all(len(i) == 24 for i in (http_id, mqtt_id))
+    fetched = cb.get_subscription(http_id)
+    assert fetched.id == http_id and fetched.description == "AGV state to the MES"
+    assert str(fetched.notification.http.url).rstrip("/") == rec.url
+    assert rec.requests == [] and got.empty()            # no initial notification
+
+    cb.post_entity(ContextEntity(id="AGV1", type="AGV", state={"type": "Text", "value": "idle"},
+                                 battery={"type": "Number", "value": 80}))
+    cb.update_attribute_value(entity_id="AGV1", attr_name="state", value="moving", entity_type="AGV")
+    wait_for(lambda: len(rec.requests) == 2, "two HTTP notifications (create, update)")
+    assert rec.values("state") == ["idle", "moving"]
+    assert rec.requests[1]["body"] == {"subscriptionId": http_id, "data": [{
+        "id": "AGV1", "type": "AGV",
+        "state": {"type": "Text", "value": "moving", "metadata": {}},
+        "battery": {"type": "Number", "value": 80, "metadata": {}}}]}
+    headers = {k.lower(): v for k, v in rec.requests[1]["headers"].items()}
+    assert (headers["fiware-service"], headers["fiware-servicepath"]) == ("acme", "/plant")
+    payloads = [json.loads(got.get(timeout=20).payload) for _ in range(2)]
+    assert payloads == [
+        {"subscriptionId": mqtt_id, "data": [{"id": "AGV1", "type": "AGV", "state": "idle", "battery": 80}]},
+        {"subscriptionId": mqtt_id, "data": [{"id": "AGV1", "type": "AGV", "state": "moving", "battery": 80}]},
+    ]
+
+    cb.delete_subscription(http_id)
+    with pytest.raises(BaseHttpClientException) as info:
+        cb.get_subscription(http_id)
+    assert info.value.response.status_code == 404
+    cb.update_attribute_value(entity_id="AGV1", attr_name="state", value="charging", entity_type="AGV")
+    third = json.loads(got.get(timeout=20).payload)       # the MQTT one still fires ...
+    assert third["data"][0]["state"] == "charging"
+    assert len(rec.requests) == 2                         # ... the deleted one does not
+    assert [s.id for s in cb.get_subscription_list()] == [mqtt_id]
+
+
+def test_subscriptions_survive_kill_9_of_the_server(server: Any) -> None:
+    from benchmarks.context_broker_rig import ContextBroker
+
+    from filip.models.ngsi_v2.subscriptions import Subscription
+
+    cb = filip_client(server)
+    sub_id = cb.post_subscription(Subscription(
+        subject={"entities": [{"id": "AGV1"}]}, notification={"http": {"url": "http://127.0.0.1:9/n"}}))
+    rig.kill_group(server.child)                          # SIGKILL right after the 201
+    server.child = None
+    again = ContextBroker(server.folder, port=server.port, token=server.token).start()
+    try:
+        shown = filip_client(again).get_subscription(sub_id)
+        assert shown.id == sub_id and str(shown.notification.http.url).rstrip("/") == "http://127.0.0.1:9/n"
+    finally:
+        again.stop()
