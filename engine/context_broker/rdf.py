@@ -40,6 +40,7 @@ from urllib.parse import quote
 import pyoxigraph as ox
 
 from engine.context_broker.contract import Tenant
+from engine.context_broker.dates import parse_datetime, render_datetime
 from engine.context_broker.entities import DATE_TYPES, Attribute, Entity
 from kg.namespaces import NGSI, NGSI_ENTITY_BASE, NGSI_GRAPH_BASE, NGSI_TYPE_BASE, RDF, RDF_JSON, XSD
 
@@ -171,6 +172,9 @@ def _py_value(term: Any) -> Any:
         return float(text)
     if datatype == RDF_JSON:
         return json.loads(text)
+    if datatype == XSD_DATETIME:  # Oxigraph keeps the canonical form (no ".000"): back to Orion's
+        date = parse_datetime(text)
+        return render_datetime(date) if date is not None else text
     return text
 
 
