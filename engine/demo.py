@@ -6,6 +6,10 @@ then simulated resources publish (:mod:`engine.simulate`) and taps on every topi
 show what arrives, live — on Kafka that is the merged stream: the power meter's readings published
 there and the robot's pose carried over from Mosquitto by the bridge; at the end (``--duration`` or Ctrl-C) ``destroy`` and the agents stop. Nothing is
 left running, whatever happens in between.
+
+A context broker of the plant (``ngsi-v2``, the AGV example) takes part the same way: a resource
+publishing there writes the topic's entity with its agent's token, and its tap reads the entities
+and shows their attribute values (:mod:`engine.simulate_ngsi`).
 """
 
 from __future__ import annotations
@@ -22,6 +26,9 @@ from engine.agent.local import LocalAgents, start_local_agents
 from engine.model import BridgeDirection, BrokerSpec, DesiredState
 from engine.pipeline import run_pipeline
 from engine.simulate import Feed, Source, Tap
+from engine.simulate_ngsi import NgsiSource, NgsiTap
+
+NGSI = "ngsi-v2"
 from kg.query import run_query
 
 FEEDS_QUERY = """
@@ -70,26 +77,48 @@ def bridged_in(desired: DesiredState) -> dict[tuple[str, str], str]:
     return found
 
 
-def _table(taps: list[Tap], started: float, via: dict[tuple[str, str], str]) -> list[str]:
+def _table(taps: list[Tap | NgsiTap], started: float, via: dict[tuple[str, str], str],
+           published: frozenset[tuple[str, str]] = frozenset()) -> list[str]:
     elapsed = max(time.monotonic() - started, 1e-6)
     width = max([3, *(len(f"bridge from {s}") for s in via.values())])
-    lines = [f"{'broker':<12} {'topic':<30} {'via':<{width}} {'messages':>8} {'msg/s':>6}  last payload"]
+    bw = max([12, *(len(tap.broker.id) for tap in taps)])
+    lines = [f"{'broker':<{bw}} {'topic':<30} {'via':<{width}} {'messages':>8} {'msg/s':>6}  last payload"]
     for tap in taps:
         for topic, seen in sorted(tap.snapshot().items()):
             last = {k: v for k, v in seen.last.items() if k not in ("ts", "source")}
             text = str(last)[:56]
-            source = f"bridge from {via[(tap.broker.id, topic)]}" if (tap.broker.id, topic) in via else "published"
-            lines.append(f"{tap.broker.id:<12} {topic:<30} {source:<{width}} {seen.count:>8} "
+            key = (tap.broker.id, topic)
+            source = f"bridge from {via[key]}" if key in via and key not in published else "published"
+            lines.append(f"{tap.broker.id:<{bw}} {topic:<30} {source:<{width}} {seen.count:>8} "
                          f"{seen.count / elapsed:>6.1f}  {text}")
     return lines
 
 
-def _watch(taps: list[Tap], stop: threading.Event, duration: float | None, live: bool,
-           via: dict[tuple[str, str], str]) -> None:
+def _tap(broker: BrokerSpec, desired: DesiredState, stop: threading.Event) -> Tap | NgsiTap:
+    """A tap on every topic of ``broker``: MQTT/Kafka messages, or a context broker's entities."""
+    topics = desired.topics_of(broker.id)
+    if broker.kind == NGSI:
+        return NgsiTap(broker, {t.name: (t.entity_id or "", t.entity_type or "") for t in topics}, stop)
+    return Tap(broker, [t.name for t in topics], stop)
+
+
+def _source(feed: Feed, desired: DesiredState, agents: LocalAgents,
+            stop: threading.Event) -> Source | NgsiSource:
+    """A simulated publisher; on a context broker it writes the topic's entity with the token of
+    the broker's agent (none when the broker allows anonymous writes)."""
+    if feed.broker.kind != NGSI:
+        return Source(feed, stop)
+    topic = next(t for t in desired.topics_of(feed.broker.id) if t.name == feed.topic)
+    token = None if feed.broker.allow_anonymous else agents.agents[feed.broker.host].token
+    return NgsiSource(feed, topic.entity_id or "", topic.entity_type or "", token, stop)
+
+
+def _watch(taps: list[Tap | NgsiTap], stop: threading.Event, duration: float | None, live: bool,
+           via: dict[tuple[str, str], str], published: frozenset[tuple[str, str]]) -> None:
     started = time.monotonic()
     drawn = 0
     while not stop.wait(0.5 if live else 1.0):
-        lines = _table(taps, started, via)
+        lines = _table(taps, started, via, published)
         if live:
             if drawn:
                 click.echo(f"\x1b[{drawn}A", nl=False)
@@ -98,7 +127,7 @@ def _watch(taps: list[Tap], stop: threading.Event, duration: float | None, live:
         if duration is not None and time.monotonic() - started >= duration:
             stop.set()
     if not live:
-        click.echo("\n".join(_table(taps, started, via)))
+        click.echo("\n".join(_table(taps, started, via, published)))
 
 
 def run_demo(files: list[str], run: Runner, *, duration: float | None, work_dir: Path | None) -> int:
@@ -125,25 +154,29 @@ def run_demo(files: list[str], run: Runner, *, duration: float | None, work_dir:
         click.secho("\n5. simulated resources publish; taps on each broker show what arrives "
                     + ("(Ctrl-C to stop)" if duration is None else f"for {duration:g} s"), bold=True)
         for feed in plant_feeds:
+            what = "entity of topic" if feed.broker.kind == NGSI else "topic"
             click.echo(f"   {feed.resource} -> {feed.broker.kind} {feed.broker.host}:{feed.broker.port} "
-                       f"topic {feed.topic} at {feed.rate_hz:g} Hz")
+                       f"{what} {feed.topic} at {feed.rate_hz:g} Hz")
         for (broker, topic), source in sorted(via.items()):
             click.echo(f"   bridge: {topic} from {source} to {broker}")
-        taps = [Tap(b, [t.name for t in desired.topics_of(b.id)], stop)
-                for b in desired.brokers if desired.topics_of(b.id)]
+        taps = [_tap(b, desired, stop) for b in desired.brokers if desired.topics_of(b.id)]
         threads += taps
         for tap in taps:
             tap.start()
         for tap in taps:
             tap.ready.wait(30)
-        sources = [Source(feed, stop) for feed in plant_feeds]
+        sources = [_source(feed, desired, agents, stop) for feed in plant_feeds]
         threads += sources
         for source in sources:
             source.start()
         try:
-            _watch(taps, stop, duration, live=click.get_text_stream("stdout").isatty(), via=via)
+            _watch(taps, stop, duration, live=click.get_text_stream("stdout").isatty(), via=via,
+                   published=frozenset((f.broker.id, f.topic) for f in plant_feeds))
         except KeyboardInterrupt:
             click.echo("\nstopping")
+        for source in sources:
+            for error in getattr(source, "errors", []):
+                click.echo(f"   {source.feed.resource}: the context broker answered {error}")
         return 0
     finally:
         stop.set()

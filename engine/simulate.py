@@ -49,9 +49,26 @@ def payload(feed: Feed, n: int, t: float) -> bytes:
     elif feed.value in ("energy", "power"):
         watts = round(180 + 40 * math.sin(t * 0.3), 1)
         body = {"power_w": watts, "energy_wh": round(180 * t / 3600, 4)}
+    elif feed.value in AGV_PAYLOADS:
+        body = AGV_PAYLOADS[feed.value](n, t)
     else:
         body = {"count": n}
     return json.dumps({"seq": n, "ts": time.time(), "source": feed.resource, **body}).encode()
+
+
+# The AGV channels of the second paper (ontology/examples/agv-middleware.ttl), by pk:valueTopic:
+# machine state, kinematics, capabilities (from the vehicle), motion and action commands (to it).
+_STATES = ("driving", "loading", "driving", "unloading", "idle")
+AGV_PAYLOADS: dict[str, Callable[[int, float], dict[str, object]]] = {
+    "status": lambda n, t: {"state": _STATES[(n // 20) % len(_STATES)],
+                            "battery_pct": round(100 - (t / 36) % 100, 1)},
+    "movement": lambda n, t: {"x_m": round(5 + 4 * math.cos(t * 0.2), 3), "y_m": round(3 + 2 * math.sin(t * 0.2), 3),
+                              "theta_rad": round((t * 0.2) % (2 * math.pi), 3), "speed_mps": round(0.8 + 0.2 * math.sin(t), 3)},
+    "description": lambda n, t: {"payload_kg": 100, "max_speed_mps": 1.2, "actions": ["load", "unload", "idle"]},
+    "motion": lambda n, t: {"task_id": f"task-{n // 5}", "point": [round(2.0 + n % 5, 1), 3.0],
+                            "max_velocity": [1.0, 0.5], "sequence": n % 5},
+    "action": lambda n, t: {"task_id": f"task-{n // 5}", "action": ("loading", "unloading", "idle")[n % 3]},
+}
 
 
 class Source(threading.Thread):
@@ -69,7 +86,10 @@ class Source(threading.Thread):
             publish: Callable[[bytes], None] = lambda data: producer.produce(self.feed.topic, data)
             close: Callable[[], object] = lambda: producer.flush(10)
         else:
-            client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"demo-{self.feed.resource}")
+            # one client per feed: a resource publishing several topics must not reuse one client
+            # id, or the broker drops each connection when the next one with that id arrives
+            client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2,
+                                 client_id=f"demo-{self.feed.resource}-{self.feed.topic}")
             client.connect(b.host, b.port)
             client.loop_start()
             publish = lambda data: client.publish(self.feed.topic, data, qos=self.feed.qos).wait_for_publish(5)

@@ -18,7 +18,8 @@ from kg import resources
 def demo_command(files: tuple[str, ...], duration: float | None, work_dir: Path | None) -> int:
     """Start local agents, apply the plant, feed it simulated data, then destroy it all.
 
-    Without FILE, the first paper's robot cell (ontology/examples/robot-cell.ttl).
+    Without FILE, the first paper's robot cell (ontology/examples/robot-cell.ttl); the second
+    paper's AGV middleware, with its context broker: ontology/examples/agv-middleware.ttl.
     """
     from engine.cli import main  # the same commands a person would type, run in-process
     from engine.demo import run_demo
