@@ -134,14 +134,15 @@ class MqttToNgsi:
                 return
             except NgsiUnavailable as exc:
                 self.health.count("retried")
-                self.health.set(ngsi_connected=False)
+                if exc.status in (401, 403):
+                    self.health.set(token_refused=True)
                 self.health.error(f"{exc.text}; retrying")
                 if self._stale(job) or self.stopping.wait(delay):
                     return  # not acknowledged: sent again by the broker
                 delay = min(delay * 2, BACKOFF[1])
                 continue
             self.health.count("forwarded_mqtt_to_ngsi")
-            self.health.set(ngsi_connected=True)
+            self.health.set(token_refused=False)
             if job.entry is not None:
                 self.acks.confirm(job.entry)
             return

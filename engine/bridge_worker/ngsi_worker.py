@@ -3,8 +3,9 @@ NGSI lanes, the keeper of its context broker subscriptions (NGSI -> MQTT), a ``G
 probe of the context broker and the stats file, run until asked to stop.
 
 Ready (the agent reports RUNNING) means: MQTT connected with its subscriptions granted (if it
-forwards MQTT -> NGSI), the context broker answering ``GET /version``, and (if it forwards NGSI ->
-MQTT) its subscriptions made on the context broker. A stop (SIGTERM, SIGINT) takes no new message,
+forwards MQTT -> NGSI), the context broker answering ``GET /version``, its last write not refused
+for the token (401/403), and (if it forwards NGSI -> MQTT) its subscriptions made on the context
+broker. A stop (SIGTERM, SIGINT) takes no new message,
 waits (bounded) for the requests in flight and their PUBACKs, disconnects, and leaves the
 subscriptions in place: the bridge still exists. ``python -m engine.bridge_worker --remove
 worker.json`` deletes them when the bridge is deleted (:func:`remove_subscriptions`).
@@ -38,6 +39,7 @@ class NgsiHealth(Health):
         super().__init__(bridge_id)
         self.ngsi_connected: bool | None = None
         self.subscriptions_made = False
+        self.token_refused = False         # the last write was answered 401/403
         self.forwarded_mqtt_to_ngsi = 0
         self.refused = 0
         self.skipped = 0
@@ -46,6 +48,7 @@ class NgsiHealth(Health):
                       stopping: bool) -> WorkerStats:
         with self._lock:
             ready = (not stopping and self.mqtt_connected and self.ngsi_connected is True
+                     and not self.token_refused
                      and (self.subscribed or not needs_subscription)
                      and (self.subscriptions_made or not needs_ngsi_subscriptions))
             return WorkerStats(

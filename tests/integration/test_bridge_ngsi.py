@@ -348,16 +348,18 @@ def test_a_refused_message_does_not_block_its_topic(tmp_path: Path, mosquitto: r
 def test_a_wrong_token_holds_messages_until_the_right_one_is_given(
         tmp_path: Path, mosquitto: rig.Mosquitto, context_broker: ContextBroker,
         receiver: NotificationReceiver, workers: NgsiWorkers) -> None:
-    cfg = workers.config(tmp_path, mosquitto.port, context_broker, NgsiDirection.MQTT_TO_NGSI, token="wrong")
+    cfg = workers.config(tmp_path, mosquitto.port, context_broker, NgsiDirection.MQTT_TO_NGSI,
+                         token="not-the-token-3f9a")
     workers.start(cfg)  # ready: GET /version needs no token
     publish(mosquitto.port, 50, rate=None).join(60)
-    stats = workers.stats_reaching(lambda s: s.retried >= 2)
+    stats = workers.stats_reaching(lambda s: s.retried >= 2 and not s.ready)
     assert stats.forwarded_mqtt_to_ngsi == 0 and stats.refused == 0
-    assert "token" in (stats.last_error or "") and "wrong" not in (stats.last_error or "")
+    assert "token" in (stats.last_error or "") and "3f9a" not in (stats.last_error or "")
     assert cfg.token_file is not None
     cfg.token_file.write_text(context_broker.token, encoding="utf-8")
     wait_all(receiver.seqs, 50, "the 50 held messages")
     check("mqtt->ngsi after the token was fixed", receiver.seqs, 50)
+    assert workers.stats_reaching(lambda s: s.forwarded_mqtt_to_ngsi >= 50).ready
 
 
 # --- NGSI -> MQTT -------------------------------------------------------------------------------
