@@ -143,7 +143,7 @@ def _notification(value: Any) -> Notification:
     fmt = AttrsFormat.NORMALIZED
     if "attrsFormat" in obj:
         formats = {f.value: f for f in AttrsFormat}
-        if obj["attrsFormat"] not in formats:
+        if not isinstance(obj["attrsFormat"], str) or obj["attrsFormat"] not in formats:
             raise fail(f"{path}.attrsFormat", f"{obj['attrsFormat']!r} is not one of "
                                                f"{', '.join(formats)}")
         fmt = formats[obj["attrsFormat"]]
@@ -179,7 +179,7 @@ def parse_subscription(doc: Any, *, sub_id: str, tenant: Tenant, parse_q: QParse
     status = Status.ACTIVE
     if "status" in obj:
         values = {s.value: s for s in Status}
-        if obj["status"] not in values:
+        if not isinstance(obj["status"], str) or obj["status"] not in values:
             raise fail("status", f"{obj['status']!r} is not valid: it has to be either active, "
                                   "inactive or oneshot")
         status = values[obj["status"]]

@@ -23,6 +23,11 @@ HTTP_METHODS = ("GET", "PUT", "POST", "DELETE", "PATCH", "HEAD", "OPTIONS", "TRA
 KAFKA_TOPIC = re.compile(r"[A-Za-z0-9._-]{1,249}")
 
 def _http_url(value: Any, path: str) -> str:
+    """Orion's rule: no ``<>"'=;()`` in a notification URL, so query parameters with values go
+    in ``httpCustom.qs``."""
+    if isinstance(value, str) and "?" in value and "=" in value.split("?", 1)[1]:
+        raise fail(path, f"forbidden character '=' in the query of {value!r}: give query "
+                         "parameters in notification.httpCustom.qs instead (as Orion)")
     url = text_field(value, path, max_len=2048)
     parts = urlsplit(url)
     if parts.scheme in ("mqtt", "kafka"):

@@ -106,6 +106,8 @@ BAD: list[tuple[str, Any, str]] = [
     ("no transport", doc(notification={"attrs": []}), "notification: give exactly one of http"),
     ("two transports", doc(notification={**HTTP, "mqtt": {"url": "mqtt://h", "topic": "t"}}), "notification: give exactly one of http, httpCustom, mqtt, kafka (got http, mqtt)"),
     ("http url not a url", doc(notification={"http": {"url": "localhost:1028"}}), "notification.http.url:"),
+    ("query in http url", doc(notification={"http": {"url": "http://h/n?token=1"}}),
+     "notification.http.url: forbidden character '=' in the query of 'http://h/n?token=1': give query parameters in notification.httpCustom.qs"),
     ("mqtt url in http", doc(notification={"http": {"url": "mqtt://h:1883"}}), "notification.http.url: mqtt URL cannot be used"),
     ("http without url", doc(notification={"http": {}}), "notification.http.url: missing"),
     ("http timeout too big", doc(notification={"http": {"url": "http://h", "timeout": 1800001}}), "notification.http.timeout: must be an integer from 0 to 1800000"),
