@@ -80,14 +80,14 @@ def check(doc: Any) -> None:
     assert again == sub
 
 
-@settings(max_examples=300, deadline=None, derandomize=True, database=None,
+@settings(max_examples=200, deadline=None, derandomize=True, database=None,
           suppress_health_check=list(HealthCheck))
 @given(JSON)
 def test_any_json_document(doc: Any) -> None:
     check(doc)
 
 
-@settings(max_examples=1500, deadline=None, derandomize=True, database=None,
+@settings(max_examples=800, deadline=None, derandomize=True, database=None,
           suppress_health_check=list(HealthCheck))
 @given(st.sampled_from(ALL_PATHS), JSON)
 def test_a_valid_subscription_with_one_field_replaced(where: tuple[int, tuple[Any, ...]], value: Any) -> None:
