@@ -4,7 +4,8 @@ counted and printed), also with the worker SIGKILLed mid-stream and started agai
 both ways does not loop; a refused message does not block its topic; a wrong token holds messages
 back until the right one is in the token file; and through a real agent, a bridge PUT with
 mechanism mqtt-ngsi runs the worker, reports it with counters, and its DELETE removes the
-subscription from the context broker.
+subscription from the context broker; and ``plantkg apply`` of the AGV middleware example plant,
+with two agents, bridges both ways with the context broker agent's token.
 
 Every message carries a sequence number. MQTT -> NGSI is checked by the test's own HTTP receiver,
 subscribed to the entity on the context broker (so every upsert is seen, not only the last
@@ -27,7 +28,7 @@ from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 
 from benchmarks import bridge_rig as rig
-from benchmarks.context_broker_rig import ContextBroker
+from benchmarks.context_broker_rig import ContextBroker, Http
 from engine import netutil, process
 from engine.bridge_worker.ngsi_config import NgsiDirection, NgsiRoute, NgsiWorkerConfig
 from engine.bridge_worker.ngsi_subscriptions import description
@@ -95,7 +96,7 @@ class MqttCounter:
     """A persistent-session QoS-1 subscriber: the ``seq`` of every notification on ``topic``
     (and, apart, every other message)."""
 
-    def __init__(self, port: int, topic: str, client_id: str = "test-counter") -> None:
+    def __init__(self, port: int, topic: str, client_id: str = "test-counter", host: str = "127.0.0.1") -> None:
         self.seqs: list[int] = []
         self.other: list[bytes] = []
         client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id, protocol=mqtt.MQTTv5)
@@ -105,7 +106,7 @@ class MqttCounter:
         client.on_subscribe = lambda *_: granted.set()
         props = Properties(PacketTypes.CONNECT)
         props.SessionExpiryInterval = 3600
-        client.connect("127.0.0.1", port, clean_start=False, properties=props)
+        client.connect(host, port, clean_start=False, properties=props)
         client.subscribe(topic, qos=1)
         client.loop_start()
         process.wait_until(granted.is_set, 10.0, what="the test subscription")
@@ -147,13 +148,13 @@ def check(label: str, seqs: list[int], count: int, *, ordered: bool = True) -> i
 # --- senders ------------------------------------------------------------------------------------
 
 def publish(port: int, count: int, *, topic: str = TOPIC, rate: float | None = RATE,
-            extra: Callable[[int], dict] = lambda i: {}) -> threading.Thread:
+            extra: Callable[[int], dict] = lambda i: {}, host: str = "127.0.0.1") -> threading.Thread:
     """``count`` QoS-1 messages ``{"seq": i, ...}`` (paced at ``rate``/s, or as fast as they go);
     the thread ends when all are PUBACKed."""
     client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"test-publisher-{topic}",
                          protocol=mqtt.MQTTv5)
     client.max_inflight_messages_set(100)
-    client.connect("127.0.0.1", port)
+    client.connect(host, port)
     client.loop_start()
     pause = threading.Event()
 
@@ -474,5 +475,67 @@ def test_agent_runs_an_ngsi_bridge(tmp_path: Path, context_broker: ContextBroker
         assert not folder.exists() and not any(
             p.name == "remote.token" for p in (fleet.agents["127.0.0.1"].state_dir / "removed").rglob("*"))
         agent.delete_broker("mqtt")
+    finally:
+        fleet.stop()
+
+
+# --- the whole path: plant -> plan -> apply -> agents -> worker ----------------------------------
+
+def test_apply_of_the_agv_middleware_plant_bridges_mqtt_and_the_context_broker(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The example plant: Mosquitto on 127.0.0.2, the context broker on 127.0.0.3, each with its
+    agent. ``plantkg apply`` sends the context broker agent's token with the bridge; the AGV's
+    status written on MQTT reaches its entity, a motion command written on the context broker
+    reaches MQTT; ``plantkg status`` shows the bridge running; no token in the plan or status."""
+    from engine.cli import main
+    from tests.integration.agents import plant_copy
+
+    plant, ports = plant_copy("agv-middleware.ttl", tmp_path)
+    fleet = start_agents(["127.0.0.2", "127.0.0.3"], tmp_path / "agents")
+    agents = ["--agents", str(fleet.agents_file)]
+    try:
+        assert main(["apply", str(plant), *agents, "--yes"]) == 0, capsys.readouterr()
+        mqtt_port, cb_port = ports["mosquitto"], ports["context-broker"]
+        bridge = process.wait_until(
+            lambda: [b for b in fleet.client("127.0.0.2").list_bridges()
+                     if b.spec.mechanism is BridgeMechanism.NGSI and b.status.value == "running"],
+            60.0, 0.2, what="the mqtt-ngsi bridge running")[0]
+        assert bridge.spec.remote.port == cb_port
+        worker_dir = fleet.agents["127.0.0.2"].state_dir / "bridges" / "fleet-mqtt--fleet-context"
+        cb_token = fleet.agents["127.0.0.3"].token
+        assert (worker_dir / "remote.token").read_text() == cb_token
+        capsys.readouterr()
+        assert main(["plan", str(plant), *agents]) == 0
+        assert cb_token not in capsys.readouterr().out
+
+        counter = MqttCounter(mqtt_port, "agv-1/motion_channel", "test-motion", host="127.0.0.2")
+        try:
+            publish(mqtt_port, 1, topic="agv-1/status_channel", rate=None, host="127.0.0.2",
+                    extra=lambda i: {"state": "idle", "battery": 87}).join(30)
+            http = Http("127.0.0.3", cb_port)  # the context broker the agent runs
+
+            def status_entity() -> dict | None:
+                reply = http.request("GET", "/v2/entities/urn:ngsi-ld:AGV:agv-1?type=AGV&options=keyValues")
+                return reply.json() if reply.status == 200 else None
+            entity = process.wait_until(status_entity, 30.0, 0.1, what="the AGV entity")
+            assert (entity["state"], entity["battery"], entity["seq"]) == ("idle", 87, 0)
+
+            body = {"id": "urn:ngsi-ld:MotionCommand:agv-1", "type": "MotionCommand",
+                    "seq": {"type": "Number", "value": 0}}
+            reply = http.request("POST", "/v2/entities?options=upsert", json.dumps(body),
+                                 {"Authorization": f"Bearer {cb_token}", "Content-Type": "application/json"})
+            http.close()
+            assert reply.status in (201, 204), reply.body
+            process.wait_until(lambda: counter.seqs == [0], 30.0, 0.05, what="the motion command on MQTT")
+        finally:
+            counter.stop()
+
+        capsys.readouterr()
+        assert main(["status", str(plant), *agents]) == 0
+        table = capsys.readouterr().out
+        line = next(row for row in table.splitlines() if "bridge.fleet-mqtt.fleet-context" in row)
+        assert "mqtt-ngsi" in line and "running" in line and cb_token not in table
+
+        assert main(["destroy", str(plant), *agents, "--yes"]) == 0
     finally:
         fleet.stop()
