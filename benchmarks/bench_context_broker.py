@@ -126,7 +126,8 @@ def _window(work: Path, target: str, clients: int, duration: float, server: proc
             "first_error": next((r.first_error for r in results if r.first_error), ""),
             "worker_late_s": max(r.late_s for r in results),
             "per_s": rate["per_s"], "generator_cpu_pct_of_core": rate["cpu_pct_of_core"],
-            "server_cpu_pct_of_core": load.rate_summary(completed, duration, server_cpu)["cpu_pct_of_core"]}
+            "server_cpu_pct_of_core": load.rate_summary(completed, duration, server_cpu)["cpu_pct_of_core"],
+            "server_cpu_ms_per_request": 1000 * server_cpu / completed if completed else None}
 
 
 # -- notification latency ----------------------------------------------------------------------
@@ -221,7 +222,7 @@ def notification_study(cb: ContextBroker, mq: rig.Mosquitto, n: int, rate: float
             reply = http.request("POST", "/v2/entities?options=upsert", json.dumps(entity), {**JSON, **cb.auth})
             if reply.status not in (201, 204):
                 _ok(reply.status, 201, "create a notifying entity", reply.body)
-        sub = {"description": "bench: update -> MQTT", "subject": {
+        sub = {"description": "bench: update to MQTT", "subject": {
             "entities": [{"idPattern": "^bench-n-", "type": "AGV"}], "condition": {"attrs": ["seq"]}},
             "notification": {"mqtt": {"url": f"mqtt://{mq.host}:{mq.port}", "topic": "bench/notify", "qos": 1},
                              "attrs": ["seq"], "attrsFormat": "keyValues"}}
@@ -372,6 +373,10 @@ def goals(data: dict[str, Any]) -> list[dict[str, Any]]:
     return out
 
 
+def _num(value: float | None) -> str:
+    return "-" if value is None else f"{value:.2f}"
+
+
 def _ms(summary: dict[str, float], key: str) -> str:
     return f"{summary[key]:.2f}" if key in summary else "-"
 
@@ -385,12 +390,12 @@ def to_markdown(data: dict[str, Any]) -> str:
     lines += ["", f"## Updates per second ({data['duration_s']} s windows; one request or QoS-1 publish in "
               "flight per client; CPU in % of one core over the window)", "",
               "| target | clients | worker processes | per s | vs Mosquitto | errors | generator CPU % | server CPU % | "
-              "workers late s |", "|---|---|---|---|---|---|---|---|---|"]
+              "server CPU ms per request | workers late s |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in data["updates"]:
         vs = "-" if r["vs_mosquitto"] is None else f"{r['vs_mosquitto']:.2f}"
         lines.append(f"| {r['target']} | {r['clients']} | {r['processes']} | {r['per_s']:.0f} | {vs} | {r['errors']} | "
                      f"{r['generator_cpu_pct_of_core']:.0f} | {r['server_cpu_pct_of_core']:.0f} | "
-                     f"{r.get('worker_late_s', 0.0):.2f} |")
+                     f"{_num(r.get('server_cpu_ms_per_request'))} | {r.get('worker_late_s', 0.0):.2f} |")
     lines += ["", "## Notification latency (paced; ms from just before the PATCH / publish to the MQTT message's "
               "arrival)", "",
               "| path | offered/s | achieved/s | max sender lag ms | received | lost | dup | p50 ms | p99 ms | max ms |",

@@ -44,7 +44,8 @@ def _data(cb_rates: dict[int, float], p99: float, lost: int, q99: float) -> dict
         for target, per_s in (("context-broker", rate), ("mosquitto", 10 * rate)):
             updates.append({"target": target, "clients": clients, "processes": 1, "per_s": per_s, "errors": 0,
                             "vs_mosquitto": 0.1 if target == "context-broker" else 1.0,
-                            "generator_cpu_pct_of_core": 20.0, "server_cpu_pct_of_core": 95.0})
+                            "generator_cpu_pct_of_core": 20.0, "server_cpu_pct_of_core": 95.0,
+                            "server_cpu_ms_per_request": 0.4})
     lat = {"n": 10, "p50": p99 / 2, "p99": p99, "max": p99}
     return {"command": "python -m benchmarks.bench_context_broker", "machine": {"cpus": 2}, "duration_s": 1.0,
             "updates": updates,
@@ -80,6 +81,6 @@ def test_markdown_has_goal_verdicts_and_every_row() -> None:
     data["goals"] = bench.goals(data)
     text = bench.to_markdown(data)
     assert "| update -> MQTT notification p99 at 500 updates/s | 60.0 ms (lost 0) | < 50 ms, none lost | **not met** |" in text
-    assert "| context-broker | 8 | 1 | 2400 | 0.10 | 0 | 20 | 95 | 0.00 |" in text
+    assert "| context-broker | 8 | 1 | 2400 | 0.10 | 0 | 20 | 95 | 0.40 | 0.00 |" in text
     assert "| mosquitto | 1 | 1 | 9000 |" in text
     assert "| GET /v2/entities/{id} | 1 | - | 500.00 | 900.00 | 900.00 |" in text
