@@ -82,7 +82,7 @@ class Registry:
         self._subs: dict[str, Subscription] = {}
         self._status: dict[str, DeliveryStatus] = {}
         self._status_dirty = False
-        self.snapshot: tuple[Subscription, ...] = ()
+        self._index: dict[Tenant, tuple[dict[str, tuple[Subscription, ...]], tuple[Subscription, ...]]] = {}
         self._load()
 
     # --- persistence ---------------------------------------------------------------------
@@ -115,14 +115,38 @@ class Registry:
             except (ValueError, AttributeError, TypeError):
                 # only counters: start them again rather than refuse to start
                 self._status = {}
-        self.snapshot = tuple(self._subs.values())
+        self._publish()
+
+    def _publish(self) -> None:
+        """Rebuild the lookup :meth:`candidates` reads (a new dict, swapped in whole, so readers
+        need no lock): per tenant, the subscriptions naming exact entity ids by id, and those
+        with a pattern in a list that every change of the tenant is checked against."""
+        index: dict[Tenant, tuple[dict[str, list[Subscription]], list[Subscription]]] = {}
+        for sub in self._subs.values():
+            by_id, scan = index.setdefault(sub.tenant, ({}, []))
+            if any(sel.id is None for sel in sub.entities):
+                scan.append(sub)
+            else:
+                for entity_id in dict.fromkeys(sel.id for sel in sub.entities if sel.id is not None):
+                    by_id.setdefault(entity_id, []).append(sub)
+        self._index = {tenant: ({k: tuple(v) for k, v in by_id.items()}, tuple(scan))
+                       for tenant, (by_id, scan) in index.items()}
+
+    def candidates(self, tenant: Tenant, entity_id: str) -> tuple[Subscription, ...]:
+        """The subscriptions a change of ``entity_id`` in ``tenant`` can trigger (a superset)."""
+        entry = self._index.get(tenant)
+        if entry is None:
+            return ()
+        by_id, scan = entry
+        exact = by_id.get(entity_id, ())
+        return exact + scan if exact else scan
 
     def _save(self) -> None:
         items = [{"id": sub_id, "service": entry["tenant"].service,
                   "servicePath": entry["tenant"].service_path, "doc": entry["doc"]}
                  for sub_id, entry in self._docs.items()]
         atomic_write_json(self._dir / SUBSCRIPTIONS_FILE, {"version": 1, "subscriptions": items})
-        self.snapshot = tuple(self._subs.values())
+        self._publish()
 
     def flush_status(self) -> None:
         with self._lock:

@@ -92,7 +92,12 @@ class SubscriptionService:
         writing request's thread after the write is durable: it never raises (a subscription
         that cannot be evaluated is logged and skipped; the write has happened either way)."""
         now = self.clock()
-        for sub in self.registry.snapshot:
+        try:
+            candidates = self.registry.candidates(change.tenant, change.entity_id)
+        except Exception:  # noqa: BLE001 - a malformed change must not fail a durable write
+            log.exception("could not look up the subscriptions of a change")
+            return
+        for sub in candidates:
             try:
                 self._offer(sub, change, now)
             except Exception:  # noqa: BLE001 - one subscription must not fail a durable write

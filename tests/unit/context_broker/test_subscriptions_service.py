@@ -285,3 +285,15 @@ def test_a_change_that_cannot_be_rendered_does_not_fail_the_write(service, sende
     service.entity_changed(change(entity(temperature=5)))
     wait_for(lambda: len(sender.values(URL_A)) >= 1, "the next notification")
     assert sender.values(URL_A) == [5]
+
+
+def test_candidates_index_exact_ids_and_scan_patterns(service) -> None:
+    exact = service.create(Tenant(), doc(subject={"entities": [{"id": "A1"}, {"id": "A2", "type": "T"}]}))
+    pattern = service.create(Tenant(), doc(subject={"entities": [{"id": "B1"}, {"idPattern": "^A"}]}))
+    other = service.create(Tenant("acme"), doc(subject={"entities": [{"id": "A1"}]}))
+    ids = lambda tenant, entity_id: {s.id for s in service.registry.candidates(tenant, entity_id)}  # noqa: E731
+    assert ids(Tenant(), "A1") == ids(Tenant(), "A2") == {exact.id, pattern.id}
+    assert ids(Tenant(), "Z9") == {pattern.id}
+    assert ids(Tenant("acme"), "A1") == {other.id} and ids(Tenant("nobody"), "A1") == set()
+    service.delete(exact.id, Tenant())
+    assert ids(Tenant(), "A1") == {pattern.id}
