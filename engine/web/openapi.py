@@ -49,6 +49,8 @@ _SCHEMAS: dict[str, Any] = {
         "topics_total": {"type": "integer"},
         "bridges": {"type": "array", "items": {"$ref": "#/components/schemas/Bridge"}},
         "graph": {"type": "object", "description": "nodes and edges for the picture"},
+        "context": {"type": ["object", "null"], "description": "the live context read from the plant's "
+                    "context brokers: quads, brokers, unavailable (broker, why)"},
         "plan": {"type": ["object", "null"], "description": "summary and fingerprint of the pending plan"},
         "apply": {"type": "object", "description": "the last apply: state, progress, summary"}}},
 }

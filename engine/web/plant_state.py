@@ -28,6 +28,7 @@ from engine.agents_config import AgentDirectory
 from engine.apply import ApplyEvent, apply
 from engine.cli.progress import result_lines
 from engine.errors import EngineError
+from engine.context_view import ContextView, context_sources, write_context
 from engine.model import DesiredState, ObservedState, Plan
 from engine.observed import observe, write_observed
 from engine.pipeline import run_pipeline
@@ -79,6 +80,7 @@ class Snapshot:
     error: str | None = None
     resources: tuple[views.ResourceLink, ...] = ()
     agent_urls: tuple[tuple[str, str], ...] = ()
+    context: ContextView | None = None
     apply: ApplyJob = field(default_factory=ApplyJob)
 
     @cached_property
@@ -93,6 +95,7 @@ class Snapshot:
             "machines": views.machine_rows(brokers, self.observed, dict(self.agent_urls)),
             "brokers": brokers, **views.topic_section(self.desired, self.observed),
             "bridges": bridges,
+            "context": views.context_summary(self.context),
             "graph": views.graph_elements(brokers, bridges, self.resources),
             "plan": views.plan_summary(self.plan, self.fingerprint),
             "apply": {"state": self.apply.state, "fingerprint": self.apply.fingerprint,
@@ -197,9 +200,10 @@ class PlantState:
                     "fingerprint": None, "observed_at": time.time()}
         with self.store_lock.writing():
             write_observed(plant, observed)
+            context = write_context(plant, context_sources(plant))
         plan = make_plan(desired, observed)
         return {"observed": observed, "plan": plan, "fingerprint": plan_fingerprint(plan), "error": None,
-                "observed_at": time.time(), "agent_urls": tuple((h, directory.url_for(h)) for h in sorted(hosts))}
+                "observed_at": time.time(), "context": context, "agent_urls": tuple((h, directory.url_for(h)) for h in sorted(hosts))}
 
     def tick(self) -> None:
         """One look of the watcher: re-read changed files, or re-observe when it is time."""

@@ -16,6 +16,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from engine.context_view import ContextView
 from engine.model import BridgeSpec, BrokerStatus, DesiredState, ObservedBridge, ObservedState, Plan
 from engine.render_plan import plan_dict, summary_line
 from kg.validate import ValidationReport
@@ -181,3 +182,11 @@ def plan_summary(plan: Plan | None, fingerprint: str | None) -> dict[str, Any] |
             "summary": data["summary"], "line": summary_line(plan),
             "pending": [c.address for c in plan.pending], "unreachable": data["unreachable"],
             "refusals": data["refusals"]}
+
+
+def context_summary(context: ContextView | None) -> dict[str, Any] | None:
+    """The live context read from the plant's context brokers: how many quads, who did not answer."""
+    if context is None:
+        return None
+    return {"quads": context.quads, "brokers": [s.iri for s in context.sources],
+            "unavailable": [{"broker": iri, "why": why} for iri, why in context.unavailable]}

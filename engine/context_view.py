@@ -1,0 +1,127 @@
+"""Live context in the plant's graph: the entities of every context broker the plant names.
+
+A context broker keeps its context as RDF (docs/context-broker.md, "The context as RDF") and
+serves all of it as N-Quads at ``GET /plantkg/v1/graph``, one named graph per tenant under
+``NGSI_GRAPH_BASE``. ``plantkg serve`` reads it on every observation and puts those graphs into the
+plant's store beside the plant, the inferred facts and the observed state, so one SPARQL query can
+ask "which broker carries AGV 7's state, and what does it say now".
+
+- Which brokers: every individual the reasoner classified ``pk:ContextBroker`` (brokerType
+  "ngsi-v2"), deployed by plantkg or ``pk:external`` (a real Orion does not serve this route: it is
+  reported unavailable, nothing else breaks).
+- The graphs of all context brokers are replaced together; tenants of the same name on two
+  context brokers meet in one named graph (the context is one data space; entity nodes are keyed
+  by their ids).
+- A context broker that does not answer keeps nothing of its old context in the graph and is
+  named in :attr:`ContextView.unavailable`, so the dashboard can say so; it never fails the
+  observation of brokers.
+
+Reads need no token (the context broker's reads are open); only loopback or plant addresses the
+plant itself names are asked.
+"""
+
+from __future__ import annotations
+
+import http.client
+from collections.abc import Iterable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import pyoxigraph as ox
+
+from engine.values import host_in_url
+from kg.load import PlantGraph
+from kg.namespaces import NGSI_GRAPH_BASE
+from kg.query import run_query
+
+GRAPH_PATH = "/plantkg/v1/graph"
+#: Largest context read (bytes); a bigger answer is refused rather than held in memory twice.
+MAX_CONTEXT_BYTES = 256 * 1024 * 1024
+
+_CONTEXT_BROKERS = """SELECT ?broker ?ip ?port WHERE {
+  ?broker a pk:ContextBroker ; pk:ip ?ip ; pk:port ?port } ORDER BY ?broker"""
+
+
+@dataclass(frozen=True)
+class ContextSource:
+    """A context broker of the plant: its individual and where it answers."""
+
+    iri: str
+    host: str
+    port: int
+
+    @property
+    def url(self) -> str:
+        return f"http://{host_in_url(self.host)}:{self.port}{GRAPH_PATH}"
+
+
+@dataclass(frozen=True)
+class ContextView:
+    """What one read of the context put into the plant's store."""
+
+    quads: int = 0
+    sources: tuple[ContextSource, ...] = ()
+    unavailable: tuple[tuple[str, str], ...] = ()   # (broker IRI, why)
+
+
+def context_sources(plant: PlantGraph) -> list[ContextSource]:
+    """The plant's context brokers (needs the inferred classes: run after reasoning)."""
+    found = []
+    for broker, ip, port in run_query(plant, _CONTEXT_BROKERS).rows:
+        if isinstance(broker, ox.NamedNode) and isinstance(ip, ox.Literal) and isinstance(port, ox.Literal):
+            try:
+                found.append(ContextSource(broker.value, ip.value, int(port.value)))
+            except ValueError:
+                continue   # a port the shapes refused already; nothing to ask
+    return found
+
+
+def fetch_context(source: ContextSource, timeout: float = 3.0) -> list[ox.Quad]:
+    """The context broker's whole context, parsed; raises :class:`OSError` or
+    :class:`ValueError` saying why it could not be read."""
+    conn = http.client.HTTPConnection(source.host, source.port, timeout=timeout)
+    try:
+        conn.request("GET", GRAPH_PATH, headers={"Accept": "application/n-quads"})
+        response = conn.getresponse()
+        body = response.read(MAX_CONTEXT_BYTES + 1)
+    finally:
+        conn.close()
+    if response.status != 200:
+        raise ValueError(f"{source.url} answered HTTP {response.status}")
+    if len(body) > MAX_CONTEXT_BYTES:
+        raise ValueError(f"{source.url}: the context is larger than {MAX_CONTEXT_BYTES} bytes")
+    quads = list(ox.parse(body, format=ox.RdfFormat.N_QUADS))
+    outside = next((q for q in quads if not _context_graph(q.graph_name)), None)
+    if outside is not None:
+        raise ValueError(f"{source.url}: a quad outside the context graphs ({outside.graph_name})")
+    return quads
+
+
+def write_context(plant: PlantGraph, sources: Iterable[ContextSource], *, timeout: float = 3.0,
+                  parallelism: int = 4) -> ContextView:
+    """Replace every context graph in the plant's store with what the context brokers serve now.
+    The caller holds the store's write lock."""
+    sources = tuple(sources)
+    unavailable: list[tuple[str, str]] = []
+    quads: list[ox.Quad] = []
+
+    def read(source: ContextSource) -> list[ox.Quad] | str:
+        try:
+            return fetch_context(source, timeout)
+        except (OSError, ValueError, http.client.HTTPException) as exc:
+            return f"{type(exc).__name__}: {exc}"
+
+    with ThreadPoolExecutor(max_workers=max(1, min(parallelism, len(sources) or 1))) as pool:
+        for source, got in zip(sources, pool.map(read, sources)):
+            if isinstance(got, str):
+                unavailable.append((source.iri, got))
+            else:
+                quads.extend(got)
+    for graph in [g for g in plant.store.named_graphs() if _context_graph(g)]:
+        plant.store.remove_graph(graph)
+    plant.store.extend(quads)
+    return ContextView(len(quads), sources, tuple(unavailable))
+
+
+def _context_graph(graph: object) -> bool:
+    return isinstance(graph, ox.NamedNode) and graph.value.startswith(NGSI_GRAPH_BASE)

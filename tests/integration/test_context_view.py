@@ -1,0 +1,83 @@
+"""``plantkg serve`` sees the live context: a real context broker's entities appear in the plant's
+store (and so in the SPARQL endpoint) next to the plant, are replaced on every observation, and a
+context broker that stops answering is reported, its old context gone."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from benchmarks.context_broker_rig import ContextBroker
+from engine.web.plant_state import PlantState
+from tests.web.conftest import closed_directory, make_app
+
+pytestmark = pytest.mark.integration
+
+PLANT = """
+@prefix pk: <https://w3id.org/plantkg/ontology#> .
+@prefix :   <https://example.org/live#> .
+:cb a pk:Broker ; pk:id "cb" ; pk:name "Context broker" ; pk:brokerType "ngsi-v2" ;
+    pk:ip "127.0.0.1" ; pk:port {port} .
+:planner a pk:Resource ; pk:id "planner" ; pk:name "Task planner" ; pk:sendsTo :cb .
+"""
+
+BATTERY = """SELECT ?value ?broker WHERE {
+  ?agv ngsi:entityId "urn:ngsi-ld:AGV:7" ; ngsi:hasAttribute ?attr .
+  ?attr ngsi:name "battery" ; ngsi:hasValue ?value .
+  ?broker a pk:ContextBroker ; pk:id "cb" }"""
+PREFIXES = "PREFIX ngsi: <https://w3id.org/plantkg/ngsi#>\n"
+
+
+@pytest.fixture
+def broker(tmp_path: Path) -> Iterator[ContextBroker]:
+    rig = ContextBroker(tmp_path / "cb").start()
+    try:
+        yield rig
+    finally:
+        rig.stop()
+
+
+def put_battery(rig: ContextBroker, value: float) -> None:
+    body = json.dumps({"id": "urn:ngsi-ld:AGV:7", "type": "AGV",
+                       "battery": {"type": "Number", "value": value}})
+    reply = rig.http().request("POST", "/v2/entities?options=upsert", body,
+                               {"Content-Type": "application/json", **rig.auth})
+    assert reply.status in (201, 204), reply.body
+
+
+def test_the_dashboard_store_holds_the_live_context(broker: ContextBroker, tmp_path: Path) -> None:
+    plant = tmp_path / "live.ttl"
+    plant.write_text(PLANT.replace("{port}", str(broker.port)), encoding="utf-8")
+    put_battery(broker, 81.5)
+    state = PlantState([str(plant)], None, directory_loader=lambda _p: closed_directory(("127.0.0.1",)))
+    try:
+        state.reload()
+        snap = state.snapshot
+        assert snap.error is None, snap.error
+        assert snap.context is not None and snap.context.quads > 0 and not snap.context.unavailable
+        client = make_app(state).test_client()
+        answer = client.get("/sparql", query_string={"query": PREFIXES + BATTERY},
+                            headers={"Accept": "application/sparql-results+json"}).json
+        rows = answer["results"]["bindings"]
+        assert [float(r["value"]["value"]) for r in rows] == [81.5]
+        assert client.get("/api/status").json["context"]["unavailable"] == []
+
+        put_battery(broker, 42.0)
+        state.refresh()
+        rows = client.get("/sparql", query_string={"query": PREFIXES + BATTERY},
+                          headers={"Accept": "application/sparql-results+json"}).json["results"]["bindings"]
+        assert [float(r["value"]["value"]) for r in rows] == [42.0], "the old value must be replaced"
+
+        broker.stop()
+        state.refresh()
+        context = state.snapshot.context
+        assert context is not None and context.quads == 0
+        assert [iri for iri, _why in context.unavailable] == ["https://example.org/live#cb"]
+        rows = client.get("/sparql", query_string={"query": PREFIXES + BATTERY},
+                          headers={"Accept": "application/sparql-results+json"}).json["results"]["bindings"]
+        assert rows == []
+    finally:
+        state.close()
