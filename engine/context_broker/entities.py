@@ -110,9 +110,14 @@ def _no_constant(name: str) -> Any:
 
 
 def parse_json(raw: bytes) -> Any:
+    """The JSON document ``raw`` holds: 400 ParseError for bad JSON, NaN/Infinity, or a
+    ``\\ud800``-style escape that is no Unicode character (a lone surrogate cannot be stored)."""
     try:
-        return json.loads(raw, parse_constant=_no_constant)
-    except (ValueError, UnicodeDecodeError) as err:
+        value = json.loads(raw, parse_constant=_no_constant)
+        if b"\\u" in raw:
+            json.dumps(value, ensure_ascii=False).encode("utf-8")
+        return value
+    except (ValueError, UnicodeDecodeError, UnicodeEncodeError) as err:
         raise NgsiError(400, "ParseError", f"Errors found in incoming JSON buffer: {err}") from None
 
 

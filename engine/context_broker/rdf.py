@@ -32,6 +32,7 @@ from __future__ import annotations
 import json
 import re
 from collections import defaultdict
+from functools import lru_cache
 from collections.abc import Iterable
 from datetime import datetime, timezone
 from typing import Any
@@ -63,8 +64,16 @@ XSD_STRING, XSD_INTEGER, XSD_DOUBLE = str(XSD.string), str(XSD.integer), str(XSD
 XSD_BOOLEAN, XSD_DATETIME = str(XSD.boolean), str(XSD.dateTime)
 
 
+@lru_cache(maxsize=4096)
 def is_absolute_iri(text: str) -> bool:
-    return bool(_ABSOLUTE_IRI.match(text))
+    """An absolute IRI Oxigraph accepts as it is (checked once per distinct text)."""
+    if not _ABSOLUTE_IRI.match(text):
+        return False
+    try:
+        ox.NamedNode(text)
+    except ValueError:
+        return False
+    return True
 
 
 def graph_iri(tenant: Tenant) -> str:
@@ -88,6 +97,7 @@ def preferred_node(entity_id: str, entity_type: str) -> str:
     return entity_id if is_absolute_iri(entity_id) else minted_node(entity_id, entity_type)
 
 
+@lru_cache(maxsize=4096)
 def type_iri(entity_type: str) -> str:
     return entity_type if is_absolute_iri(entity_type) else NGSI_TYPE_BASE + quote(entity_type, safe="")
 
@@ -96,8 +106,16 @@ def attr_iri(entity_id: str, entity_type: str, name: str) -> str:
     return f"{minted_node(entity_id, entity_type)}/attrs/{quote(name, safe='')}"
 
 
+_ESCAPES = {c: f"\\u{c:04X}" for c in (*range(0x20), 0x7F)}
+_ESCAPES.update({0x08: "\\b", 0x09: "\\t", 0x0A: "\\n", 0x0C: "\\f", 0x0D: "\\r",
+                 0x22: '\\"', 0x5C: "\\\\"})
+
+
 def _literal(text: str, datatype: str) -> str:
-    return str(ox.Literal(text, datatype=ox.NamedNode(datatype)))
+    """N-Triples (and SPARQL) literal, escaped exactly as pyoxigraph serializes it (unit
+    tested) without building its objects on every write."""
+    escaped = text.translate(_ESCAPES)
+    return f'"{escaped}"' if datatype == XSD_STRING else f'"{escaped}"^^<{datatype}>'
 
 
 def _stamp(seconds: float) -> str:
@@ -118,29 +136,37 @@ def value_literal(value: Any, ngsi_type: str) -> str:
     return _literal(json.dumps(value, ensure_ascii=False, separators=(",", ":")), RDF_JSON)
 
 
-def entity_triples(entity: Entity, node: str) -> list[Triple]:
-    """The triples of ``entity`` (in N-Triples terms) with ``node`` as its subject."""
-    s = _nt(node)
-    out: list[Triple] = [
-        (s, P_TYPE, _nt(type_iri(entity.type))),
-        (s, P_ID, _literal(entity.id, XSD_STRING)),
-        (s, P_ETYPE, _literal(entity.type, XSD_STRING)),
-        (s, P_CREATED, _stamp(entity.created)),
-        (s, P_MODIFIED, _stamp(entity.modified)),
-    ]
+def head_triples(entity: Entity, node: str) -> frozenset[Triple]:
+    """The entity's own triples (type, id, type name, dates, links to its attributes)."""
+    s = f"<{node}>"
+    out = [(s, P_TYPE, f"<{type_iri(entity.type)}>"), (s, P_ID, _literal(entity.id, XSD_STRING)),
+           (s, P_ETYPE, _literal(entity.type, XSD_STRING)), (s, P_CREATED, _stamp(entity.created)),
+           (s, P_MODIFIED, _stamp(entity.modified))]
+    out += [(s, P_HAS_ATTR, f"<{attr_iri(entity.id, entity.type, name)}>") for name in entity.attrs]
+    return frozenset(out)
+
+
+def attribute_triples(entity_id: str, entity_type: str, name: str, attr: Attribute) -> frozenset[Triple]:
+    """The triples of one attribute node and its metadata nodes."""
+    a_iri = attr_iri(entity_id, entity_type, name)
+    a = f"<{a_iri}>"
+    out = [(a, P_TYPE, C_ATTRIBUTE), (a, P_NAME, _literal(name, XSD_STRING)),
+           (a, P_ATYPE, _literal(attr.type, XSD_STRING)), (a, P_VALUE, value_literal(attr.value, attr.type)),
+           (a, P_CREATED, _stamp(attr.created)), (a, P_MODIFIED, _stamp(attr.modified))]
+    for md_name, md in attr.metadata.items():
+        m = f"<{a_iri}/metadata/{quote(md_name, safe='')}>"
+        out += [(a, P_HAS_MD, m), (m, P_TYPE, C_METADATA), (m, P_NAME, _literal(md_name, XSD_STRING)),
+                (m, P_MTYPE, _literal(str(md["type"]), XSD_STRING)),
+                (m, P_VALUE, value_literal(md["value"], str(md["type"])))]
+    return frozenset(out)
+
+
+def entity_triples(entity: Entity, node: str) -> frozenset[Triple]:
+    """All triples of ``entity`` (in N-Triples terms) with ``node`` as its subject."""
+    out = set(head_triples(entity, node))
     for name, attr in entity.attrs.items():
-        a_iri = attr_iri(entity.id, entity.type, name)
-        a = _nt(a_iri)
-        out += [(s, P_HAS_ATTR, a), (a, P_TYPE, C_ATTRIBUTE), (a, P_NAME, _literal(name, XSD_STRING)),
-                (a, P_ATYPE, _literal(attr.type, XSD_STRING)),
-                (a, P_VALUE, value_literal(attr.value, attr.type)),
-                (a, P_CREATED, _stamp(attr.created)), (a, P_MODIFIED, _stamp(attr.modified))]
-        for md_name, md in attr.metadata.items():
-            m = _nt(f"{a_iri}/metadata/{quote(md_name, safe='')}")
-            out += [(a, P_HAS_MD, m), (m, P_TYPE, C_METADATA), (m, P_NAME, _literal(md_name, XSD_STRING)),
-                    (m, P_MTYPE, _literal(str(md["type"]), XSD_STRING)),
-                    (m, P_VALUE, value_literal(md["value"], str(md["type"])))]
-    return out
+        out |= attribute_triples(entity.id, entity.type, name, attr)
+    return frozenset(out)
 
 
 def update_text(graph: str, delete: Iterable[Triple], insert: Iterable[Triple]) -> str | None:

@@ -63,7 +63,8 @@ class ReadScope:
 class _TenantIndex:
     entities: dict[Key, Entity] = field(default_factory=dict)
     nodes: dict[Key, str] = field(default_factory=dict)
-    triples: dict[Key, frozenset[rdf.Triple]] = field(default_factory=dict)
+    heads: dict[Key, frozenset[rdf.Triple]] = field(default_factory=dict)
+    attr_triples: dict[Key, dict[str, tuple[Any, frozenset[rdf.Triple]]]] = field(default_factory=dict)
     by_id: dict[str, dict[str, Entity]] = field(default_factory=dict)
 
 
@@ -206,32 +207,50 @@ class ContextStore:
             return result
 
     def _commit(self, txn: Transaction) -> None:
+        """Write the difference between the indexed and the pending entities as one update.
+        Only what changed is serialized: an attribute object a write kept is the same object,
+        so its cached triples are reused."""
         idx = txn.idx
         delete: list[rdf.Triple] = []
         insert: list[rdf.Triple] = []
-        plan: list[tuple[Key, Entity | None, str, frozenset[rdf.Triple]]] = []
+        plan = []
         for key, new in txn.pending.items():
-            old_triples = idx.triples.get(key, frozenset())
-            node = idx.nodes.get(key) or _choose_node(idx, txn, key)
-            new_triples = frozenset(rdf.entity_triples(new, node)) if new is not None else frozenset()
-            delete.extend(old_triples - new_triples)
-            insert.extend(new_triples - old_triples)
-            plan.append((key, new, node, new_triples))
+            node = idx.nodes.get(key) or _choose_node(idx, key)
+            old_head = idx.heads.get(key, frozenset())
+            old_attrs = idx.attr_triples.get(key, {})
+            new_head = rdf.head_triples(new, node) if new is not None else frozenset()
+            new_attrs: dict[str, tuple[Any, frozenset[rdf.Triple]]] = {}
+            if new is not None:
+                for name, attr in new.attrs.items():
+                    cached = old_attrs.get(name)
+                    new_attrs[name] = cached if cached is not None and cached[0] is attr else (
+                        attr, rdf.attribute_triples(new.id, new.type, name, attr))
+            delete.extend(old_head - new_head)
+            insert.extend(new_head - old_head)
+            for name in old_attrs.keys() | new_attrs.keys():
+                before, after = old_attrs.get(name), new_attrs.get(name)
+                if before is not None and after is not None and before[0] is after[0]:
+                    continue
+                old_t = before[1] if before else frozenset()
+                new_t = after[1] if after else frozenset()
+                delete.extend(old_t - new_t)
+                insert.extend(new_t - old_t)
+            plan.append((key, new, node, new_head, new_attrs))
         text = rdf.update_text(rdf.graph_iri(txn.tenant), delete, insert)
         if text is not None:
             self._store.update(text)
-        for key, new, node, triples in plan:
+        for key, new, node, head, attrs in plan:
             if new is None:
                 _unindex(idx, key)
             else:
-                _index(idx, new, node, triples)
+                _index(idx, new, node, head, attrs)
         if idx.entities:
             self._tenants[txn.tenant] = idx
         else:
             self._tenants.pop(txn.tenant, None)
 
 
-def _choose_node(idx: _TenantIndex, txn: Transaction, key: Key) -> str:
+def _choose_node(idx: _TenantIndex, key: Key) -> str:
     entity_id, entity_type = key
     preferred = rdf.preferred_node(entity_id, entity_type)
     taken = {idx.nodes.get((entity_id, t)) for t in idx.by_id.get(entity_id, {})}
@@ -240,19 +259,23 @@ def _choose_node(idx: _TenantIndex, txn: Transaction, key: Key) -> str:
     return preferred
 
 
-def _index(idx: _TenantIndex, entity: Entity, node: str,
-           triples: frozenset[rdf.Triple] | None = None) -> None:
+def _index(idx: _TenantIndex, entity: Entity, node: str, head: frozenset[rdf.Triple] | None = None,
+           attrs: dict[str, tuple[Any, frozenset[rdf.Triple]]] | None = None) -> None:
     key = (entity.id, entity.type)
     idx.entities[key] = entity
     idx.nodes[key] = node
-    idx.triples[key] = triples if triples is not None else frozenset(rdf.entity_triples(entity, node))
+    idx.heads[key] = head if head is not None else rdf.head_triples(entity, node)
+    idx.attr_triples[key] = attrs if attrs is not None else {
+        name: (attr, rdf.attribute_triples(entity.id, entity.type, name, attr))
+        for name, attr in entity.attrs.items()}
     idx.by_id.setdefault(entity.id, {})[entity.type] = entity
 
 
 def _unindex(idx: _TenantIndex, key: Key) -> None:
     idx.entities.pop(key, None)
     idx.nodes.pop(key, None)
-    idx.triples.pop(key, None)
+    idx.heads.pop(key, None)
+    idx.attr_triples.pop(key, None)
     by_type = idx.by_id.get(key[0])
     if by_type is not None:
         by_type.pop(key[1], None)

@@ -169,3 +169,23 @@ def test_update_text_escapes_every_term() -> None:
     assert back.attrs["a"].value == "line\nbreak \\ and } braces {"
     store.update(rdf.update_text("urn:g", triples, []))
     assert list(store.quads_for_pattern(None, None, None, None)) == []
+
+
+@pytest.mark.parametrize("text", ["plain", 'quo"te', "back\\slash", "line\nfeed\r", "tab\tbell\x07",
+                                  "ünï©ødé ✓ 𝄞", "", "\\u0041 not an escape"])
+def test_literals_serialize_as_pyoxigraph_does(text: str) -> None:
+    for datatype in (rdf.XSD_STRING, rdf.XSD_DOUBLE, rdf.RDF_JSON):
+        assert rdf._literal(text, datatype) == str(ox.Literal(text, datatype=ox.NamedNode(datatype)))
+
+
+def test_lone_surrogates_and_nan_are_parse_errors() -> None:
+    for raw in (b'{"id": "E", "a": {"value": "\\ud800"}}', b'{"id": "E", "a": {"value": NaN}}',
+                b'{"id": "E", "\\udfff": 1}'):
+        with pytest.raises(NgsiError) as info:
+            ent.parse_json(raw)
+        assert info.value.error == "ParseError"
+    assert ent.parse_json(b'{"a": "\\u00e9\\ud834\\udd1e"}') == {"a": "é𝄞"}
+
+
+def test_an_id_oxigraph_would_refuse_as_iri_gets_a_minted_node() -> None:
+    assert rdf.preferred_node("urn:bad%zz", "T") == NGSI_ENTITY_BASE + "T/urn%3Abad%25zz"
