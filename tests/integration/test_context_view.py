@@ -81,3 +81,25 @@ def test_the_dashboard_store_holds_the_live_context(broker: ContextBroker, tmp_p
         assert rows == []
     finally:
         state.close()
+
+
+def test_plantkg_query_live_sees_inferred_facts_and_context(broker: ContextBroker, tmp_path: Path) -> None:
+    from click.testing import CliRunner
+
+    from engine.cli import cli
+
+    plant = tmp_path / "live.ttl"
+    plant.write_text(PLANT.replace("{port}", str(broker.port)), encoding="utf-8")
+    put_battery(broker, 63.5)
+    runner = CliRunner()
+    query = PREFIXES + BATTERY
+    offline = runner.invoke(cli, ["query", str(plant), "--format", "csv", query])
+    assert offline.exit_code == 0 and offline.output.strip() == "value,broker", offline.output
+    live = runner.invoke(cli, ["query", str(plant), "--live", "--format", "csv", query])
+    assert live.exit_code == 0, live.output
+    assert live.output.strip().splitlines()[1:] == ["63.5,https://example.org/live#cb"]
+    broker.stop()
+    gone = runner.invoke(cli, ["query", str(plant), "--live", "--format", "csv", query])
+    assert gone.exit_code == 0 and "could not be read" in gone.output
+    lonely = runner.invoke(cli, ["query", str(plant), "--agents", "agents.toml", query])
+    assert lonely.exit_code == 2 and "--agents goes with --live" in lonely.output
