@@ -134,15 +134,15 @@ def check(case: dict[str, Any], reply: Reply) -> None:
     assert (reply.header("content-type") or "").startswith("application/json"), where
     body = strict_json(reply.body)
     assert isinstance(body, dict) and isinstance(body.get("error"), str), where
+    if "allow" in expect:
+        allow = {m.strip().upper() for m in (reply.header("allow") or "").split(",") if m.strip()}
+        assert set(expect["allow"]) <= allow, f"Allow {allow}: {where}"
     if "error" in expect:
         accepted = expect["error"] if isinstance(expect["error"], list) else [expect["error"]]
         assert body["error"] in accepted, where
         assert isinstance(body.get("description"), str) and body["description"], where
     for part in expect.get("description", []):
         assert part.lower() in body["description"].lower(), f"description lacks {part!r}: {where}"
-    if "allow" in expect:
-        allow = {m.strip().upper() for m in (reply.header("allow") or "").split(",") if m.strip()}
-        assert set(expect["allow"]) <= allow, f"Allow {allow}: {where}"
 
 
 @pytest.mark.parametrize("case", _params())
