@@ -22,12 +22,14 @@ def test_context_broker_benchmark_runs_tiny(tmp_path: Path) -> None:
     for row in data["updates"]:
         assert row["completed"] > 0 and row["errors"] == 0, row
         assert row["generator_cpu_pct_of_core"] > 0 and row["server_cpu_pct_of_core"] > 0, row
-    notify = {r["path"]: r for r in data["notification"]["rows"]}
-    assert set(notify) == {"context-broker -> mqtt", "raw mosquitto"}
-    for row in notify.values():
+    notify = data["notification"]["rows"]
+    assert {(r["path"], r["role"]) for r in notify if r["role"] == "goal"} == {
+        ("context-broker -> mqtt", "goal"), ("raw mosquitto", "goal")}
+    assert {r["role"] for r in notify} <= {"goal", "below-capacity"} and len(notify) in (2, 4)
+    for row in notify:
         assert row["lost"] == 0 and row["received"] == row["messages"] == 200, row
         assert row["latency_ms"]["p99"] > 0
-    assert notify["context-broker -> mqtt"]["update_failures"] == 0
+        assert row["update_failures"] == 0, row
     queries = data["query"]["rows"]
     assert data["query"]["entities"] == 300 and len(queries) == 3
     assert all(q["latency_ms"]["n"] == 20 for q in queries)  # each answer was checked by the study
