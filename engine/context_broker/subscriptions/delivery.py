@@ -15,6 +15,7 @@ are lost if the process is killed (docs/context-broker.md says so).
 from __future__ import annotations
 
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from typing import Protocol
@@ -26,6 +27,9 @@ from engine.context_broker.subscriptions.result import Result
 BACKOFF_BASE = 0.5
 BACKOFF_CAP = 30.0
 DEFAULT_BOUND = 10_000
+#: How long an idle lane's thread waits for more work before it ends (a busy subscription keeps
+#: its thread; an idle one holds none).
+LINGER = 5.0
 
 
 def backoff_delay(attempt: int, base: float = BACKOFF_BASE, cap: float = BACKOFF_CAP) -> float:
@@ -58,6 +62,7 @@ class Lane:
         self._bound = bound
         self._backoff = backoff
         self._lock = threading.Lock()
+        self._more = threading.Condition(self._lock)
         self._queue: deque[Outgoing] = deque()
         self._thread: threading.Thread | None = None
         self._sending: Outgoing | None = None  # the head while a send is under way: never dropped
@@ -73,6 +78,7 @@ class Lane:
                 else:
                     self._queue.popleft()
                 dropped += 1
+            self._more.notify()
             if self._thread is None and not self._stop.is_set():
                 self._thread = threading.Thread(target=self._run, name=f"notify-{self.sub_id}",
                                                 daemon=True)
@@ -95,11 +101,19 @@ class Lane:
     def join(self, timeout: float) -> None:
         thread = self._thread
         self._wake.set()
+        with self._more:
+            self._more.notify_all()
         if thread is not None:
             thread.join(timeout)
 
     def _head(self) -> Outgoing | None:
-        with self._lock:
+        with self._more:
+            deadline = time.monotonic() + LINGER
+            while not self._queue and not self._stop.is_set():
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    break
+                self._more.wait(remaining)
             if not self._queue or self._stop.is_set():
                 self._thread = None
                 self._sending = None
