@@ -8,7 +8,9 @@ deploys it) and one ``python -m engine.context_broker`` (token file, tmp data fo
   QoS-1 publishes per second with the same client counts (each waits for its PUBACK). Clients run
   in up to ``--max-processes`` spawned worker processes (``context_broker_load``); the CPU
   seconds of the generator, of the context broker and of Mosquitto over each window are
-  recorded, so the table shows which side was saturated.
+  recorded, so the table shows which side was saturated; and, at the largest client count, the
+  same generator sending ``GET /version`` (the cheapest route): what generator + HTTP stack can
+  do at all, next to the PATCH rate.
 - **notification**: a subscription with ``notification.mqtt`` on Mosquitto; updates paced at
   ``--rate`` per second (four sender threads, one entity each), and again at
   ``--capacity-fraction`` of the best updates/s measured (when that is lower: the notification
@@ -49,11 +51,10 @@ from engine import parts, process
 JSON = {"Content-Type": "application/json"}
 SENDER_THREADS = 4
 STATES = ("idle", "moving", "charging", "loading", "error")
-START_MARGIN = 2.0  # s for the worker processes to start and connect before a window opens
 GOAL_UPDATES_PER_S = 2000.0
 GOAL_NOTIFY_P99_MS = 50.0
 GOAL_QUERY_P99_MS = 100.0
-TINY = ["--clients", "1", "2", "--duration", "1", "--rate", "200", "--notifications", "200",
+TINY = ["--clients", "1", "2", "--duration", "1", "--start-margin", "1", "--rate", "200", "--notifications", "200",
         "--entities", "300", "--requests", "20"]
 
 
@@ -65,7 +66,7 @@ def _ok(reply_status: int, expected: int, what: str, body: bytes = b"") -> None:
 # -- updates/s ---------------------------------------------------------------------------------
 
 def updates_study(cb: ContextBroker, mq: rig.Mosquitto, clients_list: list[int], duration: float,
-                  max_processes: int, work: Path) -> list[dict[str, Any]]:
+                  max_processes: int, work: Path, margin: float = 2.0) -> list[dict[str, Any]]:
     http = cb.http()
     try:
         for k in range(max(clients_list)):
@@ -82,10 +83,16 @@ def updates_study(cb: ContextBroker, mq: rig.Mosquitto, clients_list: list[int],
         groups = [",".join(next(ids) for _ in range(n)) for n in split]
         rows.append(_window(work, "context-broker", clients, duration, cb.child, [
             ["http", "--host", cb.host, "--port", str(cb.port), "--token-file", str(cb.token_file),
-             "--entities", group] for group in groups]))
+             "--entities", group] for group in groups], margin))
         rows.append(_window(work, "mosquitto", clients, duration, mq.child, [
             ["mqtt", "--host", mq.host, "--port", str(mq.port), "--threads", str(n), "--worker", str(w)]
-            for w, n in enumerate(split)]))
+            for w, n in enumerate(split)], margin))
+    clients = max(clients_list)  # calibration: the same generator on the cheapest route
+    split = load.split_clients(clients, max_processes)
+    ids = iter(f"bench-u-{k}" for k in range(clients))
+    rows.append(_window(work, "context-broker GET /version", clients, duration, cb.child, [
+        ["http-get", "--host", cb.host, "--port", str(cb.port), "--token-file", str(cb.token_file),
+         "--entities", ",".join(next(ids) for _ in range(n))] for n in split], margin))
     base = {r["clients"]: r["per_s"] for r in rows if r["target"] == "mosquitto"}
     for row in rows:
         row["vs_mosquitto"] = row["per_s"] / base[row["clients"]] if base.get(row["clients"]) else None
@@ -93,11 +100,12 @@ def updates_study(cb: ContextBroker, mq: rig.Mosquitto, clients_list: list[int],
 
 
 def _window(work: Path, target: str, clients: int, duration: float, server: process.Child | None,
-            worker_args: list[list[str]]) -> dict[str, Any]:
+            worker_args: list[list[str]], margin: float) -> dict[str, Any]:
     """Run one worker process per ``worker_args`` over a window of ``duration`` s opening
-    ``START_MARGIN`` s from now; the server's CPU seconds are read at the window's edges."""
+    ``margin`` s from now (time for the workers to start and connect; a late worker shows in
+    ``worker_late_s``); the server's CPU seconds are read at the window's edges."""
     assert server is not None
-    start = time.time() + START_MARGIN
+    start = time.time() + margin
     folder = work / f"{target}-{clients}"
     children, results = [], []
     try:
@@ -436,7 +444,8 @@ def measure(args: argparse.Namespace, work: Path, argv: list[str] | None) -> dic
         data: dict[str, Any] = {"benchmark": "context_broker", "machine": machine(),
                                 "command": command_line("benchmarks.bench_context_broker", argv),
                                 "duration_s": args.duration, "max_processes": args.max_processes}
-        data["updates"] = updates_study(cb, mq, args.clients, args.duration, args.max_processes, work)
+        data["updates"] = updates_study(cb, mq, args.clients, args.duration, args.max_processes, work,
+                                        args.start_margin)
         best = max(r["per_s"] for r in data["updates"] if r["target"] == "context-broker")
         rates = [("goal", args.rate)]
         if 0 < args.capacity_fraction * best < args.rate:
@@ -457,6 +466,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--clients", type=int, nargs="+", default=[1, 8, 32])
     parser.add_argument("--duration", type=float, default=10.0, help="seconds per updates window")
     parser.add_argument("--max-processes", type=int, default=4, help="load generator worker processes")
+    parser.add_argument("--start-margin", type=float, default=2.0,
+                        help="seconds for the worker processes to start before a window opens")
     parser.add_argument("--rate", type=float, default=500.0, help="paced updates per second")
     parser.add_argument("--notifications", type=int, default=5000)
     parser.add_argument("--capacity-fraction", type=float, default=0.5,

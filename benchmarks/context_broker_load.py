@@ -2,7 +2,7 @@
 
 - :func:`http_updates`: ``threads`` clients, each with its own keep-alive HTTP connection, each
   sending ``PATCH /v2/entities/{its entity}/attrs`` back to back (one request in flight per
-  client) until a shared deadline.
+  client) until a shared deadline; or, to calibrate, ``GET /version`` the same way.
 - :func:`mqtt_publishes`: the same shape against Mosquitto: ``threads`` paho clients, each
   publishing QoS 1 and waiting for the PUBACK before the next message.
 
@@ -97,9 +97,11 @@ def _wait_until(moment: float) -> None:
 
 
 def http_updates(host: str, port: int, headers: dict[str, str], entity_ids: list[str],
-                 start_at: float, duration: float) -> WorkerResult:
+                 start_at: float, duration: float, calibrate: bool = False) -> WorkerResult:
     """One thread per entity id, each PATCHing its entity's ``counter`` from ``start_at`` for
-    ``duration`` seconds on its own keep-alive connection."""
+    ``duration`` seconds on its own keep-alive connection. ``calibrate``: the same clients send
+    ``GET /version`` instead (the cheapest route: what this generator and the HTTP server can do
+    at all, to compare a PATCH rate with)."""
     counts = [0] * len(entity_ids)
     errors = [0] * len(entity_ids)
     first_error: list[str] = []
@@ -116,10 +118,13 @@ def http_updates(host: str, port: int, headers: dict[str, str], entity_ids: list
             i += 1
             body = json.dumps({"counter": {"type": "Number", "value": i}})
             try:
-                conn.request("PATCH", path, body=body, headers=sent_headers)
+                if calibrate:
+                    conn.request("GET", "/version", headers=headers)
+                else:
+                    conn.request("PATCH", path, body=body, headers=sent_headers)
                 resp = conn.getresponse()
                 payload = resp.read()
-                if resp.status == 204:
+                if resp.status == (200 if calibrate else 204):
                     counts[k] += 1
                 else:
                     errors[k] += 1
@@ -189,7 +194,7 @@ def _run_threads(workers: list[threading.Thread], counts: list[int], errors: lis
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="one load generator worker of the context broker benchmark")
-    parser.add_argument("kind", choices=["http", "mqtt"])
+    parser.add_argument("kind", choices=["http", "http-get", "mqtt"])
     parser.add_argument("--host", required=True)
     parser.add_argument("--port", type=int, required=True)
     parser.add_argument("--start-at", type=float, required=True, help="epoch seconds the window opens")
@@ -201,12 +206,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--topic", default="bench/cb-baseline")
     parser.add_argument("--worker", type=int, default=0)
     args = parser.parse_args(argv)
-    if args.kind == "http":
+    if args.kind in ("http", "http-get"):
         headers = {}
         if args.token_file:
             headers["Authorization"] = "Bearer " + args.token_file.read_text(encoding="utf-8").strip()
         result = http_updates(args.host, args.port, headers, [e for e in args.entities.split(",") if e],
-                              args.start_at, args.duration)
+                              args.start_at, args.duration, calibrate=args.kind == "http-get")
     else:
         result = mqtt_publishes(args.host, args.port, args.threads, args.topic, args.start_at, args.duration,
                                 args.worker)

@@ -18,7 +18,7 @@ def test_context_broker_benchmark_runs_tiny(tmp_path: Path) -> None:
     assert bench_context_broker.main(["--tiny", "--out", str(tmp_path)]) == 0
     data = json.loads((tmp_path / "context_broker.json").read_text())
     assert {(r["target"], r["clients"]) for r in data["updates"]} == {
-        (t, c) for t in ("context-broker", "mosquitto") for c in (1, 2)}
+        (t, c) for t in ("context-broker", "mosquitto") for c in (1, 2)} | {("context-broker GET /version", 2)}
     for row in data["updates"]:
         assert row["completed"] > 0 and row["errors"] == 0, row
         assert row["generator_cpu_pct_of_core"] > 0 and row["server_cpu_pct_of_core"] > 0, row
