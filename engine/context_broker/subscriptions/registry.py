@@ -18,6 +18,7 @@ their service path is the scope of entities they watch.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import secrets
 import threading
@@ -32,6 +33,7 @@ from engine.context_broker.subscriptions.model import DeliveryStatus, Status, Su
 from engine.context_broker.subscriptions.parse import QParser, merge_patch, parse_subscription
 from engine.context_broker.subscriptions.result import Result
 
+log = logging.getLogger(__name__)
 SUBSCRIPTIONS_FILE = "subscriptions.json"
 STATUS_FILE = "subscription-status.json"
 NOT_FOUND = "The requested subscription has not been found. Check id"
@@ -141,11 +143,20 @@ class Registry:
         exact = by_id.get(entity_id, ())
         return exact + scan if exact else scan
 
-    def _save(self) -> None:
+    def _commit(self, docs: dict[str, dict[str, Any]], subs: dict[str, Subscription]) -> None:
+        """Write ``docs`` durably, then make ``docs``/``subs`` the current state. A failed write
+        changes nothing (the request is answered 500 saying so)."""
+        path = self._dir / SUBSCRIPTIONS_FILE
         items = [{"id": sub_id, "service": entry["tenant"].service,
                   "servicePath": entry["tenant"].service_path, "doc": entry["doc"]}
-                 for sub_id, entry in self._docs.items()]
-        atomic_write_json(self._dir / SUBSCRIPTIONS_FILE, {"version": 1, "subscriptions": items})
+                 for sub_id, entry in docs.items()]
+        try:
+            atomic_write_json(path, {"version": 1, "subscriptions": items})
+        except OSError as err:
+            raise NgsiError(500, "InternalServerError",
+                            f"could not store the subscriptions in {path}: {err.strerror or err}; "
+                            "nothing was changed") from None
+        self._docs, self._subs = docs, subs
         self._publish()
 
     def flush_status(self) -> None:
@@ -162,10 +173,9 @@ class Registry:
         sub = parse_subscription(doc, sub_id=sub_id, tenant=tenant, parse_q=self._parse_q)
         stored = {k: v for k, v in doc.items() if k != "id"}
         with self._lock:
-            self._docs[sub_id] = {"tenant": tenant, "doc": stored}
-            self._subs[sub_id] = sub
+            self._commit({**self._docs, sub_id: {"tenant": tenant, "doc": stored}},
+                         {**self._subs, sub_id: sub})
             self._status[sub_id] = DeliveryStatus()
-            self._save()
         return sub
 
     def _owned(self, sub_id: str, service: str) -> Subscription:
@@ -193,33 +203,39 @@ class Registry:
             old = self._owned(sub_id, service)
             merged = merge_patch(self._docs[sub_id]["doc"], patch)
             sub = parse_subscription(merged, sub_id=sub_id, tenant=old.tenant, parse_q=self._parse_q)
-            self._docs[sub_id] = {"tenant": old.tenant, "doc": merged}
-            self._subs[sub_id] = sub
+            self._commit({**self._docs, sub_id: {"tenant": old.tenant, "doc": merged}},
+                         {**self._subs, sub_id: sub})
             if sub.status is not Status.INACTIVE and "status" in patch:
                 # re-activated by its owner: a fresh start for maxFailsLimit
                 self._status[sub_id] = replace(self._status.get(sub_id, DeliveryStatus()), fails_counter=0)
                 self._status_dirty = True
-            self._save()
         return sub
 
     def delete(self, sub_id: str, service: str) -> None:
         with self._lock:
             self._owned(sub_id, service)
-            del self._docs[sub_id], self._subs[sub_id]
+            self._commit({k: v for k, v in self._docs.items() if k != sub_id},
+                         {k: v for k, v in self._subs.items() if k != sub_id})
             self._status.pop(sub_id, None)
-            self._save()
 
     def current(self, sub_id: str) -> Subscription | None:
         return self._subs.get(sub_id)
 
     def deactivate(self, sub_id: str) -> None:
-        """``oneshot`` after it fired, or ``maxFailsLimit`` passed: ``inactive``, durably."""
+        """``oneshot`` after it fired, or ``maxFailsLimit`` passed: ``inactive``, durably. If the
+        file cannot be written, inactive in memory all the same (logged): it must not fire again."""
         with self._lock:
             if sub_id not in self._subs:
                 return
-            self._docs[sub_id]["doc"] = {**self._docs[sub_id]["doc"], "status": Status.INACTIVE.value}
-            self._subs[sub_id] = replace(self._subs[sub_id], status=Status.INACTIVE)
-            self._save()
+            entry = self._docs[sub_id]
+            docs = {**self._docs, sub_id: {**entry, "doc": {**entry["doc"], "status": Status.INACTIVE.value}}}
+            subs = {**self._subs, sub_id: replace(self._subs[sub_id], status=Status.INACTIVE)}
+            try:
+                self._commit(docs, subs)
+            except NgsiError as err:
+                log.error("subscription %s deactivated in memory only: %s", sub_id, err.description)
+                self._docs, self._subs = docs, subs
+                self._publish()
 
     # --- delivery status -----------------------------------------------------------------
     def record(self, sub_id: str, result: Result, now: float) -> DeliveryStatus | None:

@@ -297,3 +297,19 @@ def test_candidates_index_exact_ids_and_scan_patterns(service) -> None:
     assert ids(Tenant("acme"), "A1") == {other.id} and ids(Tenant("nobody"), "A1") == set()
     service.delete(exact.id, Tenant())
     assert ids(Tenant(), "A1") == {pattern.id}
+
+
+def test_a_failed_write_changes_nothing(service, tmp_path) -> None:
+    kept = service.create(Tenant(), http_doc(description="kept"))
+    (tmp_path / "subscriptions.json").unlink()
+    (tmp_path / "subscriptions.json").mkdir()              # the rename over it now fails
+    try:
+        for attempt in (lambda: service.create(Tenant(), http_doc()),
+                        lambda: service.update(kept.id, Tenant(), {"description": "changed"}),
+                        lambda: service.delete(kept.id, Tenant())):
+            with pytest.raises(NgsiError) as info:
+                attempt()
+            assert info.value.status == 500 and "nothing was changed" in info.value.description
+        assert [s.description for s, _ in service.listing(Tenant(), False)] == ["kept"]
+    finally:
+        (tmp_path / "subscriptions.json").rmdir()
