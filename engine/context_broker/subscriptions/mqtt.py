@@ -1,6 +1,6 @@
 """MQTT notifications (paho-mqtt 2.x): the notification JSON published on ``topic``.
 
-One persistent client per broker (``url`` and ``user``), created at its first notification; paho's
+One persistent client per broker and credentials (``url``, ``user``, ``passwd``), created at its first notification; paho's
 network thread reconnects it (0.5 s doubling to 30 s). A publish counts as sent when the broker
 acknowledged it: for QoS 1 and 2 the PUBACK/PUBCOMP must arrive within :data:`ACK_TIMEOUT`, for
 QoS 0 the message must have been handed to a connected client. A client that is not connected is
@@ -29,10 +29,10 @@ KEEPALIVE = 30
 class MqttSender:
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._clients: dict[tuple[str, int, str | None], paho.Client] = {}
+        self._clients: dict[tuple[str, int, str | None, str | None], paho.Client] = {}
 
     def _client(self, target: MqttTarget) -> paho.Client:
-        key = (target.host, target.port, target.user)
+        key = (target.host, target.port, target.user, target.passwd)
         with self._lock:
             client = self._clients.get(key)
             if client is None:
