@@ -318,7 +318,10 @@ def test_mqtt_broker_down_then_up(broker: Broker, tmp_path: Path, cleanup: list)
                                                          "qos": 1, "retain": True}}})
     broker.change(1)
     wait_for(lambda: broker.show(sub_id)["notification"].get("failsCounter", 0) >= 1, "a failed MQTT attempt")
-    assert broker.show(sub_id)["status"] == "failed"
+    failing = broker.show(sub_id)
+    assert failing["status"] == "failed"
+    assert failing["notification"]["lastFailureReason"] == (
+        f"MQTT broker {HOST}:{mosq.port} not connected (connection refused or unreachable)")
     mosq.start()
     cleanup.append(mosq.stop)
     wait_for(lambda: broker.show(sub_id)["status"] == "active", "delivery once Mosquitto is up", deadline=40.0)

@@ -41,6 +41,10 @@ class MqttSender:
                 if target.user is not None:
                     client.username_pw_set(target.user, target.passwd)
                 client.reconnect_delay_set(0.5, 30)
+                client.user_data_set({"last": "no answer yet"})
+                client.on_connect = _remember
+                client.on_disconnect = _remember_disconnect
+                client.on_connect_fail = _remember_fail
                 client.connect_async(target.host, target.port, keepalive=KEEPALIVE)
                 client.loop_start()
                 self._clients[key] = client
@@ -51,7 +55,9 @@ class MqttSender:
         deadline = time.monotonic() + CONNECT_WAIT
         while not client.is_connected():
             if time.monotonic() >= deadline:
-                return Result.temporary(f"MQTT broker {target.host}:{target.port} not connected")
+                last = (client.user_data_get() or {}).get("last", "")
+                return Result.temporary(f"MQTT broker {target.host}:{target.port} not connected "
+                                        f"({last})")
             time.sleep(0.02)  # polling paho's connection flag, bounded by the deadline above
         try:
             info = client.publish(target.topic, msg.body, qos=target.qos, retain=target.retain)
@@ -76,3 +82,16 @@ class MqttSender:
         for client in clients:
             client.disconnect()
             client.loop_stop()
+
+
+def _remember(_client: paho.Client, userdata: dict, _flags: object, reason: object, _props: object) -> None:
+    userdata["last"] = f"CONNACK: {reason}"
+
+
+def _remember_disconnect(_client: paho.Client, userdata: dict, _flags: object, reason: object,
+                         _props: object) -> None:
+    userdata["last"] = f"disconnected: {reason}"
+
+
+def _remember_fail(_client: paho.Client, userdata: dict) -> None:
+    userdata["last"] = "connection refused or unreachable"
