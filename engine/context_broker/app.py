@@ -10,7 +10,8 @@ What every request goes through, before its view (in this order):
 
 Every :class:`NgsiError` (also from the subscriptions blueprint) is answered with Orion's body
 ``{"error", "description"}``; unknown URLs 404 ``NotFound``, a wrong method 405
-``MethodNotAlowed`` (Orion's spelling) with ``Allow``. Any other exception is a bug: logged with
+``MethodNotAllowed`` with ``Allow`` (what Orion sends, HttpStatusCode.cpp; its manual's
+"MethodNotAlowed" is a typo). Any other exception is a bug: logged with
 its traceback and answered 500 ``InternalServerError``.
 
 Also served: ``GET /version`` (Orion-shaped, FiLiP reads ``orion.version``), ``GET /v2``,
@@ -30,16 +31,21 @@ from werkzeug.exceptions import HTTPException, MethodNotAllowed, NotFound, Reque
 
 from engine.context_broker import batch, routes
 from engine.context_broker.contract import ChangeListener, NgsiError
+from engine.context_broker.names import FORBIDDEN
 from engine.context_broker.openapi import openapi_document
 from engine.context_broker.routes import json_response
 from engine.context_broker.store import ContextStore
 
 log = logging.getLogger(__name__)
 MAX_BODY = 1024 * 1024
+DRAIN_LIMIT = 16 * MAX_BODY
 ORION_VERSION = "3.10.1"
 PLANTKG_VERSION = "0.1.0"
 WRITE_METHODS = frozenset({"POST", "PUT", "PATCH", "DELETE"})
 READ_POSTS = ("/v2/op/query",)
+#: URL parameters that may hold Orion's forbidden characters (orion-api.md, "General syntax
+#: restrictions": the query languages, patterns and geo parameters).
+FREE_PARAMS = frozenset({"q", "mq", "idPattern", "typePattern", "georel", "geometry", "coords"})
 
 
 def _error(err: NgsiError) -> Response:
@@ -73,6 +79,9 @@ def create_app(store: ContextStore, *, token: str | None = None,
                 raise NgsiError(401, "Unauthorized", f"{what} token: writes need the header "
                                 "Authorization: Bearer <token> (the broker's --token-file)",
                                 {"WWW-Authenticate": 'Bearer realm="plantkg context broker"'})
+        for name, value in request.args.items(multi=True):
+            if name not in FREE_PARAMS:
+                _check_param(name, value)
         if method in ("POST", "PUT", "PATCH"):
             chunked = "chunked" in (request.headers.get("Transfer-Encoding") or "").lower()
             length = request.content_length
@@ -80,6 +89,7 @@ def create_app(store: ContextStore, *, token: str | None = None,
                 raise NgsiError(411, "ContentLengthRequired",
                                 "Zero/No Content-Length in PUT/POST/PATCH request: send Content-Length")
             if length is not None and length > MAX_BODY:
+                _drain(request.environ, length)
                 raise _too_large(length)
         return None
 
@@ -89,7 +99,7 @@ def create_app(store: ContextStore, *, token: str | None = None,
     def http_error(err: HTTPException) -> Response:
         if isinstance(err, MethodNotAllowed):
             allowed = sorted(m for m in (err.valid_methods or []) if m not in ("HEAD", "OPTIONS"))
-            return _error(NgsiError(405, "MethodNotAlowed",
+            return _error(NgsiError(405, "MethodNotAllowed",
                                     f"method {request.method} not allowed on {request.path}; "
                                     f"allowed: {', '.join(allowed)}", {"Allow": ", ".join(allowed)}))
         if isinstance(err, NotFound):
@@ -133,6 +143,28 @@ def create_app(store: ContextStore, *, token: str | None = None,
     if subscriptions_blueprint is not None:
         app.register_blueprint(subscriptions_blueprint)
     return app
+
+
+def _drain(environ: dict[str, Any], length: int) -> None:
+    """Read (and drop) a refused body of up to DRAIN_LIMIT bytes, so the client, still
+    sending, reads the 413 instead of a broken pipe; larger bodies are not read at all."""
+    if length > DRAIN_LIMIT:
+        return
+    stream = environ["wsgi.input"]
+    left = length
+    while left > 0:
+        chunk = stream.read(min(left, 65536))
+        if not chunk:
+            break
+        left -= len(chunk)
+
+
+def _check_param(name: str, value: str) -> None:
+    for position, char in enumerate(value):
+        if char in FORBIDDEN or ord(char) < 32:
+            raise NgsiError(400, "BadRequest", f"Invalid characters in URL parameter {name}: "
+                                               f"{char!r} at position {position} (< > \" ' = ; ( ) "
+                                               "are allowed only in q, mq, idPattern and typePattern)")
 
 
 def _without_trailing_slash(wsgi_app: Callable[..., Any]) -> Callable[..., Any]:

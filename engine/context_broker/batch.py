@@ -57,6 +57,8 @@ def parse_update(body: Any, key_values: bool) -> tuple[str, list[BatchEntity]]:
     items = body.get("entities")
     if not isinstance(items, list):
         raise bad_request("entities must be a JSON array of entities")
+    if not items:
+        raise bad_request("empty entities vector: give at least one entity")
     out = []
     for index, item in enumerate(items):
         try:
@@ -75,41 +77,68 @@ def _label(item: BatchEntity) -> str:
     return f"{item.id}/{item.type or ''}"
 
 
-def apply(txn: Transaction, action: str, items: list[BatchEntity], opts: set[str]) -> list[str]:
-    """Apply every entity; the descriptions of those that failed."""
-    failures = []
+@dataclass
+class Outcome:
+    """What a batch did: the failures' descriptions, whether anything was written, and whether
+    every failure is an entity that does not exist."""
+
+    failures: list[str]
+    applied: bool = False
+    only_missing_entities: bool = True
+
+
+def apply(txn: Transaction, action: str, items: list[BatchEntity], opts: set[str]) -> Outcome:
+    """Apply every entity as its single operation would; collect what failed."""
+    out = Outcome([])
     forced = "forcedUpdate" in opts
     override = "overrideMetadata" in opts
+
+    def fail(item: BatchEntity, why: str, missing_entity: bool = False) -> None:
+        out.failures.append(f"{_label(item)} - {why}")
+        out.only_missing_entities &= missing_entity
+
     for item in items:
         try:
             if action in ("append", "appendStrict"):
                 old = txn.find(item.id, item.type or ent.DEFAULT_ENTITY_TYPE)
                 if old is None:
-                    new = ent.create_entity(item.id, item.type or ent.DEFAULT_ENTITY_TYPE,
-                                            txn.tenant.service_path, item.attrs, txn.now)
-                else:
-                    new = ent.merge_attrs(old, item.attrs, txn.now, strict=action == "appendStrict",
-                                          override_metadata=override)
-                txn.put(old, new, item.attrs, forced=forced)
-                continue
-            old = txn.find(item.id, item.type)
-            if old is None:
-                failures.append(f"{_label(item)} - [entity itself]")
-                continue
-            if action == "update":
-                txn.put(old, ent.merge_attrs(old, item.attrs, txn.now, existing_only=True,
-                                             override_metadata=override), item.attrs, forced=forced)
+                    txn.put(None, ent.create_entity(item.id, item.type or ent.DEFAULT_ENTITY_TYPE,
+                                                    txn.tenant.service_path, item.attrs, txn.now),
+                            item.attrs, forced=forced)
+                    out.applied = True
+                    continue
+            else:
+                old = txn.find(item.id, item.type)
+                if old is None:
+                    fail(item, "[entity itself]", missing_entity=True)
+                    continue
+            if action in ("append", "appendStrict", "update"):
+                split = ent.split_attrs(old, item.attrs, strict=action == "appendStrict",
+                                        existing_only=action == "update")
+                if split.applicable:
+                    txn.put(old, ent.merge_attrs(old, split.applicable, txn.now, override_metadata=override),
+                            split.applicable, forced=forced)
+                    out.applied = True
+                if split.skipped:
+                    fail(item, f"[{', '.join(split.skipped)}]")
             elif action == "replace":
                 txn.put(old, ent.replace_attrs(old, item.attrs, txn.now), item.attrs, forced=forced)
+                out.applied = True
             elif item.attrs:
-                txn.put(old, ent.delete_attrs(old, item.attrs, txn.now), item.attrs)
+                present = [n for n in item.attrs if n in old.attrs]
+                if present:
+                    txn.put(old, ent.delete_attrs(old, present, txn.now), present)
+                    out.applied = True
+                if len(present) < len(item.attrs):
+                    fail(item, f"[{', '.join(n for n in item.attrs if n not in old.attrs)}]")
             else:
                 txn.put(old, None, old.attrs)
+                out.applied = True
         except NgsiError as err:
             if err.status >= 500:
                 raise
-            failures.append(f"{_label(item)} - {err.description}")
-    return failures
+            fail(item, err.description)
+    return out
 
 
 def _parse_query_body(body: Any) -> tuple[list[listing.Selector], list[str] | None, Any, Any, list[str] | None]:
@@ -168,16 +197,16 @@ def make_blueprint(store: ContextStore, clock: Callable[[], float] = time.time) 
     def op_update() -> Response:
         opts = options(UPDATE_OPTIONS)
         action, items = parse_update(json_body(), "keyValues" in opts)
-        failures = store.write(write_tenant(request.headers), clock(),
-                               lambda txn: apply(txn, action, items, opts))
-        if not failures:
+        outcome = store.write(write_tenant(request.headers), clock(),
+                              lambda txn: apply(txn, action, items, opts))
+        if not outcome.failures:
             return no_content()
-        described = "; ".join(failures)
-        if len(failures) == len(items) and action in ("update", "delete", "replace") and all(
-                f.endswith("[entity itself]") for f in failures):
-            raise NgsiError(404, "NotFound", f"do not exist: {described}")
-        if len(failures) < len(items):
-            raise NgsiError(422, "PartialUpdate", f"do not exist: {described}")
+        verb = "already exist" if action == "appendStrict" else "do not exist"
+        described = f"{verb}: " + "; ".join(outcome.failures)
+        if outcome.applied:
+            raise NgsiError(422, "PartialUpdate", described)
+        if outcome.only_missing_entities and action in ("update", "delete", "replace"):
+            raise NgsiError(404, "NotFound", described)
         raise NgsiError(422, "Unprocessable", described)
 
     @bp.post("/v2/op/query")

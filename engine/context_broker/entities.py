@@ -24,7 +24,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from engine.context_broker.contract import NgsiError, bad_request, unprocessable
+from engine.context_broker.contract import NgsiError, bad_request
 from engine.context_broker.dates import from_epoch, parse_datetime, render_datetime
 from engine.context_broker.names import (
     UNRESTRICTED_TYPE, check_attribute_name, check_identifier, check_metadata_name, check_value,
@@ -105,20 +105,49 @@ def _builtins(created: float, modified: float, service_path: str) -> dict[str, A
 
 # --- parsing -----------------------------------------------------------------------------
 
+MAX_NESTING = 50  # Orion's MAX_JSON_NESTING
+
+
 def _no_constant(name: str) -> Any:
     raise ValueError(f"{name} is not JSON")
+
+
+def _finite(text: str) -> float:
+    number = float(text)
+    if number in (float("inf"), float("-inf")):
+        raise ValueError(f"number {text[:40]} is too big (out of the range of a double)")
+    return number
+
+
+def _depth(value: Any) -> int:
+    deepest, stack = 0, [(value, 1)]
+    while stack:
+        item, depth = stack.pop()
+        if isinstance(item, (dict, list)):
+            deepest = max(deepest, depth)
+            if depth > MAX_NESTING:
+                return depth
+            children = item.values() if isinstance(item, dict) else item
+            stack.extend((child, depth + 1) for child in children)
+    return deepest
 
 
 def parse_json(raw: bytes) -> Any:
     """The JSON document ``raw`` holds: 400 ParseError for bad JSON, NaN/Infinity, or a
     ``\\ud800``-style escape that is no Unicode character (a lone surrogate cannot be stored)."""
     try:
-        value = json.loads(raw, parse_constant=_no_constant)
+        value = json.loads(raw, parse_constant=_no_constant, parse_float=_finite)
         if b"\\u" in raw:
             json.dumps(value, ensure_ascii=False).encode("utf-8")
-        return value
+    except RecursionError:
+        raise NgsiError(400, "ParseError", f"Errors found in incoming JSON buffer: nesting deeper "
+                                           f"than {MAX_NESTING} levels") from None
     except (ValueError, UnicodeDecodeError, UnicodeEncodeError) as err:
         raise NgsiError(400, "ParseError", f"Errors found in incoming JSON buffer: {err}") from None
+    if _depth(value) > MAX_NESTING:
+        raise NgsiError(400, "ParseError", f"Errors found in incoming JSON buffer: nesting deeper "
+                                           f"than {MAX_NESTING} levels (Orion's limit)")
+    return value
 
 
 def _object(body: Any, what: str) -> Mapping[str, Any]:
@@ -266,20 +295,43 @@ def create_entity(entity_id: str, entity_type: str, service_path: str,
                        {n: new_attribute(a, None, now) for n, a in attrs.items()}, now, now)
 
 
-def merge_attrs(entity: Entity, attrs: Mapping[str, AttrInput], now: float, *, strict: bool = False,
-                existing_only: bool = False, override_metadata: bool = False) -> Entity:
-    """POST /attrs (append or update; ``strict``: 422 when one exists) and PATCH /attrs
-    (``existing_only``: 422 when one is missing). Nothing is applied when refused."""
+@dataclass(frozen=True)
+class Split:
+    """The attributes of a request that apply to an entity, and those skipped (and why)."""
+
+    applicable: Mapping[str, AttrInput]
+    skipped: tuple[str, ...]
+    reason: str = ""
+
+    def refusal(self, entity: Entity) -> NgsiError | None:
+        """None when nothing was skipped; else Orion's 422: ``PartialUpdate`` when some
+        attributes applied, ``Unprocessable`` when none did."""
+        if not self.skipped:
+            return None
+        names = ", ".join(self.skipped)
+        if self.reason == "exist":
+            text = f"Already Exists: {entity.id}/{entity.type} - [{names}] (append adds new attributes only)"
+        else:
+            text = f"do not exist: {entity.id}/{entity.type} - [{names}] (update changes existing attributes only)"
+        return NgsiError(422, "PartialUpdate" if self.applicable else "Unprocessable", text)
+
+
+def split_attrs(entity: Entity, attrs: Mapping[str, AttrInput], *, strict: bool = False,
+                existing_only: bool = False) -> Split:
+    """As Orion: ``options=append`` (``strict``) appends the new attributes and skips those that
+    exist; PATCH (``existing_only``) updates those that exist and skips the missing ones."""
     if strict:
-        present = [n for n in attrs if n in entity.attrs]
-        if present:
-            raise unprocessable(f"Already Exists: attribute(s) {', '.join(present)} of entity "
-                                f"{entity.id!r} (options=append adds new attributes only)")
+        skipped = tuple(n for n in attrs if n in entity.attrs)
+        return Split({n: a for n, a in attrs.items() if n not in entity.attrs}, skipped, "exist")
     if existing_only:
-        missing = [n for n in attrs if n not in entity.attrs]
-        if missing:
-            raise unprocessable(f"do not exist: {entity.id}/{entity.type} - "
-                                f"[{', '.join(missing)}]: PATCH updates existing attributes only")
+        skipped = tuple(n for n in attrs if n not in entity.attrs)
+        return Split({n: a for n, a in attrs.items() if n in entity.attrs}, skipped, "missing")
+    return Split(attrs, ())
+
+
+def merge_attrs(entity: Entity, attrs: Mapping[str, AttrInput], now: float, *,
+                override_metadata: bool = False) -> Entity:
+    """POST /attrs: update the given attributes, append the new ones (metadata merged)."""
     new = dict(entity.attrs)
     for name, given in attrs.items():
         new[name] = new_attribute(given, entity.attrs.get(name), now, override_metadata)

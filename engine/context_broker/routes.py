@@ -16,7 +16,7 @@ from flask import Blueprint, Response, request
 
 from engine.context_broker import entities as ent
 from engine.context_broker import listing
-from engine.context_broker.contract import NgsiError, bad_request, not_found
+from engine.context_broker.contract import NgsiError, bad_request, not_found, unprocessable
 from engine.context_broker.names import check_attribute_name, check_identifier
 from engine.context_broker.params import (
     count_param, entity_type_param, json_body, limit_offset, options, read_scope, render_mode,
@@ -133,7 +133,7 @@ def make_blueprint(store: ContextStore, clock: Callable[[], float] = time.time) 
                                                 attrs, txn.now), attrs, forced="forcedUpdate" in opts)
                 return True
             if not upsert:
-                raise ent.unprocessable(f"Already Exists: entity {entity_id_!r} of type "
+                raise unprocessable(f"Already Exists: entity {entity_id_!r} of type "
                                         f"{entity_type!r} (use options=upsert to update it)")
             new = ent.merge_attrs(old, attrs, txn.now, override_metadata="overrideMetadata" in opts)
             txn.put(old, new, attrs, forced="forcedUpdate" in opts)
@@ -169,33 +169,43 @@ def make_blueprint(store: ContextStore, clock: Callable[[], float] = time.time) 
         entity = store.get(read_scope(request.headers), entity_id(raw_id), entity_type_param())
         return json_response(ent.render_attrs(entity, render_mode(opts), _attrs_param(), _metadata_param()))
 
-    def _attrs_write(raw_id: str, allowed: frozenset[str],
-                     change: Callable[[ent.Entity, dict[str, ent.AttrInput], float, set[str]], ent.Entity]) -> Response:
+    def _attrs_write(raw_id: str, allowed: frozenset[str], mode: str) -> Response:
+        """POST (``mode`` append, or strict with options=append), PATCH (update) or PUT
+        (replace) of /attrs. Orion applies what it can: skipped attributes make a 422
+        (PartialUpdate when others were written)."""
         opts = options(allowed)
         eid, etype = entity_id(raw_id), entity_type_param()
         attrs = ent.parse_attrs(json_body(), key_values="keyValues" in opts)
+        override = "overrideMetadata" in opts
 
-        def work(txn: Transaction) -> None:
+        def work(txn: Transaction) -> NgsiError | None:
             old = txn.get(eid, etype)
-            txn.put(old, change(old, attrs, txn.now, opts), attrs, forced="forcedUpdate" in opts)
+            if mode == "replace":
+                txn.put(old, ent.replace_attrs(old, attrs, txn.now), attrs, forced="forcedUpdate" in opts)
+                return None
+            split = ent.split_attrs(old, attrs, strict=mode == "append" and "append" in opts,
+                                    existing_only=mode == "update")
+            if split.applicable:
+                new = ent.merge_attrs(old, split.applicable, txn.now, override_metadata=override)
+                txn.put(old, new, split.applicable, forced="forcedUpdate" in opts)
+            return split.refusal(old)
 
-        write(work)
+        refusal = write(work)
+        if refusal is not None:
+            raise refusal
         return no_content()
 
     @bp.post("/v2/entities/<raw_id>/attrs")
     def append_attrs(raw_id: str) -> Response:
-        return _attrs_write(raw_id, WRITE_OPTIONS | {"append"}, lambda old, attrs, now, opts: ent.merge_attrs(
-            old, attrs, now, strict="append" in opts, override_metadata="overrideMetadata" in opts))
+        return _attrs_write(raw_id, WRITE_OPTIONS | {"append"}, "append")
 
     @bp.patch("/v2/entities/<raw_id>/attrs")
     def update_attrs(raw_id: str) -> Response:
-        return _attrs_write(raw_id, WRITE_OPTIONS, lambda old, attrs, now, opts: ent.merge_attrs(
-            old, attrs, now, existing_only=True, override_metadata="overrideMetadata" in opts))
+        return _attrs_write(raw_id, WRITE_OPTIONS, "update")
 
     @bp.put("/v2/entities/<raw_id>/attrs")
     def replace_attrs(raw_id: str) -> Response:
-        return _attrs_write(raw_id, WRITE_OPTIONS,
-                            lambda old, attrs, now, opts: ent.replace_attrs(old, attrs, now))
+        return _attrs_write(raw_id, WRITE_OPTIONS, "replace")
 
     # --- /v2/entities/{id}/attrs/{name} --------------------------------------------------
     @bp.get("/v2/entities/<raw_id>/attrs/<raw_name>")

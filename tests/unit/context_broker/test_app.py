@@ -288,11 +288,41 @@ def test_errors_as_orion(seeded: Any) -> None:
         assert reply.json["description"]
 
 
+def test_partial_updates_apply_what_they_can_as_orion(seeded: Any, recorder: Recorder) -> None:
+    reply = send(seeded, "PATCH", "/v2/entities/Room1/attrs", {"temperature": {"value": 1}, "nope": {"value": 1}})
+    assert error_of(reply) == (422, "PartialUpdate") and "nope" in reply.json["description"]
+    assert seeded.get("/v2/entities/Room1/attrs/temperature/value").json == 1
+    assert recorder.changes[-1].changed == {"temperature"}
+    reply = send(seeded, "POST", "/v2/entities/Room1/attrs?options=append", {"temperature": {"value": 2}, "co2": {"value": 3}})
+    assert error_of(reply) == (422, "PartialUpdate") and "temperature" in reply.json["description"]
+    assert seeded.get("/v2/entities/Room1?options=keyValues&attrs=temperature,co2").json == {
+        "id": "Room1", "type": "Room", "temperature": 1, "co2": 3}
+    reply = send(seeded, "POST", "/v2/op/update", {"actionType": "update", "entities": [
+        {"id": "Room1", "type": "Room", "co2": {"value": 4}, "nope": {"value": 1}}]})
+    assert error_of(reply) == (422, "PartialUpdate")
+    assert seeded.get("/v2/entities/Room1/attrs/co2/value").json == 4
+    reply = send(seeded, "POST", "/v2/op/update", {"actionType": "append", "entities": []})
+    assert error_of(reply) == (400, "BadRequest") and "empty" in reply.json["description"]
+
+
+def test_limits_of_json_and_url_parameters(seeded: Any) -> None:
+    deep = b'{"id": "D", "v": {"value": ' + b"[" * 60 + b"]" * 60 + b"}}"
+    assert error_of(send(seeded, "POST", "/v2/entities", raw=deep)) == (400, "ParseError")
+    deeper = b'{"id": "D", "v": {"value": ' + b"[" * 5000 + b"]" * 5000 + b"}}"
+    assert error_of(send(seeded, "POST", "/v2/entities", raw=deeper)) == (400, "ParseError")
+    ok = b'{"id": "D", "v": {"value": ' + b"[" * 45 + b"]" * 45 + b"}}"
+    assert send(seeded, "POST", "/v2/entities", raw=ok).status_code == 201
+    assert error_of(send(seeded, "POST", "/v2/entities", raw=b'{"id": "N", "v": {"value": 1e999}}')) == (400, "ParseError")
+    reply = seeded.get("/v2/entities?orderBy=tem%3Bp")
+    assert error_of(reply) == (400, "BadRequest") and "';'" in reply.json["description"]
+    assert seeded.get("/v2/entities?q=temperature%3E1;pressure==720").status_code == 200
+
+
 def test_method_not_allowed_lists_allow(seeded: Any) -> None:
     for method, path, allowed in (("PUT", "/v2/entities", {"GET", "POST"}), ("POST", "/v2/entities/Room1/", {"GET", "DELETE"}),
                                   ("DELETE", "/v2/types", {"GET"}), ("GET", "/v2/op/update", {"POST"})):
         reply = seeded.open(path, method=method, headers=AUTH, data=b"{}", content_type="application/json")
-        assert error_of(reply) == (405, "MethodNotAlowed")
+        assert error_of(reply) == (405, "MethodNotAllowed")
         assert allowed <= {m.strip() for m in reply.headers["Allow"].split(",")}
 
 
@@ -309,7 +339,7 @@ def test_write_without_content_length_is_411(client: Any) -> None:
 def test_refused_writes_change_nothing_and_tell_no_listener(seeded: Any, recorder: Recorder) -> None:
     before = seeded.get("/v2/entities").json
     count = len(recorder.changes)
-    send(seeded, "PATCH", "/v2/entities/Room1/attrs", {"temperature": {"value": 1}, "nope": {"value": 1}})
+    send(seeded, "PATCH", "/v2/entities/Room1/attrs", {"nope": {"value": 1}})
     send(seeded, "POST", "/v2/op/update", {"actionType": "append", "entities": [
         {"id": "Room1", "type": "Room", "temperature": {"value": 2}}, {"id": "x(y"}]})
     send(seeded, "POST", "/v2/entities/Room1/attrs", {"temperature": {"value": "<b>"}})

@@ -98,14 +98,20 @@ def test_merge_keeps_metadata_unless_overridden_and_empty_metadata_clears() -> N
     assert cleared.attrs["state"].metadata == {}
 
 
-def test_patch_refuses_missing_and_append_strict_refuses_existing() -> None:
+def test_patch_skips_missing_and_append_strict_skips_existing_as_orion() -> None:
     old = _entity()
-    with pytest.raises(NgsiError) as info:
-        ent.merge_attrs(old, ent.parse_attrs({"nope": {"value": 1}}), 2.0, existing_only=True)
-    assert info.value.status == 422 and "nope" in info.value.description
-    with pytest.raises(NgsiError) as info:
-        ent.merge_attrs(old, ent.parse_attrs({"state": {"value": 1}}), 2.0, strict=True)
-    assert info.value.status == 422 and "Already Exists" in info.value.description
+    given = ent.parse_attrs({"state": {"value": 1}, "nope": {"value": 1}})
+    update = ent.split_attrs(old, given, existing_only=True)
+    assert list(update.applicable) == ["state"] and update.skipped == ("nope",)
+    refusal = update.refusal(old)
+    assert refusal is not None and (refusal.status, refusal.error) == (422, "PartialUpdate")
+    assert "nope" in refusal.description
+    append = ent.split_attrs(old, given, strict=True)
+    assert list(append.applicable) == ["nope"] and append.skipped == ("state",)
+    only_existing = ent.split_attrs(old, ent.parse_attrs({"state": {"value": 1}}), strict=True)
+    refusal = only_existing.refusal(old)
+    assert refusal is not None and refusal.error == "Unprocessable" and "Already Exists" in refusal.description
+    assert ent.split_attrs(old, given).refusal(old) is None
 
 
 def test_renderings() -> None:
