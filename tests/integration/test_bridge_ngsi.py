@@ -1,6 +1,7 @@
 """The MQTT <-> NGSI-v2 bridge worker against a real Mosquitto and the real context broker
 (``python -m engine.context_broker``): 10,000 messages each way with nothing missing (duplicates
-counted and printed), also with the worker SIGKILLed mid-stream and started again; a topic bridged
+counted and printed), also with the worker SIGKILLed mid-stream and started again, and the context
+broker SIGKILLed mid-stream and started again (read back); a topic bridged
 both ways does not loop; a refused message does not block its topic; a wrong token holds messages
 back until the right one is in the token file; and through a real agent, a bridge PUT with
 mechanism mqtt-ngsi runs the worker, reports it with counters, and its DELETE removes the
@@ -330,6 +331,36 @@ def test_mqtt_to_ngsi_worker_killed(tmp_path: Path, mosquitto: rig.Mosquitto, co
     sender.join(60)
     assert killed_at < N, "the kill did not land mid-stream"
     check("mqtt->ngsi, worker killed", receiver.seqs, N)
+
+
+def test_mqtt_to_ngsi_context_broker_killed(tmp_path: Path, mosquitto: rig.Mosquitto,
+                                            context_broker: ContextBroker, workers: NgsiWorkers) -> None:
+    """The context broker is SIGKILLed mid-stream and started again (same port, same data): the
+    worker retries and goes on. Checked by reading the entity back, not by notifications (the
+    context broker keeps queued notifications in memory only): message i writes attribute
+    ``s<i>``, so the entity ends with every one of them. Fewer messages than the other tests: each
+    upsert rewrites the entity, which grows with every message."""
+    count = 1000
+    workers.start(workers.config(tmp_path, mosquitto.port, context_broker, NgsiDirection.MQTT_TO_NGSI))
+    sender = publish(mosquitto.port, count, rate=500, extra=lambda i: {f"s{i}": i})
+    workers.stats_reaching(lambda s: s.forwarded_mqtt_to_ngsi >= count // 4, 60.0)
+    assert context_broker.child is not None
+    rig.kill_group(context_broker.child)
+    context_broker.child = None
+    stats = workers.stats_reaching(lambda s: not s.ready and s.retried > 0, 30.0)
+    assert f":{context_broker.port}" in (stats.last_error or "")
+    context_broker.start()
+    workers.stats_reaching(lambda s: s.forwarded_mqtt_to_ngsi >= count and s.ready, DEADLINE)
+    sender.join(60)
+    http = context_broker.http()
+    reply = http.request("GET", f"/v2/entities/{ENTITY[0]}?type={ENTITY[1]}&options=keyValues")
+    http.close()
+    assert reply.status == 200, reply.body
+    written = {int(k[1:]) for k in reply.json() if k.startswith("s") and k[1:].isdigit()}
+    missing = sorted(set(range(count)) - written)
+    assert not missing, f"{len(missing)} missing: {missing[:5]}"
+    print(f"mqtt->ngsi, context broker killed: {count} sent, all {len(written)} written, "
+          f"{workers.stats().retried} requests retried")  # type: ignore[union-attr]
 
 
 def test_a_refused_message_does_not_block_its_topic(tmp_path: Path, mosquitto: rig.Mosquitto,
