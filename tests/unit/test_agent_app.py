@@ -86,7 +86,7 @@ def test_health(client: FlaskClient) -> None:
     assert response.status_code == 200
     body = response.get_json()
     assert body["status"] == "ok" and body["agent"] == "test-agent"
-    assert body["drivers"] == ["kafka", "mosquitto"] and body["driver_errors"] == {}
+    assert body["drivers"] == ["kafka", "mosquitto", "ngsi-v2"] and body["driver_errors"] == {}
     assert body["version"]
 
 
