@@ -2,7 +2,9 @@
 
 - ``GET /v2/subscriptions`` (and ``/v2/subscriptions/``, as FiLiP calls it): ``limit`` (default
   20, at most 1000), ``offset``, ``options=count`` (``Fiware-Total-Count``); the service's
-  subscriptions, narrowed to exactly the ``Fiware-ServicePath`` when that header is sent.
+  subscriptions, narrowed to those created with exactly the ``Fiware-ServicePath`` sent (none:
+  all). A subscription's service path is the query of the entities it watches (none: ``/#``,
+  every path; ``/a/#`` a subtree; a list), see :mod:`.scope`.
 - ``POST``: 201, ``Location: /v2/subscriptions/<24 hex>``, empty body.
 - ``GET``/``PATCH`` (204)/``DELETE`` (204) ``/v2/subscriptions/<id>``: 400 for an id that is
   not 24 hex digits, 404 for one the service does not have.
@@ -18,7 +20,8 @@ from typing import TYPE_CHECKING, Any
 
 from flask import Blueprint, Response, request
 
-from engine.context_broker.contract import NgsiError, bad_request, tenant_from_headers
+from engine.context_broker.contract import NgsiError, bad_request
+from engine.context_broker.subscriptions.scope import subscription_tenant
 from engine.context_broker.subscriptions.model import render
 
 if TYPE_CHECKING:
@@ -72,7 +75,7 @@ def make_blueprint(service: SubscriptionService) -> Blueprint:
     @bp.get("/v2/subscriptions")
     @bp.get("/v2/subscriptions/")
     def list_subscriptions() -> Response:
-        tenant = tenant_from_headers(request.headers)
+        tenant = subscription_tenant(request.headers)
         limit = _count("limit", DEFAULT_LIMIT, 1, MAX_LIMIT)
         offset = _count("offset", 0, 0)
         options = _options()
@@ -90,25 +93,25 @@ def make_blueprint(service: SubscriptionService) -> Blueprint:
     @bp.post("/v2/subscriptions")
     @bp.post("/v2/subscriptions/")
     def create_subscription() -> Response:
-        tenant = tenant_from_headers(request.headers)
+        tenant = subscription_tenant(request.headers)
         sub = service.create(tenant, _body())
         return Response(status=201, headers={"Location": f"/v2/subscriptions/{sub.id}"})
 
     @bp.get("/v2/subscriptions/<sub_id>")
     def get_subscription(sub_id: str) -> Response:
-        tenant = tenant_from_headers(request.headers)
+        tenant = subscription_tenant(request.headers)
         sub, status = service.get(sub_id, tenant)
         return _json_response(render(sub, status, service.clock()))
 
     @bp.patch("/v2/subscriptions/<sub_id>")
     def patch_subscription(sub_id: str) -> Response:
-        tenant = tenant_from_headers(request.headers)
+        tenant = subscription_tenant(request.headers)
         service.update(sub_id, tenant, _body())
         return Response(status=204)
 
     @bp.delete("/v2/subscriptions/<sub_id>")
     def delete_subscription(sub_id: str) -> Response:
-        tenant = tenant_from_headers(request.headers)
+        tenant = subscription_tenant(request.headers)
         service.delete(sub_id, tenant)
         return Response(status=204)
 

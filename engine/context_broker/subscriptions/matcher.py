@@ -2,7 +2,8 @@
 
 Orion's rules ("Notification Triggering", "Subscriptions based in alteration type"):
 
-- tenant: the subscription's ``Fiware-Service`` and service path equal the entity's;
+- tenant: the subscription's ``Fiware-Service`` is the entity's, and its service-path query
+  covers the entity's path (none given at creation: every path, see :mod:`.scope`);
 - subject: one of ``subject.entities`` selects the entity (``id`` exact or ``idPattern`` a regex
   found anywhere in the id, as Orion's ``regexec``; ``type``/``typePattern`` likewise, omitted =
   any type);
@@ -83,7 +84,7 @@ def throttled(sub: Subscription, last_triggered: float | None, now: float) -> bo
 def triggers(sub: Subscription, change: EntityChange, queries: Sequence[Query] = ()) -> bool:
     """Tenant, subject, alteration, condition attrs and the parsed q/mq ``queries`` (state and
     throttling are separate)."""
-    if sub.tenant != change.tenant:
+    if not sub.scope.covers(change.tenant):
         return False
     if not any(selects(s, change.entity_id, change.entity_type) for s in sub.entities):
         return False

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from engine.context_broker.contract import Tenant
+from engine.context_broker.store import ReadScope
 from engine.context_broker.dates import from_epoch
 
 
@@ -126,6 +127,8 @@ class Subscription:
     expires: float | None = None
     status: Status = Status.ACTIVE
     throttling: int = 0
+    #: the service paths it watches, from ``tenant.service_path`` read as a query (see .scope)
+    scope: ReadScope = field(default_factory=ReadScope)
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ from engine.context_broker.subscriptions.model import (
     Subscription, Target,
 )
 from engine.context_broker.subscriptions.parse_targets import http_target, kafka_target, mqtt_target
+from engine.context_broker.subscriptions.scope import scope_of
 
 MAX_DESCRIPTION = 1024
 READ_ONLY = frozenset({"timesSent", "lastNotification", "lastFailure", "lastFailureReason",
@@ -184,7 +185,7 @@ def parse_subscription(doc: Any, *, sub_id: str, tenant: Tenant, parse_q: QParse
                                   "inactive or oneshot")
         status = values[obj["status"]]
     return Subscription(
-        id=sub_id, tenant=tenant,
+        id=sub_id, tenant=tenant, scope=scope_of(tenant),
         entities=_entities(subject.get("entities")),
         condition=_condition(subject["condition"], parse_q) if "condition" in subject else Condition(),
         notification=_notification(obj["notification"]),

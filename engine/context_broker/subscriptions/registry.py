@@ -84,7 +84,7 @@ class Registry:
         self._subs: dict[str, Subscription] = {}
         self._status: dict[str, DeliveryStatus] = {}
         self._status_dirty = False
-        self._index: dict[Tenant, tuple[dict[str, tuple[Subscription, ...]], tuple[Subscription, ...]]] = {}
+        self._index: dict[str, tuple[dict[str, tuple[Subscription, ...]], tuple[Subscription, ...]]] = {}
         self._load()
 
     # --- persistence ---------------------------------------------------------------------
@@ -121,22 +121,22 @@ class Registry:
 
     def _publish(self) -> None:
         """Rebuild the lookup :meth:`candidates` reads (a new dict, swapped in whole, so readers
-        need no lock): per tenant, the subscriptions naming exact entity ids by id, and those
-        with a pattern in a list that every change of the tenant is checked against."""
-        index: dict[Tenant, tuple[dict[str, list[Subscription]], list[Subscription]]] = {}
+        need no lock): per service, the subscriptions naming exact entity ids by id, and those
+        with a pattern in a list that every change in the service is checked against."""
+        index: dict[str, tuple[dict[str, list[Subscription]], list[Subscription]]] = {}
         for sub in self._subs.values():
-            by_id, scan = index.setdefault(sub.tenant, ({}, []))
+            by_id, scan = index.setdefault(sub.tenant.service, ({}, []))
             if any(sel.id is None for sel in sub.entities):
                 scan.append(sub)
             else:
                 for entity_id in dict.fromkeys(sel.id for sel in sub.entities if sel.id is not None):
                     by_id.setdefault(entity_id, []).append(sub)
-        self._index = {tenant: ({k: tuple(v) for k, v in by_id.items()}, tuple(scan))
-                       for tenant, (by_id, scan) in index.items()}
+        self._index = {service: ({k: tuple(v) for k, v in by_id.items()}, tuple(scan))
+                       for service, (by_id, scan) in index.items()}
 
     def candidates(self, tenant: Tenant, entity_id: str) -> tuple[Subscription, ...]:
         """The subscriptions a change of ``entity_id`` in ``tenant`` can trigger (a superset)."""
-        entry = self._index.get(tenant)
+        entry = self._index.get(tenant.service)
         if entry is None:
             return ()
         by_id, scan = entry
@@ -191,8 +191,8 @@ class Registry:
             return sub, self._status.get(sub_id, DeliveryStatus())
 
     def listing(self, service: str, service_path: str | None) -> list[tuple[Subscription, DeliveryStatus]]:
-        """The service's subscriptions in creation order; with ``service_path``, only those
-        created with exactly that path (as Orion)."""
+        """The service's subscriptions in creation order; with ``service_path`` (canonical, see
+        .scope), only those created with exactly that service-path query (as Orion)."""
         with self._lock:
             return [(s, self._status.get(s.id, DeliveryStatus())) for s in self._subs.values()
                     if s.tenant.service == service

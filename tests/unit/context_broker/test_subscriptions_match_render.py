@@ -7,8 +7,8 @@ from typing import Any
 
 import pytest
 
+from engine.context_broker.contract import NgsiError, Tenant
 from engine.context_broker.q import parse_q
-from engine.context_broker.contract import Tenant
 from engine.context_broker.subscriptions import matcher, render
 from engine.context_broker.subscriptions.model import Subscription
 from engine.context_broker.subscriptions.parse import parse_subscription
@@ -134,3 +134,34 @@ def test_outgoing_carries_tenant_format_and_entity() -> None:
     assert (out.service, out.service_path, out.attrs_format, out.entity_id) == ("acme", "/plant", "keyValues", "Room1")
     assert json.loads(out.body) == {"subscriptionId": "a" * 24, "data": [{"id": "Room1", "type": "Room", "temperature": 1}]}
     assert out.correlator != render.outgoing(s, change(entity(temperature=1))).correlator
+
+
+# (Fiware-ServicePath at creation, None = no header; entity's path; fires)
+SCOPES: list[tuple[str | None, str, bool]] = [
+    (None, "/", True), (None, "/plant/cell", True),             # no header: /# (every path)
+    ("/", "/", True), ("/", "/plant", False),                    # "/" exactly
+    ("/#", "/plant/cell", True),
+    ("/plant", "/plant", True), ("/plant", "/plant/cell", False),
+    ("/plant/#", "/plant", True), ("/plant/#", "/plant/cell", True), ("/plant/#", "/plantx", False),
+    ("/plant/#", "/other", False),
+    ("/a, /plant/#", "/a", True), ("/a, /plant/#", "/plant/x", True), ("/a, /plant/#", "/b", False),
+]
+
+
+@pytest.mark.parametrize("header,path,fires", SCOPES)
+def test_service_path_scope_as_orion(header: str | None, path: str, fires: bool) -> None:
+    from engine.context_broker.subscriptions.scope import subscription_tenant
+
+    headers = {"Fiware-Service": "acme"} | ({"Fiware-ServicePath": header} if header is not None else {})
+    s = parse_subscription(doc(), sub_id="a" * 24, tenant=subscription_tenant(headers), parse_q=parse_q)
+    assert triggers(s, change(tenant=Tenant("acme", path))) is fires
+    assert not triggers(s, change(tenant=Tenant("other", path)))
+
+
+def test_canonical_service_path_queries() -> None:
+    from engine.context_broker.subscriptions.scope import subscription_tenant
+
+    assert subscription_tenant({}).service_path == "/#"
+    assert subscription_tenant({"Fiware-ServicePath": "/a/#, /b"}).service_path == "/a/#,/b"
+    with pytest.raises(NgsiError):
+        subscription_tenant({"Fiware-ServicePath": "/a-b"})

@@ -7,8 +7,8 @@ from typing import Any
 
 import pytest
 
-from engine.context_broker.q import parse_q
 from engine.context_broker.contract import NgsiError, Tenant
+from engine.context_broker.q import parse_q
 from engine.context_broker.subscriptions.model import (
     Alteration, AttrsFormat, DeliveryStatus, HttpTarget, KafkaTarget, MqttTarget, Status, render,
 )
