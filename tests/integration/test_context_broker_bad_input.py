@@ -153,9 +153,10 @@ def test_bad_request_is_refused_as_orion_does(broker: ContextBroker, case: dict[
 def test_store_unchanged_and_no_traceback_after_every_case(fresh_broker: ContextBroker) -> None:
     """Every case the server is meant to get right (the known disagreements aside: each fails on
     its own above), in a row on a fresh server: the store still answers exactly the seed (as
-    standard JSON), and the server logged no traceback."""
+    standard JSON), and the server logged no traceback. A PartialUpdate writes part of its
+    request by definition (Orion's semantics), so those cases are left out here."""
     for case in DATA["cases"]:
-        if "xfail" in case:
+        if "xfail" in case or case["expect"].get("error") == "PartialUpdate":
             continue
         reply = send(fresh_broker, case)
         assert reply.status < 500, f"{case['name']}: {reply.status} {reply.body[:300]!r}"
@@ -192,3 +193,39 @@ def test_batch_update_with_a_missing_entity_is_a_partial_update(fresh_broker: Co
         assert http.request("GET", "/v2/entities/NoSuchRoom", headers=broker.auth).status == 404
     finally:
         http.close()
+
+
+SLOW_CLIENTS = 32  # four times the server's default worker threads (8)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "cheroot hands a connection to a worker thread once its headers are in, and the worker then waits "
+    "for the body until the socket timeout (10 s): 16 or more clients that send headers and part of a body "
+    "hold every worker, and a well-behaved GET waits 7-17 s (measured 2026-11-24). Read the body before "
+    "dispatching (as waitress does), or bound the time per request body"))
+def test_slow_clients_do_not_stop_the_others(fresh_broker: ContextBroker) -> None:
+    """Clients that send a request's headers and then only part of its body (a slow or stalled
+    device, or a slowloris) must not keep a well-behaved client from being answered promptly."""
+    import socket
+    import time
+
+    head = (b"POST /v2/entities HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+            b"Content-Length: 100\r\n\r\n{\"id\": ")
+    stalled = []
+    try:
+        for _ in range(SLOW_CLIENTS):
+            sock = socket.create_connection((fresh_broker.host, fresh_broker.port), timeout=5)
+            sock.sendall(head)
+            stalled.append(sock)
+        http = fresh_broker.http()
+        http.timeout = 30.0
+        http.reconnect()
+        started = time.monotonic()
+        reply = http.request("GET", "/v2/entities/Room1", headers=fresh_broker.auth)
+        waited = time.monotonic() - started
+        http.close()
+    finally:
+        for sock in stalled:
+            sock.close()
+    assert reply.status == 200, (reply.status, reply.body)
+    assert waited < 2.0, f"a GET waited {waited:.1f} s behind {SLOW_CLIENTS} stalled clients"
