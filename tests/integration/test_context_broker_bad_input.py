@@ -229,3 +229,33 @@ def test_slow_clients_do_not_stop_the_others(fresh_broker: ContextBroker) -> Non
             sock.close()
     assert reply.status == 200, (reply.status, reply.body)
     assert waited < 2.0, f"a GET waited {waited:.1f} s behind {SLOW_CLIENTS} stalled clients"
+
+
+def test_concurrent_creates_of_one_id_make_one_entity(fresh_broker: ContextBroker) -> None:
+    """24 clients create the same entity at once: exactly one 201, every other one 422 ``Already
+    Exists`` (Orion's answer to a second create), and one entity in the store."""
+    import threading
+    from collections import Counter
+
+    answers: Counter[tuple[int, str]] = Counter()
+    lock = threading.Lock()
+
+    def create(n: int) -> None:
+        http = fresh_broker.http()
+        try:
+            reply = http.request("POST", "/v2/entities", json.dumps(
+                {"id": "Race1", "type": "Room", "n": {"type": "Number", "value": n}}),
+                {"Content-Type": "application/json", **fresh_broker.auth})
+        finally:
+            http.close()
+        error = strict_json(reply.body).get("error", "") if reply.body else ""
+        with lock:
+            answers[(reply.status, error)] += 1
+
+    threads = [threading.Thread(target=create, args=(n,)) for n in range(24)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert answers == Counter({(201, ""): 1, (422, "Unprocessable"): 23}), answers
+    assert [e["id"] for e in entities(fresh_broker)] == ["Race1", "Room1", "Room2"]
