@@ -49,15 +49,18 @@ def pattern(text: str, field: str) -> re.Pattern[str]:
 
 def select(entities: Iterable[Entity], selectors: Sequence[Selector], q: Query | None,
            mq: Query | None) -> list[Entity]:
-    out = []
-    for entity in entities:
-        if selectors and not any(s.matches(entity) for s in selectors):
-            continue
-        if q is not None and not q.matches(entity.query_view):
-            continue
-        if mq is not None and not mq.matches(entity.query_view):
-            continue
-        out.append(entity)
+    """The entities any selector names and ``q`` and ``mq`` match, in their order."""
+    out = list(entities)
+    active = [sel for sel in selectors if sel != Selector()]
+    if len(active) == 1 and active[0].types is not None and active[0] == Selector(types=active[0].types):
+        types = active[0].types
+        out = [e for e in out if e.type in types]
+    elif active:
+        out = [e for e in out if any(sel.matches(e) for sel in active)]
+    for query in (q, mq):
+        if query is not None:
+            for test in query.tests:
+                out = [e for e in out if test(e.query_view)]
     return out
 
 

@@ -23,8 +23,9 @@ the problem; :meth:`Query.matches` takes an entity in normalized JSON. Pure: no 
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from functools import partial
 from datetime import datetime
 from typing import Any
 
@@ -82,7 +83,20 @@ class Query:
         return frozenset(s.attribute for s in self.statements)
 
     def matches(self, entity: Mapping[str, Any]) -> bool:
-        return all(_matches(s, entity, self.metadata) for s in self.statements)
+        for test in self.tests:
+            if not test(entity):
+                return False
+        return True
+
+    @property
+    def tests(self) -> tuple[Callable[[Mapping[str, Any]], bool], ...]:
+        """One predicate per statement: a specialized fast one for the common shapes (one
+        attribute, a number or string), else the general matcher. Same answers (unit tested)."""
+        cached = self.__dict__.get("_tests")
+        if cached is None:
+            cached = tuple(_compile(s, self.metadata) for s in self.statements)
+            object.__setattr__(self, "_tests", cached)
+        return cached
 
 
 # --- parsing -----------------------------------------------------------------------------
@@ -301,6 +315,58 @@ def _order(op: str, literal: Literal, value: Any) -> bool:
     if op == ">=":
         return other >= ref
     return other <= ref
+
+
+_FAST_OPS: dict[str, Callable[[Any, Any], bool]] = {
+    ">": lambda a, b: a > b, "<": lambda a, b: a < b, ">=": lambda a, b: a >= b, "<=": lambda a, b: a <= b,
+}
+
+
+def _compile(statement: Statement, metadata: bool) -> Callable[[Mapping[str, Any]], bool]:
+    """A predicate for ``statement``; fast paths for a one-token path and a single number or
+    string value, falling back to :func:`_matches` whenever the value is not a plain scalar."""
+    general = partial(_matches, statement, metadata=metadata)
+    if metadata or len(statement.path) != 1 or statement.low is not None:
+        return general
+    name, op = statement.path[0], statement.op
+    if op in ("exists", "absent"):
+        return general
+    if len(statement.values) != 1 or op == "~=":
+        return general
+    literal = statement.values[0]
+    ref = literal.value
+    if literal.kind == "number" and op in _FAST_OPS:
+        compare = _FAST_OPS[op]
+
+        def number_order(entity: Mapping[str, Any]) -> bool:
+            attr = entity.get(name)
+            if type(attr) is not dict:
+                return general(entity)
+            value = attr.get("value")
+            kind = type(value)
+            if kind is int or kind is float:
+                return compare(value, ref)
+            return general(entity)
+        return number_order
+    if literal.kind in ("number", "string") and op in ("==", "!="):
+        text, quoted, want = literal.text, literal.quoted, op == "=="
+        numeric = literal.kind == "number"
+
+        def equality(entity: Mapping[str, Any]) -> bool:
+            attr = entity.get(name)
+            if type(attr) is not dict or "value" not in attr:
+                return general(entity)
+            value = attr["value"]
+            kind = type(value)
+            if kind is str:
+                hit = value == ref if not numeric else (not quoted and value == text)
+                return hit if want else not hit
+            if kind is int or kind is float:
+                hit = numeric and value == ref
+                return hit if want else not hit
+            return general(entity)
+        return equality
+    return general
 
 
 def _matches(statement: Statement, entity: Mapping[str, Any], metadata: bool) -> bool:

@@ -117,3 +117,15 @@ def test_query_lists_its_attributes_and_statements() -> None:
 def test_entity_without_value_or_with_bare_values_does_not_match() -> None:
     assert not parse_q("state==moving").matches({"id": "x", "type": "T", "state": "moving"})
     assert not parse_q("state").matches({"id": "x", "type": "T", "state": {"type": "Text"}})
+
+
+@pytest.mark.parametrize(("text", "expected"), MATCH_CASES, ids=[c[0] for c in MATCH_CASES])
+def test_fast_predicates_agree_with_the_general_matcher(text: str, expected: bool) -> None:
+    from engine.context_broker.q import _matches
+
+    query = parse_q(text)
+    for entity in (AGV, {"id": "x", "type": "T"}, {"id": "y", "type": "T", "state": {"value": 5},
+                                                    "battery": {"value": "81.5"}, "speed": {"value": [2, 3]},
+                                                    "count": {"value": 20}, "charging": {"value": None}}):
+        general = all(_matches(s, entity, False) for s in query.statements)
+        assert query.matches(entity) is general
