@@ -13,7 +13,7 @@ deploys it) and one ``python -m engine.context_broker`` (token file, tmp data fo
   do at all, next to the PATCH rate.
 - **notification**: a subscription with ``notification.mqtt`` on Mosquitto; updates paced at
   ``--rate`` per second (four sender threads, one entity each), and again at
-  ``--capacity-fraction`` of the best updates/s measured (when that is lower: the notification
+  ``--capacity-fraction`` (a quarter) of the best updates/s measured (when lower: the notification
   path's own latency, without queueing in front of a saturated broker); latency from just before
   the PATCH to the MQTT message's arrival at a subscriber, p50/p99, lost; against paced raw
   publish -> receive through the same Mosquitto at the same rates.
@@ -470,7 +470,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="seconds for the worker processes to start before a window opens")
     parser.add_argument("--rate", type=float, default=500.0, help="paced updates per second")
     parser.add_argument("--notifications", type=int, default=5000)
-    parser.add_argument("--capacity-fraction", type=float, default=0.5,
+    parser.add_argument("--capacity-fraction", type=float, default=0.25,
                         help="also measure notifications at this fraction of the best updates/s, when below --rate")
     parser.add_argument("--entities", type=int, default=10_000)
     parser.add_argument("--requests", type=int, default=300, help="timed requests per query")
