@@ -89,6 +89,7 @@ def tenant_of_graph(iri: str) -> Tenant | None:
     return Tenant("" if service == "_" else service, "/" + path)
 
 
+@lru_cache(maxsize=65536)
 def minted_node(entity_id: str, entity_type: str) -> str:
     return f"{NGSI_ENTITY_BASE}{quote(entity_type, safe='')}/{quote(entity_id, safe='')}"
 
@@ -102,6 +103,7 @@ def type_iri(entity_type: str) -> str:
     return entity_type if is_absolute_iri(entity_type) else NGSI_TYPE_BASE + quote(entity_type, safe="")
 
 
+@lru_cache(maxsize=65536)
 def attr_iri(entity_id: str, entity_type: str, name: str) -> str:
     return f"{minted_node(entity_id, entity_type)}/attrs/{quote(name, safe='')}"
 
