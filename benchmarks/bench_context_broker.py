@@ -261,10 +261,12 @@ def notification_study(cb: ContextBroker, mq: rig.Mosquitto, n: int, rates: list
             with arrivals.lock:
                 arrivals.duplicates = 0
             offset = run * 1_000_000  # fresh sequence numbers: a late notification of a run before is not counted
+            answered: list[float] = []
             pace = _paced(n, rate, SENDER_THREADS,
-                          lambda k, i, s=sent, o=offset: _update(conns[k], cb, k, o + i, s, failures))
+                          lambda k, i, s=sent, o=offset, a=answered: _update(conns[k], cb, k, o + i, s, failures, a))
             got = _collect(n, sent, arrivals, 10.0)
             rows.append({"path": "context-broker -> mqtt", "role": role, "offered_rate": rate, **pace, **got,
+                         "patch_answered_ms": summarize(answered),
                          "update_failures": len(failures), "first_failure": failures[0] if failures else ""})
     finally:
         for c in conns:
@@ -275,10 +277,13 @@ def notification_study(cb: ContextBroker, mq: rig.Mosquitto, n: int, rates: list
     return {"rows": rows}
 
 
-def _update(conn: Http, cb: ContextBroker, k: int, seq: int, sent: dict[int, int], failures: list[str]) -> None:
+def _update(conn: Http, cb: ContextBroker, k: int, seq: int, sent: dict[int, int], failures: list[str],
+            answered: list[float] | None = None) -> None:
     body = json.dumps({"seq": {"type": "Number", "value": seq}})
-    sent[seq] = time.time_ns()
+    sent[seq] = t0 = time.time_ns()
     reply = conn.request("PATCH", f"/v2/entities/bench-n-{k}/attrs", body, {**JSON, **cb.auth})
+    if answered is not None:
+        answered.append((time.time_ns() - t0) / 1e9)
     if reply.status != 204:
         failures.append(f"{reply.status} {reply.body[:200]!r}")
 
@@ -391,6 +396,12 @@ def goals(data: dict[str, Any]) -> list[dict[str, Any]]:
     return out
 
 
+def _answered(row: dict[str, Any]) -> str:
+    """The PATCH round trips of a notification run (how much of the latency is the HTTP write)."""
+    got = row.get("patch_answered_ms")
+    return f"{_ms(got, 'p50')} / {_ms(got, 'p99')}" if got else "-"
+
+
 def _num(value: float | None) -> str:
     return "-" if value is None else f"{value:.2f}"
 
@@ -416,13 +427,13 @@ def to_markdown(data: dict[str, Any]) -> str:
                      f"{_num(r.get('server_cpu_ms_per_request'))} | {r.get('worker_late_s', 0.0):.2f} |")
     lines += ["", "## Notification latency (paced; ms from just before the PATCH / publish to the MQTT message's "
               "arrival)", "",
-              "| path | rate | offered/s | achieved/s | max sender lag ms | received | lost | dup | p50 ms | p99 ms | max ms |",
-              "|---|---|---|---|---|---|---|---|---|---|---|"]
+              "| path | rate | offered/s | achieved/s | max sender lag ms | received | lost | dup | p50 ms | p99 ms | max ms "
+              "| PATCH answered p50 / p99 ms |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in data["notification"]["rows"]:
         lat = r["latency_ms"]
         lines.append(f"| {r['path']} | {r.get('role', 'goal')} | {r['offered_rate']:.0f} | {r['achieved_rate']:.0f} | "
-                     f"{r['max_lag_ms']:.1f} | {r['received']} | {r['lost']} | {r['duplicates']} | {_ms(lat, 'p50')} | {_ms(lat, 'p99')} | "
-                     f"{_ms(lat, 'max')} |")
+                     f"{r['max_lag_ms']:.1f} | {r['received']} | {r['lost']} | {r['duplicates']} | {_ms(lat, 'p50')} | "
+                     f"{_ms(lat, 'p99')} | {_ms(lat, 'max')} | {_answered(r)} |")
     q = data["query"]
     lines += ["", f"## Queries ({q['entities']} entities loaded in {q['load_s']:.1f} s by /v2/op/update batches "
               f"of 500; {q['requests']} requests each, one keep-alive client)", "",
