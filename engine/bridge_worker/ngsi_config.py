@@ -83,6 +83,7 @@ class NgsiWorkerConfig:
     state_dir: Path
     token_file: Path | None = None
     stats_interval: float = 0.5
+    check_every: float = 30.0      # seconds between checks that the subscriptions are still right
     mechanism: str = MECHANISM
 
     def __post_init__(self) -> None:
@@ -108,6 +109,10 @@ class NgsiWorkerConfig:
         if isinstance(interval, bool) or not isinstance(interval, (int, float)) or not 0.01 <= interval <= 60:
             raise ConfigValueError("stats_interval", interval, "must be a number of seconds in 0.01..60")
         object.__setattr__(self, "stats_interval", float(interval))
+        every = self.check_every
+        if isinstance(every, bool) or not isinstance(every, (int, float)) or not 0.1 <= every <= 3600:
+            raise ConfigValueError("check_every", every, "must be a number of seconds in 0.1..3600")
+        object.__setattr__(self, "check_every", float(every))
 
     @property
     def client_id(self) -> str:
@@ -129,7 +134,7 @@ class NgsiWorkerConfig:
             "mqtt_port": self.mqtt_port, "ngsi_url": self.ngsi_url,
             "routes": [r.to_dict() for r in self.routes], "state_dir": str(self.state_dir),
             "token_file": str(self.token_file) if self.token_file is not None else None,
-            "stats_interval": self.stats_interval,
+            "stats_interval": self.stats_interval, "check_every": self.check_every,
         }, indent=2)
 
     @classmethod

@@ -96,7 +96,9 @@ def reconcile(cfg: NgsiWorkerConfig, existing: list[dict[str, Any]], *, remove_a
 
 class SubscriptionKeeper:
     """Makes the bridge's subscriptions right once the context broker answers (on its own
-    thread, retrying with backoff), then sets ``health.subscriptions_made``."""
+    thread, retrying with backoff), sets ``health.subscriptions_made``, and checks them again
+    every ``check_every`` seconds: one deleted by someone else, or lost with a context broker
+    that started anew on empty data, is made again."""
 
     def __init__(self, cfg: NgsiWorkerConfig, health: Any, stopping: threading.Event) -> None:
         self.cfg = cfg
@@ -110,6 +112,7 @@ class SubscriptionKeeper:
     def _run(self) -> None:
         client = NgsiClient(self.cfg.ngsi_url, self.cfg.token_file)
         delay = RETRY_DELAY[0]
+        first = True
         try:
             while not self.stopping.is_set():
                 try:
@@ -119,10 +122,12 @@ class SubscriptionKeeper:
                     self.stopping.wait(delay)
                     delay = min(delay * 2, RETRY_DELAY[1])
                     continue
-                log.info("subscriptions: %d kept, %d created, %d deleted", plan.kept,
-                         len(plan.create), len(plan.delete))
+                if first or plan.create or plan.delete:
+                    log.info("subscriptions: %d kept, %d created, %d deleted", plan.kept,
+                             len(plan.create), len(plan.delete))
+                first, delay = False, RETRY_DELAY[0]
                 self.health.set(subscriptions_made=True)
-                return
+                self.stopping.wait(self.cfg.check_every)
         finally:
             client.close()
 

@@ -242,7 +242,7 @@ class NgsiWorkers:
         cleanup.append(self.stop_clean)
 
     def config(self, tmp_path: Path, mqtt_port: int, cb: ContextBroker, *directions: NgsiDirection,
-               token: str | None = None, bridge_id: str = "mqtt--cb") -> NgsiWorkerConfig:
+               token: str | None = None, bridge_id: str = "mqtt--cb", check_every: float = 30.0) -> NgsiWorkerConfig:
         state = tmp_path / "worker"
         state.mkdir(parents=True, exist_ok=True)
         token_file = state / "remote.token"
@@ -250,7 +250,7 @@ class NgsiWorkers:
         token_file.chmod(0o600)
         routes = tuple(NgsiRoute(TOPIC, *ENTITY, d) for d in directions)
         return NgsiWorkerConfig(bridge_id, "127.0.0.1", mqtt_port, cb.url, routes, state,
-                                token_file=token_file, stats_interval=0.1)
+                                token_file=token_file, stats_interval=0.1, check_every=check_every)
 
     def start(self, cfg: NgsiWorkerConfig, wait: bool = True) -> process.Child:
         self.cfg = cfg
@@ -425,6 +425,24 @@ def test_ngsi_to_mqtt_worker_killed_and_restarted(tmp_path: Path, mosquitto: rig
     sender.join(DEADLINE)
     wait_all(counter.seqs, N, f"{N} notifications on MQTT")
     assert check("ngsi->mqtt, worker killed", counter.seqs, N) == 0
+
+
+def test_a_subscription_deleted_by_someone_else_is_made_again(
+        tmp_path: Path, mosquitto: rig.Mosquitto, context_broker: ContextBroker, workers: NgsiWorkers,
+        cleanup: list) -> None:
+    counter = MqttCounter(mosquitto.port, TOPIC)
+    cleanup.append(counter.stop)
+    workers.start(workers.config(tmp_path, mosquitto.port, context_broker, NgsiDirection.NGSI_TO_MQTT,
+                                 check_every=0.5))
+    [sub] = our_subscriptions(context_broker)
+    http = context_broker.http()
+    assert http.request("DELETE", f"/v2/subscriptions/{sub['id']}", headers=context_broker.auth).status == 204
+    [again] = process.wait_until(lambda: our_subscriptions(context_broker) or None, 30.0, 0.1,
+                                 what="the subscription made again")
+    assert again["id"] != sub["id"]
+    update_entity(context_broker, 1).join(30)
+    process.wait_until(lambda: counter.seqs == [0], 30.0, 0.05, what="the update on MQTT")
+    http.close()
 
 
 # --- both ways ----------------------------------------------------------------------------------

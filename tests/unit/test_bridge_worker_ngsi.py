@@ -125,7 +125,7 @@ def config(tmp_path: Path, *routes: NgsiRoute, **extra: object) -> NgsiWorkerCon
 
 
 def test_config_round_trips_through_json(tmp_path: Path) -> None:
-    cfg = config(tmp_path, token_file=tmp_path / "w" / "remote.token", stats_interval=0.1)
+    cfg = config(tmp_path, token_file=tmp_path / "w" / "remote.token", stats_interval=0.1, check_every=2)
     text = cfg.to_json()
     assert is_ngsi_config(text)
     assert NgsiWorkerConfig.from_json(text) == cfg
@@ -165,6 +165,8 @@ BAD_CONFIGS = [
     ({"routes": [{"mqtt_topic": "a", "entity_id": "e", "entity_type": "T", "direction": "mqtt-to-ngsi"},
                  {"mqtt_topic": "a", "entity_id": "f", "entity_type": "T", "direction": "mqtt-to-ngsi"}]},
      "routes"),
+    ({"check_every": 0}, "check_every"),
+    ({"stats_interval": True}, "stats_interval"),
     ({"surprise": 1}, "surprise"),
 ]
 
