@@ -949,6 +949,15 @@ ex:kafka1 pk:bridgesTo ex:kafka2 .""",
          add=CB.replace("pk:hasTopic ex:command .", "pk:hasTopic ex:command , ex:ab , ex:ab2 .")
              + '\nex:ab a pk:Topic ;\n    pk:id "t-ab" ;\n    pk:name "a/b" ;\n    pk:entityId "urn:x" ;\n    pk:entityType "A" .'
              + '\nex:ab2 a pk:Topic ;\n    pk:id "t-ab2" ;\n    pk:name "a:b" ;\n    pk:entityId "urn:x" ;\n    pk:entityType "B" .'),
+    Case("context-broker-bridge-from-mqtt", "an asserted bridge from Mosquitto to a context broker (no result)",
+         add=CB + "\nex:mqtt1 pk:bridgesTo ex:cb1 ."),
+    Case("context-broker-bridge-to-kafka", "an asserted bridge from a context broker to Kafka",
+         add=CB.replace("pk:hasTopic ex:command .", "pk:hasTopic ex:command , ex:temperature ;\n    pk:bridgesTo ex:kafka1 ."),
+         expected=[R("ex:cb1", "bridgesTo", "ex:kafka1", "Broker-bridgeContextBrokerToMqttOnly", "SPARQL")]),
+    Case("context-broker-bridge-to-context-broker", "an asserted bridge between two context brokers",
+         add=CB + '\nex:cb2 a pk:Broker ;\n    pk:id "cb2" ;\n    pk:name "other-context" ;\n    pk:brokerType "ngsi-v2" ;\n'
+             '    pk:ip "127.0.0.8" ;\n    pk:port 1026 ;\n    pk:hasTopic ex:command .\nex:cb2 pk:bridgesTo ex:cb1 .',
+         expected=[R("ex:cb2", "bridgesTo", "ex:cb1", "Broker-bridgeContextBrokerToMqttOnly", "SPARQL")]),
     Case("domain-entityId-on-broker", "pk:entityId (domain Topic) on a broker",
          edits=[('pk:ip "127.0.0.4" ;', 'pk:ip "127.0.0.4" ;\n    pk:entityId "urn:x" ;')],
          expected=[R("ex:kafka1", "entityId", "urn:x", "Topic-domain", "SPARQL")]),
