@@ -8,10 +8,9 @@
   ``--open``; one of the two must be given.
 - The store lives in ``D/oxigraph`` (``D/context.lock`` keeps a second process out, with a clear
   message and exit code 2); subscriptions in ``D/subscriptions``.
-- Served by cheroot (CherryPy's pure-Python WSGI server): a pool of ``--threads`` workers, idle
-  keep-alive connections wait in a selector and hold no worker, a slow client holds at most one
-  worker until its socket timeout, so the others go on. (waitress was measured first: it closes
-  the connection after every 204, i.e. after every NGSI write, which halved the update rate.)
+- Served by waitress (:mod:`.http_server`): requests are read whole, asynchronously, before a
+  worker runs them, so slow or stalled clients hold no worker; 204 answers keep the connection.
+  (cheroot was tried too: there, 16 clients stalled mid-body hold all 16 workers.)
   SIGTERM or SIGINT stop it cleanly (exit 0).
 """
 
@@ -29,9 +28,7 @@ from engine.context_broker.app import create_app
 from engine.context_broker.store import ContextStore, StoreLocked
 
 log = logging.getLogger("engine.context_broker")
-DEFAULT_THREADS = 16
-SOCKET_TIMEOUT = 10.0
-MAX_HEADER_BYTES = 64 * 1024
+DEFAULT_THREADS = 8
 
 
 class ConfigError(Exception):
@@ -92,7 +89,7 @@ def _logging(log_file: Path | None) -> None:
 
 
 class _Stop(SystemExit):
-    """Raised by the signal handler in the serving thread (cheroot lets SystemExit through)."""
+    """Raised by the signal handler in the serving (main) thread, ending ``server.run()``."""
 
 
 def _on_signal(signum: int, frame: FrameType | None) -> None:
@@ -113,28 +110,24 @@ def main(argv: list[str] | None = None) -> int:
     except StoreLocked as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    from cheroot import wsgi
-
+    from engine.context_broker.http_server import make_server
     from engine.context_broker.subscriptions import SubscriptionService
 
     subscriptions = SubscriptionService(args.data_dir / "subscriptions")
     subscriptions.start()
     app = create_app(store, token=token, listeners=[subscriptions],
                      subscriptions_blueprint=subscriptions.blueprint())
-    server = wsgi.Server((args.host, args.port), app, numthreads=args.threads,
-                         server_name="plantkg-context-broker", timeout=SOCKET_TIMEOUT)
-    server.max_request_header_size = MAX_HEADER_BYTES
+    server = make_server(app, args.host, args.port, args.threads)
     signal.signal(signal.SIGTERM, _on_signal)
     signal.signal(signal.SIGINT, _on_signal)
     log.info("context broker on http://%s:%d (data %s, %d entities, writes %s)", args.host,
              args.port, args.data_dir, store.count(), "open" if token is None else "need a token")
     try:
-        server.prepare()
-        server.serve()
+        server.run()
     except _Stop as stop:
         log.info("%s: stopping", stop)
     finally:
-        server.stop()
+        server.close()
         subscriptions.close()
         store.close()
         log.info("stopped")
