@@ -33,6 +33,7 @@ from engine.bridge_worker.ledgers import InOrderAcks, PendingAck
 from engine.bridge_worker.mqtt_link import MqttLink
 from engine.bridge_worker.ngsi_client import NgsiClient, NgsiRefused, NgsiUnavailable
 from engine.bridge_worker.ngsi_config import NgsiDirection, NgsiRoute, NgsiWorkerConfig
+from engine.bridge_worker.ngsi_health import NgsiHealth
 from engine.bridge_worker.ngsi_mapping import Refused, is_notification, upsert_body
 
 log = logging.getLogger("plantkg.bridge.mqtt-to-ngsi")
@@ -51,7 +52,8 @@ class _Job:
 
 
 class MqttToNgsi:
-    def __init__(self, cfg: NgsiWorkerConfig, link: MqttLink, health, stopping: threading.Event) -> None:
+    def __init__(self, cfg: NgsiWorkerConfig, link: MqttLink, health: NgsiHealth,
+                 stopping: threading.Event) -> None:
         self.cfg = cfg
         self.link = link
         self.health = health

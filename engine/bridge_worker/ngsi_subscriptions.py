@@ -22,6 +22,7 @@ from typing import Any
 
 from engine.bridge_worker.ngsi_client import NgsiClient, NgsiError
 from engine.bridge_worker.ngsi_config import NgsiDirection, NgsiRoute, NgsiWorkerConfig
+from engine.bridge_worker.ngsi_health import NgsiHealth
 
 log = logging.getLogger("plantkg.bridge.ngsi-subscriptions")
 
@@ -100,7 +101,7 @@ class SubscriptionKeeper:
     every ``check_every`` seconds: one deleted by someone else, or lost with a context broker
     that started anew on empty data, is made again."""
 
-    def __init__(self, cfg: NgsiWorkerConfig, health: Any, stopping: threading.Event) -> None:
+    def __init__(self, cfg: NgsiWorkerConfig, health: NgsiHealth, stopping: threading.Event) -> None:
         self.cfg = cfg
         self.health = health
         self.stopping = stopping

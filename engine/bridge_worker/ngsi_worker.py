@@ -2,64 +2,30 @@
 NGSI lanes, the keeper of its context broker subscriptions (NGSI -> MQTT), a ``GET /version``
 probe of the context broker and the stats file, run until asked to stop.
 
-Ready (the agent reports RUNNING) means: MQTT connected with its subscriptions granted (if it
-forwards MQTT -> NGSI), the context broker answering ``GET /version``, its last write not refused
-for the token (401/403), and (if it forwards NGSI -> MQTT) its subscriptions made on the context
-broker. A stop (SIGTERM, SIGINT) takes no new message,
-waits (bounded) for the requests in flight and their PUBACKs, disconnects, and leaves the
-subscriptions in place: the bridge still exists. ``python -m engine.bridge_worker --remove
+Ready (the agent reports RUNNING): see :mod:`engine.bridge_worker.ngsi_health`. A stop (SIGTERM,
+SIGINT) takes no new message, waits (bounded) for the requests in flight and their PUBACKs,
+disconnects, and leaves the subscriptions in place: the bridge still exists. ``python -m engine.bridge_worker --remove
 worker.json`` deletes them when the bridge is deleted (:func:`remove_subscriptions`).
 """
 
 from __future__ import annotations
 
 import logging
-import os
 import threading
 import time
 
-from engine.bridge_worker.health import Health
 from engine.bridge_worker.mqtt_link import MqttLink
 from engine.bridge_worker.mqtt_to_ngsi import MqttToNgsi
 from engine.bridge_worker.ngsi_client import NgsiClient, NgsiError
-from engine.bridge_worker.ngsi_config import MECHANISM, NgsiDirection, NgsiWorkerConfig
+from engine.bridge_worker.ngsi_config import NgsiDirection, NgsiWorkerConfig
+from engine.bridge_worker.ngsi_health import NgsiHealth
 from engine.bridge_worker.ngsi_subscriptions import SubscriptionKeeper, apply_plan
-from engine.bridge_worker.stats import WorkerStats, write_stats
+from engine.bridge_worker.stats import write_stats
 
 log = logging.getLogger("plantkg.bridge")
 
 STOP_GRACE = 10.0
 PROBE_EVERY = 1.0
-
-
-class NgsiHealth(Health):
-    """:class:`Health` with the NGSI worker's flags and counters."""
-
-    def __init__(self, bridge_id: str) -> None:
-        super().__init__(bridge_id)
-        self.ngsi_connected: bool | None = None
-        self.subscriptions_made = False
-        self.token_refused = False         # the last write was answered 401/403
-        self.forwarded_mqtt_to_ngsi = 0
-        self.refused = 0
-        self.skipped = 0
-
-    def ngsi_snapshot(self, *, needs_subscription: bool, needs_ngsi_subscriptions: bool,
-                      stopping: bool) -> WorkerStats:
-        with self._lock:
-            ready = (not stopping and self.mqtt_connected and self.ngsi_connected is True
-                     and not self.token_refused
-                     and (self.subscribed or not needs_subscription)
-                     and (self.subscriptions_made or not needs_ngsi_subscriptions))
-            return WorkerStats(
-                bridge_id=self.bridge_id, pid=os.getpid(), ready=ready,
-                mqtt_connected=self.mqtt_connected, kafka_connected=None,
-                forwarded_mqtt_to_kafka=0, forwarded_kafka_to_mqtt=0,
-                retried=self.retried, last_error=self.last_error, updated_at=time.time(),
-                mechanism=MECHANISM, ngsi_connected=self.ngsi_connected,
-                forwarded_mqtt_to_ngsi=self.forwarded_mqtt_to_ngsi, refused=self.refused,
-                skipped=self.skipped,
-            )
 
 
 class NgsiWorker:

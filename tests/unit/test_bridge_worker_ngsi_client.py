@@ -13,7 +13,7 @@ import pytest
 
 from engine import netutil
 from engine.bridge_worker.ngsi_client import NgsiClient, NgsiRefused, NgsiUnavailable
-from engine.bridge_worker.ngsi_worker import NgsiHealth
+from engine.bridge_worker.ngsi_health import NgsiHealth
 
 
 class Server:
