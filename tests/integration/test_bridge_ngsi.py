@@ -490,6 +490,10 @@ def test_agent_runs_an_ngsi_bridge(tmp_path: Path, context_broker: ContextBroker
         first = agent.put_bridge(spec, remote_token=context_broker.token)
         again = agent.put_bridge(spec, remote_token=context_broker.token)
         assert again.pid == first.pid, "a repeated PUT restarted the worker"
+        rotated = agent.put_bridge(spec, remote_token="another-token")
+        assert rotated.pid != first.pid, "a new token did not restart the worker"
+        restored = agent.put_bridge(spec, remote_token=context_broker.token)
+        assert restored.pid != rotated.pid
 
         def running(forwarded: int) -> Callable[[], object]:
             def check_once() -> object:
