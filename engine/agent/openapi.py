@@ -60,6 +60,10 @@ _SCHEMAS: dict[str, Any] = {
             "kind": {"type": "string", "description": "A driver name: mosquitto, kafka, ..."},
             "host": {"type": "string", "description": "IPv4 or IPv6 address the broker binds"},
             "port": {"type": "integer", "minimum": 1, "maximum": 65535},
+            "persist_every": {"type": ["integer", "null"], "minimum": 1, "maximum": 1000000,
+                              "description": "mosquitto: save after this many changes"},
+            "allow_anonymous": {"type": ["boolean", "null"],
+                                "description": "ngsi-v2: writes need no token (restarts the broker)"},
         },
     },
     "TopicSpec": {
@@ -74,6 +78,9 @@ _SCHEMAS: dict[str, Any] = {
             "retention_ms": {"type": ["integer", "null"], "minimum": -1},
             "qos": {"type": ["integer", "null"], "minimum": 0, "maximum": 2},
             "retain": {"type": ["boolean", "null"]},
+            "entity_id": {"type": ["string", "null"], "maxLength": 256,
+                          "description": "ngsi-v2: the topic's entity (Orion's identifier rules)"},
+            "entity_type": {"type": ["string", "null"], "maxLength": 256},
         },
     },
     "ObservedTopic": {
@@ -85,6 +92,8 @@ _SCHEMAS: dict[str, Any] = {
             "retention_ms": _NULLABLE_INT,
             "qos": _NULLABLE_INT,
             "retain": {"type": ["boolean", "null"]},
+            "entity_id": {"type": ["string", "null"]},
+            "entity_type": {"type": ["string", "null"]},
         },
     },
     "ObservedBroker": {
