@@ -198,14 +198,11 @@ def test_batch_update_with_a_missing_entity_is_a_partial_update(fresh_broker: Co
 SLOW_CLIENTS = 32  # four times the server's default worker threads (8)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "cheroot hands a connection to a worker thread once its headers are in, and the worker then waits "
-    "for the body until the socket timeout (10 s): 16 or more clients that send headers and part of a body "
-    "hold every worker, and a well-behaved GET waits 7-17 s (measured 2026-11-24). Read the body before "
-    "dispatching (as waitress does), or bound the time per request body"))
 def test_slow_clients_do_not_stop_the_others(fresh_broker: ContextBroker) -> None:
     """Clients that send a request's headers and then only part of its body (a slow or stalled
-    device, or a slowloris) must not keep a well-behaved client from being answered promptly."""
+    device, or a slowloris) must not keep a well-behaved client from being answered promptly.
+    (Under cheroot, 16 such clients held every worker and a GET waited 7-17 s; fixed by
+    ed51755, back on waitress, which reads a request whole before a worker runs it.)"""
     import socket
     import time
 
@@ -236,9 +233,8 @@ def test_concurrent_creates_of_one_id_make_one_entity(fresh_broker: ContextBroke
     other answer 422 ``Unprocessable`` (Orion's ``Already Exists``), one entity per round stored.
 
     A connection the server resets is not an answer: the invariant is checked without it, and a
-    run that saw resets ends as xfail naming them (seen on ~1% of such connections, 2026-11-24:
-    the process resets some connections of a burst; cheroot serving the same app in-process
-    did not in 144 tries, with a listen backlog of 5 or 128)."""
+    run that saw resets ends as xfail naming them (seen on ~1% of such connections on
+    2026-11-24 while the server ran on cheroot)."""
     import http.client
     import threading
     from collections import Counter
