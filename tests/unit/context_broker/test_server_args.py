@@ -1,0 +1,44 @@
+"""The context broker's command line (engine.context_broker.server): loopback unless told, a
+token or an explicit --open, clear refusals."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from engine.context_broker.server import ConfigError, check_host, main, parse_args, read_token
+
+
+@pytest.mark.parametrize("host", ["127.0.0.1", "127.0.0.5", "::1", "localhost"])
+def test_loopback_hosts_are_fine(host: str) -> None:
+    check_host(host, allow_remote=False)
+
+
+@pytest.mark.parametrize(("host", "words"), [("0.0.0.0", "not a loopback"), ("192.168.1.4", "--allow-remote"),
+                                             ("example.org", "not an IP address")])
+def test_other_hosts_need_allow_remote(host: str, words: str) -> None:
+    with pytest.raises(ConfigError, match=words):
+        check_host(host, allow_remote=False)
+    check_host(host, allow_remote=True)
+
+
+def test_token_from_file_or_open(tmp_path: Path) -> None:
+    token = tmp_path / "token"
+    token.write_text("  abc123 \nsecond line ignored\n")
+    assert read_token(parse_args(["--data-dir", "d", "--token-file", str(token)])) == "abc123"
+    assert read_token(parse_args(["--data-dir", "d", "--open"])) is None
+    for argv, words in ((["--data-dir", "d"], "--token-file"),
+                        (["--data-dir", "d", "--open", "--token-file", str(token)], "not both"),
+                        (["--data-dir", "d", "--token-file", str(tmp_path / "none")], "cannot read")):
+        with pytest.raises(ConfigError, match=words):
+            read_token(parse_args(argv))
+    (tmp_path / "empty").write_text("\n")
+    with pytest.raises(ConfigError, match="empty"):
+        read_token(parse_args(["--data-dir", "d", "--token-file", str(tmp_path / "empty")]))
+
+
+def test_main_refuses_a_remote_host_before_touching_the_data_dir(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--host", "0.0.0.0", "--data-dir", str(tmp_path / "d"), "--open"]) == 2
+    assert "loopback" in capsys.readouterr().err
+    assert not (tmp_path / "d").exists()
