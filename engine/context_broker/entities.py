@@ -81,7 +81,6 @@ class Entity:
     created: float
     modified: float
     normalized: Mapping[str, Any] = field(default_factory=dict, compare=False, repr=False)
-    query_view: Mapping[str, Any] = field(default_factory=dict, compare=False, repr=False)
 
     @classmethod
     def make(cls, id: str, type: str, service_path: str, attrs: Mapping[str, Attribute],
@@ -89,9 +88,19 @@ class Entity:
         normalized: dict[str, Any] = {"id": id, "type": type}
         for name, attr in attrs.items():
             normalized[name] = attr.json()
-        view = dict(normalized)
-        view.update(_builtins(created, modified, service_path))
-        return cls(id, type, service_path, dict(attrs), created, modified, normalized, view)
+        return cls(id, type, service_path, dict(attrs), created, modified, normalized)
+
+    @property
+    def query_view(self) -> Mapping[str, Any]:
+        """The normalized entity plus the builtins ``dateCreated``, ``dateModified`` and
+        ``servicePath`` (what ``q`` filters on, as Orion: builtins over same-named attributes).
+        Built on first use and kept: an entity never changes."""
+        view = self.__dict__.get("_query_view")
+        if view is None:
+            view = dict(self.normalized)
+            view.update(_builtins(self.created, self.modified, self.service_path))
+            object.__setattr__(self, "_query_view", view)
+        return view
 
     def with_attrs(self, attrs: Mapping[str, Attribute], now: float) -> Entity:
         return Entity.make(self.id, self.type, self.service_path, attrs, self.created, now)
