@@ -543,12 +543,13 @@ def test_apply_of_the_agv_middleware_plant_bridges_mqtt_and_the_context_broker(
     from engine.cli import main
     from tests.integration.agents import plant_copy
 
-    plant, ports = plant_copy("agv-middleware.ttl", tmp_path)
+    plant, _ = plant_copy("agv-middleware.ttl", tmp_path)
     fleet = start_agents(["127.0.0.2", "127.0.0.3"], tmp_path / "agents")
     agents = ["--agents", str(fleet.agents_file)]
     try:
         assert main(["apply", str(plant), *agents, "--yes"]) == 0, capsys.readouterr()
-        mqtt_port, cb_port = ports["mosquitto"], ports["context-broker"]
+        [mqtt_port] = [b.spec.port for b in fleet.client("127.0.0.2").list_brokers()]
+        [cb_port] = [b.spec.port for b in fleet.client("127.0.0.3").list_brokers()]
         bridge = process.wait_until(
             lambda: [b for b in fleet.client("127.0.0.2").list_bridges()
                      if b.spec.mechanism is BridgeMechanism.NGSI and b.status.value == "running"],
