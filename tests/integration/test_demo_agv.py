@@ -21,7 +21,7 @@ pytestmark = pytest.mark.integration
 
 def test_agv_demo_runs_end_to_end_and_leaves_nothing(tmp_path: Path) -> None:
     plant, ports = plant_copy("agv-middleware.ttl", tmp_path)
-    assert set(ports) == {"mosquitto", "context-broker"}
+    assert set(ports) == {"fleet-mqtt", "fleet-context"}
     work = tmp_path / "work"
     proc = subprocess.run(
         [sys.executable, "-m", "engine.cli", "demo", str(plant), "--duration", "6", "--work-dir", str(work)],
