@@ -71,6 +71,13 @@ def test_goals_met_from_the_best_client_count() -> None:
     assert len(verdicts) == 3  # GET by id has no goal
 
 
+def test_notification_goal_counts_from_the_schedule() -> None:
+    data = _data({1: 2400.0}, p99=12.0, lost=0, q99=40.0)
+    data["notification"]["rows"][0]["from_schedule_ms"] = {"n": 10, "p50": 30.0, "p99": 70.0}
+    verdict = next(g for g in bench.goals(data) if g["goal"].startswith("update -> MQTT"))
+    assert not verdict["met"] and verdict["measured"] == "70.0 ms (lost 0)"
+
+
 def test_goals_not_met_when_slow_or_lossy() -> None:
     data = _data({1: 900.0, 32: 1999.0}, p99=12.0, lost=1, q99=100.0)
     assert [g["met"] for g in bench.goals(data)] == [False, False, False]
