@@ -149,7 +149,8 @@ def observed_quads(
         add(node, "bridgeRemote", ox.Literal(bridge.spec.remote.id))
         add(node, "bridgeMechanism", ox.Literal(bridge.spec.mechanism.value))
         add(node, "bridgeStatus", ox.Literal(bridge.status.value))
-        for prop, value in (("forwarded", bridge.forwarded), ("retried", bridge.retried)):
+        for prop, value in (("forwarded", bridge.forwarded), ("retried", bridge.retried),
+                            ("refused", bridge.refused)):
             if value is not None:
                 add(node, prop, _lit(value, "integer"))
         if bridge.last_error:

@@ -35,6 +35,7 @@ _SCHEMAS: dict[str, Any] = {
         "mechanism": {"type": ["string", "null"]}, "asserted": {"type": "boolean"},
         "routes": {"type": "array", "items": {"type": "object"}}, "status": {"type": "string"},
         "forwarded": {"type": ["integer", "null"]}, "retried": {"type": ["integer", "null"]},
+        "refused": {"type": ["integer", "null"], "description": "messages the remote refused for their content"},
         "restarts": {"type": ["integer", "null"]}, "started_at": _NULLABLE_NUMBER,
         "last_error": {"type": ["string", "null"]}, "in_plant": {"type": "boolean"}}},
     "Status": {"type": "object", "required": ["version", "brokers", "bridges", "plan", "apply"], "properties": {

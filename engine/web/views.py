@@ -114,10 +114,10 @@ def bridge_rows(desired: DesiredState | None, observed: ObservedState | None) ->
 
 def _bridge_observed(have: ObservedBridge | None) -> dict[str, Any]:
     if have is None:
-        return {"status": "absent", "forwarded": None, "retried": None, "restarts": None,
+        return {"status": "absent", "forwarded": None, "retried": None, "refused": None, "restarts": None,
                 "started_at": None, "last_error": None}
     return {"status": have.status.value, "forwarded": have.forwarded, "retried": have.retried,
-            "restarts": have.restarts, "started_at": have.started_at, "last_error": have.last_error}
+            "refused": have.refused, "restarts": have.restarts, "started_at": have.started_at, "last_error": have.last_error}
 
 
 def machine_rows(brokers: list[dict[str, Any]], observed: ObservedState | None,

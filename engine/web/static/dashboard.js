@@ -55,7 +55,7 @@
       return [b.address + (b.asserted ? "" : " (derived)"), b.mechanism || "-",
         b.routes.map(function (r) { return r.topic + " (" + r.direction + ")"; }).join(", "),
         statusCell(b.status, b.address), b.forwarded === null ? "-" : b.forwarded,
-        b.retried === null ? "-" : b.retried, b.restarts === null ? "-" : b.restarts];
+        (b.retried === null ? "-" : b.retried) + (b.refused ? " (" + b.refused + " refused)" : ""), b.restarts === null ? "-" : b.restarts];
     });
     fill("topics", s.topics, function (t) {
       var settings = Object.keys(t.settings).map(function (k) { return k + "=" + t.settings[k]; }).join(" ");
