@@ -1,0 +1,152 @@
+"""VDA 5050 2.1 over MQTT for one simulated vehicle (paho-mqtt, one client per vehicle).
+
+One MQTT client per vehicle because the last will is per connection: each vehicle's will is its
+own ``connection`` = ``CONNECTIONBROKEN`` (QoS 1, retained), which the broker publishes when the
+process dies without saying goodbye (kill -9, network loss). On connect the link subscribes to its
+own ``order`` and ``instantActions`` (exact topics, never wildcards) and publishes ``ONLINE``
+(QoS 1, retained); ``stop`` publishes ``OFFLINE`` and waits for the broker's PUBACK.
+
+Received messages are checked against the official JSON schema first; a refused one becomes a
+``validationError`` in the vehicle's ``errors`` (and a log line naming the path and reason) and
+changes nothing else. ``state`` goes out on every event the vehicle reports and at least every
+``state_interval`` seconds, ``visualization`` every ``visualization_interval`` seconds.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+from paho.mqtt import client as mqtt
+from paho.mqtt.enums import CallbackAPIVersion
+
+from fleet.sim.vehicle import Outbox, SimVehicle
+from fleet.vda5050 import schemas, topics
+from fleet.vda5050.errors import SchemaError
+from fleet.vda5050.headers import HeaderCounter
+from fleet.vda5050.messages import Connection, ConnectionState, InstantActions, Order, visualization_json
+from fleet.vda5050.topics import Subtopic
+
+log = logging.getLogger("fleet.sim.vda5050")
+
+MAX_STATE_INTERVAL = 30.0  # s: the standard's upper bound for the periodic state
+
+
+@dataclass(frozen=True)
+class LinkConfig:
+    host: str = "127.0.0.1"
+    port: int = 1883
+    state_interval: float = MAX_STATE_INTERVAL
+    visualization_interval: float | None = 1.0  # None: no visualization
+    keepalive: int = 15
+    username: str | None = None
+    password: str | None = None
+
+    def __post_init__(self) -> None:
+        if not 0 < self.state_interval <= MAX_STATE_INTERVAL:
+            raise ValueError(f"state_interval must be > 0 and at most {MAX_STATE_INTERVAL} s (VDA 5050), got {self.state_interval}")
+        if self.visualization_interval is not None and self.visualization_interval <= 0:
+            raise ValueError(f"visualization_interval must be > 0 s, got {self.visualization_interval}")
+
+
+def _dumps(message: dict[str, Any]) -> bytes:
+    return json.dumps(message, separators=(",", ":")).encode("utf-8")
+
+
+class Vda5050Link:
+    def __init__(self, vehicle: SimVehicle, config: LinkConfig) -> None:
+        self.vehicle = vehicle
+        self.config = config
+        spec = vehicle.spec
+        self.headers = HeaderCounter(spec.manufacturer, spec.serial)
+        self._topic = {s: topics.topic(spec.manufacturer, spec.serial, s) for s in Subtopic}
+        self._inbox: deque[tuple[Subtopic, bytes]] = deque(maxlen=1000)  # a flood drops the oldest
+        self._last_state = float("-inf")
+        self._last_visualization = float("-inf")
+        self.refused = 0
+        self.client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"plantkg-sim-{spec.serial}",
+                                  clean_session=True)
+        if config.username is not None:
+            self.client.username_pw_set(config.username, config.password)
+        self.client.on_connect = self._on_connect
+        self.client.on_message = self._on_message
+        broken = Connection(ConnectionState.CONNECTIONBROKEN).to_json(self.headers.next(Subtopic.CONNECTION))
+        rule = topics.rule(Subtopic.CONNECTION)
+        self.client.will_set(self._topic[Subtopic.CONNECTION], _dumps(broken), qos=rule.qos, retain=rule.retain)
+
+    # ------------------------------------------------------------- lifecycle
+    def start(self) -> None:
+        self.client.connect_async(self.config.host, self.config.port, keepalive=self.config.keepalive)
+        self.client.loop_start()
+
+    def connected(self) -> bool:
+        return self.client.is_connected()
+
+    def stop(self, timeout: float) -> bool:
+        confirmed = False
+        if self.client.is_connected():
+            info = self._send(Subtopic.CONNECTION, Connection(ConnectionState.OFFLINE).to_json(self.headers.next(Subtopic.CONNECTION)))
+            try:
+                info.wait_for_publish(timeout)
+                confirmed = info.is_published()
+            except (RuntimeError, ValueError) as exc:  # connection lost meanwhile
+                log.warning("%s: OFFLINE not confirmed: %s", self.vehicle.spec.serial, exc)
+        self.client.disconnect()
+        self.client.loop_stop()
+        return confirmed
+
+    # ------------------------------------------------------------- network thread
+    def _on_connect(self, client: mqtt.Client, _userdata: Any, _flags: Any, reason: Any, _props: Any) -> None:
+        if reason.is_failure:
+            log.warning("%s: broker refused the connection: %s", self.vehicle.spec.serial, reason)
+            return
+        for sub in (Subtopic.ORDER, Subtopic.INSTANT_ACTIONS):
+            client.subscribe(self._topic[sub], qos=topics.rule(sub).qos)
+        # The connection counter is used only here (network thread) and in stop(), after the loop
+        # ends its work; the runner thread uses the other topics' counters.
+        self._send(Subtopic.CONNECTION, Connection(ConnectionState.ONLINE).to_json(self.headers.next(Subtopic.CONNECTION)))
+        self._last_state = float("-inf")  # a fresh state right after (re)connecting
+
+    def _on_message(self, _client: mqtt.Client, _userdata: Any, message: mqtt.MQTTMessage) -> None:
+        kind = Subtopic.ORDER if message.topic == self._topic[Subtopic.ORDER] else Subtopic.INSTANT_ACTIONS
+        self._inbox.append((kind, bytes(message.payload)))
+
+    # ------------------------------------------------------------- runner thread
+    def poll(self) -> None:
+        while self._inbox:
+            kind, payload = self._inbox.popleft()
+            try:
+                data = schemas.parse(kind, payload)
+            except SchemaError as exc:
+                self.refused += 1
+                log.warning("%s: refused %s: %s", self.vehicle.spec.serial, kind.value, exc.message)
+                self.vehicle.refuse_message(kind.value, f"{exc.path or '(message)'}: {exc.reason}")
+                continue
+            if kind is Subtopic.ORDER:
+                order = Order.from_json(data)
+                if not self.vehicle.receive_order(order):
+                    log.info("%s: order %s/%s refused: %s", self.vehicle.spec.serial, order.order_id,
+                             order.order_update_id, self.vehicle.errors[-1].description)
+            else:
+                self.vehicle.receive_instant_actions(InstantActions.from_json(data))
+
+    def publish(self, outbox: Outbox, now: float) -> None:
+        if not self.client.is_connected():
+            return
+        if outbox.state or now - self._last_state >= self.config.state_interval:
+            self._send(Subtopic.STATE, self.vehicle.state().to_json(self.headers.next(Subtopic.STATE)))
+            self._last_state = now
+        if outbox.factsheet:
+            self._send(Subtopic.FACTSHEET, self.vehicle.factsheet().to_json(self.headers.next(Subtopic.FACTSHEET)))
+        interval = self.config.visualization_interval
+        if interval is not None and now - self._last_visualization >= interval:
+            v = self.vehicle
+            self._send(Subtopic.VISUALIZATION, visualization_json(self.headers.next(Subtopic.VISUALIZATION), v.position(), (v.motion.v, v.motion.omega)))
+            self._last_visualization = now
+
+    def _send(self, subtopic: Subtopic, message: dict[str, Any]) -> mqtt.MQTTMessageInfo:
+        rule = topics.rule(subtopic)
+        return self.client.publish(self._topic[subtopic], _dumps(message), qos=rule.qos, retain=rule.retain)
