@@ -52,6 +52,13 @@ class LinkConfig:
             raise ValueError(f"visualization_interval must be > 0 s, got {self.visualization_interval}")
 
 
+def _next_due(due: float, now: float, interval: float, restart: bool) -> float:
+    """The next periodic send: on the grid ``due + interval`` (so tick jitter does not stretch the
+    period), restarted from ``now`` after an event-driven send or when far behind (no bursts)."""
+    following = due + interval
+    return now + interval if restart or following <= now else following
+
+
 def _dumps(message: dict[str, Any]) -> bytes:
     return json.dumps(message, separators=(",", ":")).encode("utf-8")
 
@@ -64,8 +71,8 @@ class Vda5050Link:
         self.headers = HeaderCounter(spec.manufacturer, spec.serial)
         self._topic = {s: topics.topic(spec.manufacturer, spec.serial, s) for s in Subtopic}
         self._inbox: deque[tuple[Subtopic, bytes]] = deque(maxlen=1000)  # a flood drops the oldest
-        self._last_state = float("-inf")
-        self._last_visualization = float("-inf")
+        self._state_due = float("-inf")  # monotonic time the next periodic state is due
+        self._visualization_due = float("-inf")
         self.refused = 0
         self.client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"plantkg-sim-{spec.serial}",
                                   clean_session=True)
@@ -108,7 +115,7 @@ class Vda5050Link:
         # The connection counter is used only here (network thread) and in stop(), after the loop
         # ends its work; the runner thread uses the other topics' counters.
         self._send(Subtopic.CONNECTION, Connection(ConnectionState.ONLINE).to_json(self.headers.next(Subtopic.CONNECTION)))
-        self._last_state = float("-inf")  # a fresh state right after (re)connecting
+        self._state_due = float("-inf")  # a fresh state right after (re)connecting
 
     def _on_message(self, _client: mqtt.Client, _userdata: Any, message: mqtt.MQTTMessage) -> None:
         kind = Subtopic.ORDER if message.topic == self._topic[Subtopic.ORDER] else Subtopic.INSTANT_ACTIONS
@@ -136,16 +143,16 @@ class Vda5050Link:
     def publish(self, outbox: Outbox, now: float) -> None:
         if not self.client.is_connected():
             return
-        if outbox.state or now - self._last_state >= self.config.state_interval:
+        if outbox.state or now >= self._state_due:
             self._send(Subtopic.STATE, self.vehicle.state().to_json(self.headers.next(Subtopic.STATE)))
-            self._last_state = now
+            self._state_due = _next_due(self._state_due, now, self.config.state_interval, outbox.state)
         if outbox.factsheet:
             self._send(Subtopic.FACTSHEET, self.vehicle.factsheet().to_json(self.headers.next(Subtopic.FACTSHEET)))
         interval = self.config.visualization_interval
-        if interval is not None and now - self._last_visualization >= interval:
+        if interval is not None and now >= self._visualization_due:
             v = self.vehicle
             self._send(Subtopic.VISUALIZATION, visualization_json(self.headers.next(Subtopic.VISUALIZATION), v.position(), (v.motion.v, v.motion.omega)))
-            self._last_visualization = now
+            self._visualization_due = _next_due(self._visualization_due, now, interval, False)
 
     def _send(self, subtopic: Subtopic, message: dict[str, Any]) -> mqtt.MQTTMessageInfo:
         rule = topics.rule(subtopic)
