@@ -246,3 +246,24 @@ def test_our_order_drives_the_sdk_vehicle_and_its_states_pass_our_checks(mosquit
     assert (last.order_id, last.last_node_id, last.last_node_sequence_id) == ("our-order", "n2", 4)
     assert last.action_status("p1").value == "FINISHED" and last.action_status("d1").value == "FINISHED"
     assert last.errors == ()
+
+
+def test_a_bad_order_is_refused_with_its_schema_path_and_changes_nothing(mosquitto: int, tmp_path: Path) -> None:
+    sim = start_sim(mosquitto, tmp_path, "--count", "1", "--serial-prefix", "bad-", "--state-interval", "1")
+    watcher = Watcher(mosquitto, "uagv/v2/plantkg/bad-0001/state")
+    try:
+        watcher.wait_for(lambda m: True)  # the vehicle is up
+        headers = HeaderCounter("plantkg", "bad-0001")
+        order = Order("evil", 0, (Node("n0", 0, True, (), NodePosition(20.0, 4.0, "hall-1")),)).to_json(headers.next("order"))
+        order["nodes"][0]["sequenceId"] = "zero"
+        watcher.client.publish(topics.topic("plantkg", "bad-0001", "order"), json.dumps(order)).wait_for_publish(5)
+        _, state, _, _ = watcher.wait_for(lambda m: m[1]["errors"])
+        error = state["errors"][-1]
+        assert error["errorType"] == "validationError" and error["errorLevel"] == "WARNING"
+        assert error["errorDescription"].startswith("order: nodes/0/sequenceId: 'zero' is not of type 'integer'")
+        assert state["orderId"] == "" and state["nodeStates"] == []  # nothing else changed
+        schemas.check("state", state)
+        process.wait_until(lambda: "refused order" in sim.log_path.read_text(), 5.0, 0.05, what="the log line")
+    finally:
+        watcher.close()
+        process.stop(sim, grace=5.0)
