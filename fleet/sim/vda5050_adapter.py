@@ -78,6 +78,7 @@ class Vda5050Link:
                                   clean_session=True)
         if config.username is not None:
             self.client.username_pw_set(config.username, config.password)
+        self.client.reconnect_delay_set(min_delay=1, max_delay=5)  # back within 5 s of the broker
         self.client.on_connect = self._on_connect
         self.client.on_message = self._on_message
         broken = Connection(ConnectionState.CONNECTIONBROKEN).to_json(self.headers.next(Subtopic.CONNECTION))

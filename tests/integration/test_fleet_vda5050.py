@@ -267,3 +267,40 @@ def test_a_bad_order_is_refused_with_its_schema_path_and_changes_nothing(mosquit
     finally:
         watcher.close()
         process.stop(sim, grace=5.0)
+
+
+def test_vehicles_come_back_online_after_a_broker_restart(tmp_path: Path) -> None:
+    port = netutil.free_port(HOST)
+    cfg = mosquitto_runtime.MosquittoConfig(host=HOST, port=port, log_file=tmp_path / "mosquitto.log",
+                                            run_as=mosquitto_runtime.default_run_as())
+    conf = tmp_path / "mosquitto.conf"
+    conf.write_text(mosquitto_runtime.render_mosquitto_conf(cfg), encoding="utf-8")
+    argv = mosquitto_runtime.mosquitto_command(parts.mosquitto_binary(), conf)
+
+    def start_broker(name: str) -> process.Child:
+        child = process.spawn(argv, log_dir=tmp_path, name=name)
+        process.wait_until(lambda: netutil.port_open(HOST, port), 10.0, 0.01, what="Mosquitto", child=child)
+        return child
+
+    broker = start_broker("mosquitto-1")
+    sim = start_sim(port, tmp_path, "--count", "2", "--serial-prefix", "re-")
+    try:
+        first = Watcher(port, "uagv/v2/plantkg/+/connection")
+        try:
+            first.wait_for(lambda m: m[0].endswith("re-0002/connection") and m[1]["connectionState"] == "ONLINE")
+        finally:
+            first.close()
+        process.stop(broker, grace=5.0)  # no persistence: the restarted broker knows nothing
+        broker = start_broker("mosquitto-2")
+        again = Watcher(port, "uagv/v2/plantkg/+/connection")
+        try:
+            back = set()
+            while len(back) < 2:  # reconnect back-off is at most 5 s
+                topic, message, _, _ = again.wait_for(lambda m: m[1]["connectionState"] == "ONLINE", timeout=15)
+                back.add(topics.parse(topic).serial)
+            assert back == {"re-0001", "re-0002"}
+        finally:
+            again.close()
+    finally:
+        process.stop(sim, grace=10.0)
+        process.stop(broker, grace=5.0)
