@@ -28,6 +28,7 @@ from werkzeug.serving import BaseWSGIServer, make_server
 from engine.agent.app import AgentState, create_app
 from engine.agent.manager import BrokerManager
 from engine.agent.workers import WorkerManager
+from engine.drivers.base import AGENT_TOKEN_FILE_ENV
 from engine.drivers.registry import DriverRegistry
 from engine.errors import EngineError
 
@@ -216,6 +217,7 @@ def run_agent(listen: ListenAddress, state_dir: Path, token_file: Path | None, *
     state_dir.mkdir(parents=True, exist_ok=True, mode=0o700)
     token_path = (token_file or state_dir / TOKEN_FILE).resolve()
     token, created = load_or_create_token(token_path)
+    os.environ[AGENT_TOKEN_FILE_ENV] = str(token_path)   # brokers that check the agent's token
     agent = start_agent(listen, state_dir, token, name=name)
 
     def ready() -> None:

@@ -29,6 +29,9 @@ from engine.model import BridgeSpec, BrokerSpec, ObservedTopic, TopicSpec
 LOGS_DIR = "logs"
 #: Folder of a broker's persistent data inside its broker folder.
 DATA_DIR = "data"
+#: Set by ``plantkg agent`` to its token file, for drivers whose broker checks the agent's token
+#: (the context broker); unset, such a driver looks for ``<state dir>/token``.
+AGENT_TOKEN_FILE_ENV = "PLANTKG_AGENT_TOKEN_FILE"
 
 #: Topic fields that only Kafka uses, and those that only MQTT uses.
 KAFKA_TOPIC_FIELDS = ("partitions", "replication_factor", "retention_ms")

@@ -28,6 +28,7 @@ from typing import Any
 
 from engine import netutil
 from engine.drivers.base import (
+    AGENT_TOKEN_FILE_ENV,
     DATA_DIR,
     NGSI_TOPIC_FIELDS,
     check_text,
@@ -43,7 +44,7 @@ from engine.values import check_host, check_ngsi_id, check_path, check_port
 #: The module the agent runs (``python -m``), and the agent's token file name in its state dir.
 SERVER_MODULE = "engine.context_broker"
 TOKEN_FILE = "token"
-TOKEN_FILE_ENV = "PLANTKG_AGENT_TOKEN_FILE"
+TOKEN_FILE_ENV = AGENT_TOKEN_FILE_ENV
 #: How much of a /version answer health reads (Orion's is a few hundred bytes).
 MAX_VERSION_BYTES = 65_536
 

@@ -215,3 +215,38 @@ def test_an_agent_restart_re_adopts_the_running_context_broker_then_destroy_leav
         dep.fleet.brokers()  # remember any pid for the fixture's final check
         process.stop(child, grace=30.0)  # with --stop-brokers-on-exit: nothing outlives it
         del dep.fleet.local.agents[HOST]  # stopped: the fixture has nothing left to ask it
+
+
+def test_an_agent_with_its_own_token_file_gives_it_to_its_context_broker(tmp_path: Path) -> None:
+    """``plantkg agent --token-file F`` (F outside the state dir): the context broker it runs
+    takes writes with the token in F, and refuses any other."""
+    from engine.agent.client import AgentClient
+    from engine.model import BrokerSpec
+
+    host = "127.0.0.4"
+    agent_port, cb_port = netutil.free_port(host), netutil.free_port(host)
+    token_file = tmp_path / "secrets" / "agent.token"
+    token_file.parent.mkdir()
+    child = process.spawn([*plantkg_command(), "agent", "--listen", f"{host}:{agent_port}",
+                           "--state-dir", tmp_path / "state", "--token-file", token_file,
+                           "--stop-brokers-on-exit"], log_dir=tmp_path / "logs", name="agent")
+    try:
+        process.wait_until(lambda: token_file.is_file(), AGENT_READY_S, 0.05, what="the token file",
+                           child=child)
+        client = AgentClient(f"http://{host}:{agent_port}", token_file.read_text().strip(), timeout=30.0)
+        process.wait_until(client.health, AGENT_READY_S, 0.05, what="the agent", child=child,
+                           ignore=(DispatchError, OSError))
+        spec = BrokerSpec(id="cb", iri="https://example.org/x#cb", name="cb", kind="ngsi-v2",
+                          host=host, port=cb_port)
+        assert client.put_broker(spec).status is BrokerStatus.RUNNING
+        body = json.dumps({"id": "urn:ngsi-ld:Thing:1", "type": "Thing"})
+        for token, expected in (("wrong-token", 401), (token_file.read_text().strip(), 201)):
+            conn = http.client.HTTPConnection(host, cb_port, timeout=10)
+            conn.request("POST", "/v2/entities", body, {"Content-Type": "application/json",
+                                                        "Authorization": f"Bearer {token}"})
+            assert conn.getresponse().status == expected
+            conn.close()
+        client.delete_broker("cb")
+    finally:
+        process.stop(child, grace=30.0)
+    assert not netutil.port_open(host, cb_port)
