@@ -80,7 +80,8 @@ def topic_rows(desired: DesiredState | None, observed: ObservedState | None) -> 
     for t in desired.topics if desired else ():
         have = observed.broker(t.broker_id)
         settings = {k: v for k, v in (("partitions", t.partitions), ("replication", t.replication_factor),
-                                      ("retention_ms", t.retention_ms), ("qos", t.qos), ("retain", t.retain))
+                                      ("retention_ms", t.retention_ms), ("qos", t.qos), ("retain", t.retain),
+                                      ("entity_id", t.entity_id), ("entity_type", t.entity_type))
                     if v is not None}
         rows.append({"broker_id": t.broker_id, "name": t.name, "settings": settings,
                      "present": bool(have and any(o.name == t.name for o in have.topics))})

@@ -105,3 +105,10 @@ def test_every_example_query_runs_and_answers(client: FlaskClient) -> None:
         assert r.status_code == 200, (example.title, r.get_data(as_text=True))
         answered = r.json["results"]["bindings"] if r.mimetype.endswith("json") else r.get_data(as_text=True)
         assert answered, example.title
+
+
+def test_context_broker_topics_show_their_entity() -> None:
+    desired = DesiredState(topics=(TopicSpec("cb", "agv/1/status", "x:t", entity_id="urn:ngsi-ld:AGV:1",
+                                             entity_type="AGV"),))
+    [row] = views.topic_rows(desired, ObservedState())
+    assert row["settings"] == {"entity_id": "urn:ngsi-ld:AGV:1", "entity_type": "AGV"}
