@@ -1,12 +1,15 @@
 # plantkg: `make test` installs what is missing (scripts/setup.sh) and runs the whole suite.
 # `make demo` runs the robot cell end to end (DEMO_ARGS, e.g. DEMO_ARGS='--duration 20').
 # Pass pytest options with PYTEST_ARGS, e.g. make test PYTEST_ARGS='-m "not integration"'
+# The suite runs on PYTEST_WORKERS pytest-xdist workers (a file stays on one worker; every test
+# picks free ports), PYTEST_WORKERS=0 runs it in this process.
 # `make bench` runs the benchmark studies and rebuilds benchmarks/RESULTS.md (BENCH_ARGS, e.g.
 # BENCH_ARGS='load --tiny'; see benchmarks/README.md).
 
 SHELL := /bin/bash
 VENV := .venv
 PYTEST_ARGS ?=
+PYTEST_WORKERS ?= 2
 DEMO_ARGS ?=
 BENCH_ARGS ?=
 
@@ -16,7 +19,7 @@ setup:
 	bash scripts/setup.sh
 
 test: setup
-	$(VENV)/bin/python -m pytest $(PYTEST_ARGS)
+	$(VENV)/bin/python -m pytest -n $(PYTEST_WORKERS) --dist loadfile $(PYTEST_ARGS)
 
 lint: setup
 	$(VENV)/bin/lint-imports
