@@ -37,6 +37,7 @@ PREFIXES: dict[str, str] = {
     "owl": str(OWL),
     "xsd": str(XSD),
     "sh": str(SH),
+    "ngsi": str(NGSI),   # the context brokers' context (docs/context-broker.md)
 }
 
 __all__ = [

@@ -5,7 +5,7 @@ to the query as a trailing SPARQL ``VALUES`` clause whose terms Oxigraph itself 
 (N-Triples syntax): a value with a quote or a brace stays one RDF term and cannot change what the
 query does. (Oxigraph's own ``substitutions`` only bind projected variables, and not in ASK.) Queries read the union of the plant files, the ontology and any
 other graph in the store; the usual prefixes (``pk:``, ``rdf:``, ``rdfs:``, ``owl:``, ``xsd:``,
-``sh:``) are predeclared.
+``sh:``, ``ngsi:``) are predeclared.
 """
 
 from __future__ import annotations
@@ -122,5 +122,5 @@ def _query_error(query: str, exc: SyntaxError) -> QueryError:
                           hint="edit the plant's Turtle files instead, then validate and apply")
     return QueryError(
         f"malformed SPARQL query at line {line}, column {column}: {problem}\n    {excerpt}\n    {caret}",
-        hint="check the query syntax; pk:, rdf:, rdfs:, owl:, xsd: and sh: are predeclared",
+        hint="check the query syntax; pk:, rdf:, rdfs:, owl:, xsd:, sh: and ngsi: are predeclared",
     )

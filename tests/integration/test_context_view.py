@@ -28,7 +28,7 @@ BATTERY = """SELECT ?value ?broker WHERE {
   ?agv ngsi:entityId "urn:ngsi-ld:AGV:7" ; ngsi:hasAttribute ?attr .
   ?attr ngsi:name "battery" ; ngsi:hasValue ?value .
   ?broker a pk:ContextBroker ; pk:id "cb" }"""
-PREFIXES = "PREFIX ngsi: <https://w3id.org/plantkg/ngsi#>\n"
+PREFIXES = ""  # ngsi: is predeclared
 
 
 @pytest.fixture
