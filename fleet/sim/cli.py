@@ -18,6 +18,7 @@ from pathlib import Path
 
 from fleet.sim import map as site_map
 from fleet.sim.kinematics import Limits
+from fleet.sim.mqtt_pump import MqttPump
 from fleet.sim.runner import FleetRunner
 from fleet.sim.vda5050_adapter import MAX_STATE_INTERVAL, LinkConfig, Vda5050Link
 from fleet.sim.vehicle import SimVehicle, VehicleSpec
@@ -75,12 +76,13 @@ def build(args: argparse.Namespace) -> FleetRunner:
     limits = Limits(args.vmax, args.amax, args.omega_max, args.alpha_max)
     config = LinkConfig(host=args.broker[0], port=args.broker[1], state_interval=args.state_interval,
                         visualization_interval=1.0 / args.rate)
+    pump = MqttPump()
     links = []
     for i in range(args.count):
         serial = topics.check_serial(f"{args.serial_prefix}{i + 1:04d}")
         spec = VehicleSpec(args.manufacturer, serial, site, spots[i], limits)
-        links.append(Vda5050Link(SimVehicle(spec), config))
-    return FleetRunner(links, tick=args.tick)
+        links.append(Vda5050Link(SimVehicle(spec), config, pump))
+    return FleetRunner(links, pump, tick=args.tick)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -99,9 +99,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         wait(lambda: len(online) >= args.count, 60, f"{args.count} vehicles ONLINE")
         site = site_map.default_map()
+        # a 1 m side takes ~5 s with the default limits (turn + drive): enough laps to keep
+        # driving through the run, not more (a state lists every node still ahead)
+        n_laps = max(1, int((args.warmup + args.duration) / 20) + 1)
         for i, spot in enumerate(site.parking()[: args.count]):
             serial = f"b-{i + 1:04d}"
-            message = laps(spot.x, spot.y, site.map_id, 20).to_json(HeaderCounter(args.manufacturer, serial).next("order"))
+            message = laps(spot.x, spot.y, site.map_id, n_laps).to_json(HeaderCounter(args.manufacturer, serial).next("order"))
             sub.publish(topics.topic(args.manufacturer, serial, "order"), json.dumps(message), qos=0)
         time.sleep(args.warmup)  # measured tool, not a test: a fixed warm-up is the point
         with lock:
@@ -117,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
         elapsed = t1 - t0
         result = {
             "command": " ".join(cmd[1:]),
-            "vehicles": args.count, "duration_s": round(elapsed, 1),
+            "vehicles": args.count, "duration_s": round(elapsed, 1), "order_nodes": 4 * n_laps + 1,
             "cpu_percent_of_one_core": round(100 * (cpu1 - cpu0) / elapsed, 1),
             "rss_mib_max": round(max(rss), 1), "rss_mib_last": round(rss[-1], 1),
             "state_per_s": round(window["state"] / elapsed, 1),

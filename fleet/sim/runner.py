@@ -1,9 +1,10 @@
 """Runs N simulated vehicles at a fixed tick, each behind its protocol link, until told to stop.
 
-One thread steps every vehicle (the physics tick, default 50 ms) and lets each link publish what is
-due; the MQTT clients' network threads only queue what they receive. Ticks are scheduled against
-the monotonic clock (a late tick is not made up by a burst: the next one starts a full tick later).
-``stop`` (SIGTERM/SIGINT in the CLI) ends the loop and then says OFFLINE for every vehicle.
+One thread does everything: it steps every vehicle (the physics tick, default 50 ms), lets each
+link publish what is due, and spends the rest of the tick in the network's I/O. Ticks are
+scheduled against the monotonic clock (a late tick is not made up by a burst: the next one starts
+a full tick later). ``stop`` (SIGTERM/SIGINT in the CLI) ends the loop; ``shutdown`` then says
+goodbye (OFFLINE) for every vehicle and waits for the confirmations.
 """
 
 from __future__ import annotations
@@ -13,17 +14,18 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 
-from fleet.sim.adapter import VehicleLink
+from fleet.sim.adapter import Network, VehicleLink
 
 log = logging.getLogger("fleet.sim")
 
 
 class FleetRunner:
-    def __init__(self, links: Sequence[VehicleLink], tick: float = 0.05,
+    def __init__(self, links: Sequence[VehicleLink], network: Network, tick: float = 0.05,
                  clock: Callable[[], float] = time.monotonic) -> None:
         if not 0.001 <= tick <= 1.0:
             raise ValueError(f"tick must be between 0.001 and 1 s, got {tick}")
         self.links = list(links)
+        self.network = network
         self.tick = tick
         self._clock = clock
         self._stop = threading.Event()
@@ -59,12 +61,14 @@ class FleetRunner:
                 self.late_ticks += 1
                 next_tick = self._clock()
                 wait = 0.0
-            self._stop.wait(wait)
+            self.network.wait(wait)
 
     def shutdown(self, timeout: float = 5.0) -> int:
-        """OFFLINE for every vehicle; returns how many the broker confirmed."""
-        confirmed = 0
-        deadline = time.monotonic() + timeout
+        """OFFLINE for every vehicle, then disconnect; returns how many the broker confirmed."""
+        checks = [link.goodbye() for link in self.links]
+        self.network.run_until(lambda: all(check() for check in checks), timeout)
+        confirmed = sum(bool(check()) for check in checks)
         for link in self.links:
-            confirmed += bool(link.stop(max(0.1, deadline - time.monotonic())))
+            link.close()
+        self.network.wait(0.0)  # flush the DISCONNECTs
         return confirmed

@@ -1,10 +1,12 @@
 """VDA 5050 2.1 over MQTT for one simulated vehicle (paho-mqtt, one client per vehicle).
 
-One MQTT client per vehicle because the last will is per connection: each vehicle's will is its
+One MQTT client per vehicle because the last will is per connection (all of them driven by one
+:class:`~fleet.sim.mqtt_pump.MqttPump` on the runner's thread): each vehicle's will is its
 own ``connection`` = ``CONNECTIONBROKEN`` (QoS 1, retained), which the broker publishes when the
 process dies without saying goodbye (kill -9, network loss). On connect the link subscribes to its
 own ``order`` and ``instantActions`` (exact topics, never wildcards) and publishes ``ONLINE``
-(QoS 1, retained); ``stop`` publishes ``OFFLINE`` and waits for the broker's PUBACK.
+(QoS 1, retained); ``goodbye`` publishes ``OFFLINE`` (the runner pumps until the broker's PUBACK),
+``close`` disconnects.
 
 Received messages are checked against the official JSON schema first; a refused one becomes a
 ``validationError`` in the vehicle's ``errors`` (and a log line naming the path and reason) and
@@ -17,12 +19,14 @@ from __future__ import annotations
 import json
 import logging
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 from paho.mqtt import client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
+from fleet.sim.mqtt_pump import MqttPump
 from fleet.sim.vehicle import Outbox, SimVehicle
 from fleet.vda5050 import schemas, topics
 from fleet.vda5050.errors import SchemaError
@@ -64,8 +68,9 @@ def _dumps(message: dict[str, Any]) -> bytes:
 
 
 class Vda5050Link:
-    def __init__(self, vehicle: SimVehicle, config: LinkConfig) -> None:
+    def __init__(self, vehicle: SimVehicle, config: LinkConfig, pump: MqttPump) -> None:
         self.vehicle = vehicle
+        self.pump = pump
         self.config = config
         spec = vehicle.spec
         self.headers = HeaderCounter(spec.manufacturer, spec.serial)
@@ -78,7 +83,6 @@ class Vda5050Link:
                                   clean_session=True)
         if config.username is not None:
             self.client.username_pw_set(config.username, config.password)
-        self.client.reconnect_delay_set(min_delay=1, max_delay=5)  # back within 5 s of the broker
         self.client.on_connect = self._on_connect
         self.client.on_message = self._on_message
         broken = Connection(ConnectionState.CONNECTIONBROKEN).to_json(self.headers.next(Subtopic.CONNECTION))
@@ -87,34 +91,31 @@ class Vda5050Link:
 
     # ------------------------------------------------------------- lifecycle
     def start(self) -> None:
+        """Non-blocking: the pump makes the connection (and every later reconnection)."""
+        self.pump.add(self.client)  # first: it sets connect_timeout, which paho allows only before connecting
         self.client.connect_async(self.config.host, self.config.port, keepalive=self.config.keepalive)
-        self.client.loop_start()
 
     def connected(self) -> bool:
         return self.client.is_connected()
 
-    def stop(self, timeout: float) -> bool:
-        confirmed = False
-        if self.client.is_connected():
-            info = self._send(Subtopic.CONNECTION, Connection(ConnectionState.OFFLINE).to_json(self.headers.next(Subtopic.CONNECTION)))
-            try:
-                info.wait_for_publish(timeout)
-                confirmed = info.is_published()
-            except (RuntimeError, ValueError) as exc:  # connection lost meanwhile
-                log.warning("%s: OFFLINE not confirmed: %s", self.vehicle.spec.serial, exc)
-        self.client.disconnect()
-        self.client.loop_stop()
-        return confirmed
+    def goodbye(self) -> Callable[[], bool]:
+        """Publish OFFLINE; the returned check is true once the broker acknowledged it."""
+        if not self.client.is_connected():
+            return lambda: False
+        info = self._send(Subtopic.CONNECTION, Connection(ConnectionState.OFFLINE).to_json(self.headers.next(Subtopic.CONNECTION)))
+        return info.is_published
 
-    # ------------------------------------------------------------- network thread
+    def close(self) -> None:
+        self.client.disconnect()
+        self.pump.remove(self.client)
+
+    # ------------------------------------------------------------- paho callbacks (runner thread, via the pump)
     def _on_connect(self, client: mqtt.Client, _userdata: Any, _flags: Any, reason: Any, _props: Any) -> None:
         if reason.is_failure:
             log.warning("%s: broker refused the connection: %s", self.vehicle.spec.serial, reason)
             return
         for sub in (Subtopic.ORDER, Subtopic.INSTANT_ACTIONS):
             client.subscribe(self._topic[sub], qos=topics.rule(sub).qos)
-        # The connection counter is used only here (network thread) and in stop(), after the loop
-        # ends its work; the runner thread uses the other topics' counters.
         self._send(Subtopic.CONNECTION, Connection(ConnectionState.ONLINE).to_json(self.headers.next(Subtopic.CONNECTION)))
         self._state_due = float("-inf")  # a fresh state right after (re)connecting
 
@@ -122,7 +123,7 @@ class Vda5050Link:
         kind = Subtopic.ORDER if message.topic == self._topic[Subtopic.ORDER] else Subtopic.INSTANT_ACTIONS
         self._inbox.append((kind, bytes(message.payload)))
 
-    # ------------------------------------------------------------- runner thread
+    # ------------------------------------------------------------- runner
     def poll(self) -> None:
         while self._inbox:
             kind, payload = self._inbox.popleft()

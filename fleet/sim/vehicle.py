@@ -88,6 +88,8 @@ class SimVehicle:
         self.driving = False
         self._dirty = True
         self._factsheet = False
+        self._route_version = 0  # +1 whenever nodes/edges change
+        self._route_cache: tuple[int, tuple[tuple[NodeState, ...], tuple[EdgeState, ...]]] | None = None
 
     # ---------------------------------------------------------------- inputs
     def receive_order(self, order: Order) -> bool:
@@ -162,14 +164,22 @@ class SimVehicle:
         p = self.motion.pose
         return AgvPosition(p.x, p.y, p.theta, self.spec.site.map_id)
 
+    def _route_states(self) -> tuple[tuple[NodeState, ...], tuple[EdgeState, ...]]:
+        """nodeStates/edgeStates, rebuilt only when the route changed (states go out at up to 10 Hz)."""
+        if self._route_cache is None or self._route_cache[0] != self._route_version:
+            self._route_cache = (self._route_version, (
+                tuple(NodeState(n.node_id, n.sequence_id, n.released, n.position) for n in self.nodes),
+                tuple(EdgeState(e.edge_id, e.sequence_id, e.released) for e in self.edges)))
+        return self._route_cache[1]
+
     def state(self) -> State:
+        route = self._route_states()
         return State(
             order_id=self.order_id, order_update_id=self.order_update_id,
             last_node_id=self.last_node_id, last_node_sequence_id=self.last_node_sequence_id,
             driving=self.driving,
             battery=BatteryState(self.battery.charge, self.battery.charging, self.battery.reach),
-            node_states=tuple(NodeState(n.node_id, n.sequence_id, n.released, n.position) for n in self.nodes),
-            edge_states=tuple(EdgeState(e.edge_id, e.sequence_id, e.released) for e in self.edges),
+            node_states=route[0], edge_states=route[1],
             action_states=tuple(self.actions.values()),
             errors=tuple(self.errors),
             position=self.position(),
@@ -210,6 +220,7 @@ class SimVehicle:
         self.actions.clear()
         self.order_id, self.order_update_id = order.order_id, order.order_update_id
         self.nodes, self.edges = list(order.nodes), list(order.edges)
+        self._route_version += 1
         self._announce(order.nodes, order.edges)
         self._arrive()  # the vehicle stands on the first node
         return True
@@ -237,6 +248,7 @@ class SimVehicle:
             self.queue.extend(new_actions)
         self.nodes += order.nodes[1:]
         self.edges += order.edges
+        self._route_version += 1
         self.order_update_id = order.order_update_id
         self._announce((Node(stitch.node_id, stitch.sequence_id, True, new_actions), *order.nodes[1:]), order.edges)
         return True
@@ -256,6 +268,7 @@ class SimVehicle:
             if not state.status.done and state.action_id != action.action_id:
                 self.actions[state.action_id] = ActionState(state.action_id, ActionStatus.FAILED, state.action_type, "cancelled")
         self.nodes, self.edges = [], []
+        self._route_version += 1
         self.queue.clear()
         self.current = None
         self.cancelling = action
@@ -263,6 +276,7 @@ class SimVehicle:
     # ---------------------------------------------------------------- execution
     def _arrive(self) -> None:
         node = self.nodes.pop(0)
+        self._route_version += 1
         if self.edges and self.edges[0].end_node_id == node.node_id and self.edges[0].sequence_id < node.sequence_id:
             for action in self.edges.pop(0).actions:
                 if self.actions.get(action.action_id, None) and self.actions[action.action_id].status is ActionStatus.RUNNING:
