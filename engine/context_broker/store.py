@@ -2,20 +2,31 @@
 in-memory index of the entities for reads.
 
 - Every write runs under one write lock: it looks the entities up in the index, computes the new
-  ones (pure functions of :mod:`.entities`; a refusal raises before anything is written), writes
-  the difference of their triples as ONE SPARQL Update (one RocksDB transaction, in its
-  write-ahead log before ``update`` returns, so an acknowledged write survives kill -9), then
-  swaps the new immutable :class:`Entity` objects into the index and tells every
-  :class:`ChangeListener`, in write order, before the caller answers.
+  ones (pure functions of :mod:`.entities`; a refusal raises before anything is written), appends
+  the difference of their triples to the write-ahead log (:mod:`.wal`, ONE ``os.write``: in the
+  OS page cache when it returns, so an acknowledged write survives kill -9), then swaps the new
+  immutable :class:`Entity` objects into the index and tells every :class:`ChangeListener`, in
+  write order, before the caller answers.
+- A background thread (the applier) takes the logged changes not yet in Oxigraph, nets them
+  (each triple's last state wins) and writes them as ONE SPARQL Update per batch (it waits
+  ``APPLY_DELAY`` after the first to gather more); when the log
+  passes ``ROTATE_BYTES`` it rotates it and deletes the old file once all of it is applied.
+  Replaying a suffix of the log on a store that already holds some of it gives the same store
+  (each record sets its triples absent or present), so no applied-up-to mark is needed.
+- At start the log (``context.wal.old`` then ``context.wal``) is replayed into Oxigraph, a torn
+  last record (killed mid-write, never acknowledged) dropped; then the logs are emptied.
+  :meth:`ContextStore.nquads` applies what is pending first, so it shows every answered write.
 - Reads take no lock: the index holds immutable entities and a write replaces them whole, so a
   reader sees an entity before or after a write, never half of one.
-- At start the index is rebuilt from the store (:func:`.rdf.entities_from_quads`).
+- Then the index is rebuilt from the store (:func:`.rdf.entities_from_quads`).
+- ``ContextStore(None)`` (in memory, for tests) has no log: it updates Oxigraph directly.
 - ``data_dir/context.lock`` (``flock``) keeps a second process off the same folder.
 """
 
 from __future__ import annotations
 
 import fcntl
+import json
 import logging
 import os
 import threading
@@ -27,6 +38,7 @@ from typing import Any
 import pyoxigraph as ox
 
 from engine.context_broker import rdf
+from engine.context_broker.wal import WriteAheadLog, read_records
 from engine.context_broker.contract import ChangeListener, EntityChange, NgsiError, Tenant, not_found
 from engine.context_broker.entities import Entity
 
@@ -34,6 +46,11 @@ log = logging.getLogger(__name__)
 Key = tuple[str, str]
 LOCK_FILE = "context.lock"
 STORE_DIR = "oxigraph"
+WAL_FILE = "context.wal"
+ROTATE_BYTES = 8 * 1024 * 1024
+APPLY_DELAY = 0.005
+#: One logged change: the tenant's graph IRI, the triples deleted, the triples inserted.
+Change = tuple[str, list[rdf.Triple], list[rdf.Triple]]
 
 
 class StoreLocked(RuntimeError):
@@ -117,10 +134,21 @@ class Transaction:
 
 
 class ContextStore:
-    """``ContextStore(data_dir)`` durable; ``ContextStore(None)`` in memory (tests)."""
+    """``ContextStore(data_dir)`` durable; ``ContextStore(None)`` in memory (tests).
+    ``fsync``: also ``fdatasync`` the log before each write is answered (survives power loss)."""
 
-    def __init__(self, data_dir: Path | str | None = None) -> None:
+    def __init__(self, data_dir: Path | str | None = None, *, fsync: bool = False) -> None:
         self._lock_fd: int | None = None
+        self._wal: WriteAheadLog | None = None
+        self._write_lock = threading.Lock()
+        self._apply_lock = threading.Lock()
+        self._cv = threading.Condition(threading.Lock())
+        self._pending: list[Change] = []
+        self._stopping = False
+        self._failed = False
+        self._applier: threading.Thread | None = None
+        self._listeners: list[ChangeListener] = []
+        self._tenants: dict[Tenant, _TenantIndex] = {}
         if data_dir is None:
             self._store = ox.Store()
         else:
@@ -128,10 +156,33 @@ class ContextStore:
             root.mkdir(parents=True, exist_ok=True)
             self._lock_fd = _lock(root / LOCK_FILE)
             self._store = ox.Store(str(root / STORE_DIR))
-        self._write_lock = threading.Lock()
-        self._listeners: list[ChangeListener] = []
-        self._tenants: dict[Tenant, _TenantIndex] = {}
+            self._wal = WriteAheadLog(self._replay(root / WAL_FILE), fsync=fsync)
+            self._applier = threading.Thread(target=self._apply_loop, name="context-store-applier",
+                                             daemon=True)
         self._load()
+        if self._applier is not None:
+            self._applier.start()
+
+    def _replay(self, path: Path) -> Path:
+        """Apply what the logs hold to Oxigraph (the old file first), then delete them."""
+        old = path.with_name(path.name + ".old")
+        changes: list[Change] = []
+        last = None
+        for log_path in (old, path):
+            records, torn = read_records(log_path, last)
+            if torn:
+                log.warning("%s: dropped a torn or broken record after %d whole ones (a write "
+                            "cut by a crash, never acknowledged)", log_path, len(records))
+            if records:
+                last = records[-1].seq
+            changes.extend(_decode(r.payload) for r in records)
+        text = net_update(changes)
+        if text is not None:
+            self._store.update(text)
+            self._store.flush()
+            log.info("replayed %d logged changes into the store", len(changes))
+        old.unlink(missing_ok=True)
+        return path
 
     def _load(self) -> None:
         for graph in self._store.named_graphs():
@@ -148,7 +199,17 @@ class ContextStore:
                 self._tenants[tenant] = idx
 
     def close(self) -> None:
+        if self._applier is not None:
+            with self._cv:
+                self._stopping = True
+                self._cv.notify()
+            self._applier.join()
+            self._applier = None
+        self.sync()
         self._store.flush()
+        if self._wal is not None:
+            self._wal.close(remove=not self._failed)
+            self._wal = None
         del self._store
         if self._lock_fd is not None:
             os.close(self._lock_fd)
@@ -187,7 +248,51 @@ class ContextStore:
         return sum(len(idx.entities) for idx in list(self._tenants.values()))
 
     def nquads(self) -> bytes:
+        """The store as N-Quads, with every answered write (what is pending is applied first)."""
+        self.sync()
         return self._store.dump(format=ox.RdfFormat.N_QUADS) or b""
+
+    # --- the log's applier ---------------------------------------------------------------
+    def sync(self) -> None:
+        """Apply every logged change not yet in Oxigraph; rotate the log when it is large."""
+        if self._wal is None:
+            return
+        with self._apply_lock:
+            with self._cv:
+                batch, self._pending = self._pending, []
+            self._apply(batch)
+            wal = self._wal
+            if wal.size > ROTATE_BYTES and not self._failed:
+                with self._write_lock:
+                    wal.rotate()
+                    with self._cv:
+                        batch, self._pending = self._pending, []
+                self._apply(batch)
+                if not self._failed:
+                    wal.discard_old()
+
+    def _apply(self, batch: list[Change]) -> None:
+        text = net_update(batch)
+        if text is None:
+            return
+        try:
+            self._store.update(text)
+        except Exception:  # a bug: keep the log (replayed at the next start) and say so
+            self._failed = True
+            log.exception("applying %d logged changes to Oxigraph failed; the log is kept and "
+                          "replayed at the next start", len(batch))
+
+    def _apply_loop(self) -> None:
+        while True:
+            with self._cv:
+                while not self._pending and not self._stopping:
+                    self._cv.wait()
+                if self._stopping:
+                    return
+                self._cv.wait(APPLY_DELAY)  # gather a batch: its writes are answered already
+                if self._stopping:
+                    return
+            self.sync()
 
     # --- writes --------------------------------------------------------------------------
     def write(self, tenant: Tenant, now: float, work: Callable[[Transaction], Any]) -> Any:
@@ -236,9 +341,8 @@ class ContextStore:
                 delete.extend(old_t - new_t)
                 insert.extend(new_t - old_t)
             plan.append((key, new, node, new_head, new_attrs))
-        text = rdf.update_text(rdf.graph_iri(txn.tenant), delete, insert)
-        if text is not None:
-            self._store.update(text)
+        if delete or insert:
+            self._log((rdf.graph_iri(txn.tenant), delete, insert))
         for key, new, node, head, attrs in plan:
             if new is None:
                 _unindex(idx, key)
@@ -248,6 +352,45 @@ class ContextStore:
             self._tenants[txn.tenant] = idx
         else:
             self._tenants.pop(txn.tenant, None)
+
+
+    def _log(self, change: Change) -> None:
+        """Make one write's change durable (the log) and queue it for Oxigraph; in memory: apply it."""
+        if self._wal is None:
+            text = net_update([change])
+            if text is not None:
+                self._store.update(text)
+            return
+        self._wal.append(json.dumps(change, ensure_ascii=False, separators=(",", ":")).encode())
+        with self._cv:
+            self._pending.append(change)
+            if len(self._pending) == 1:
+                self._cv.notify()
+
+
+def net_update(changes: list[Change]) -> str | None:
+    """One SPARQL Update with the net effect of ``changes`` in order: per graph, each triple ends
+    as the last change that names it left it. On a store holding any prefix of ``changes`` it
+    gives the store all of them give."""
+    graphs: dict[str, dict[rdf.Triple, bool]] = {}
+    for graph, delete, insert in changes:
+        state = graphs.setdefault(graph, {})
+        for triple in delete:
+            state[triple] = False
+        for triple in insert:
+            state[triple] = True
+    texts = []
+    for graph, state in graphs.items():
+        text = rdf.update_text(graph, [t for t, on in state.items() if not on],
+                               [t for t, on in state.items() if on])
+        if text is not None:
+            texts.append(text)
+    return " ;\n".join(texts) or None
+
+
+def _decode(payload: bytes) -> Change:
+    graph, delete, insert = json.loads(payload)
+    return graph, [tuple(t) for t in delete], [tuple(t) for t in insert]
 
 
 def _choose_node(idx: _TenantIndex, key: Key) -> str:
