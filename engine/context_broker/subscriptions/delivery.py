@@ -4,7 +4,11 @@ A :class:`Lane` per subscription holds a bounded queue and, while it has work, o
 sends the head of the queue. A temporary failure keeps that notification at the head and retries
 it after :func:`backoff_delay` (0.5 s doubling to 30 s), until it is sent, the subscription is
 deleted or deactivated, or the service closes; so order is kept and nothing is skipped while a
-receiver is down. A permanent failure (see :mod:`.result`) is counted and let go. Each attempt
+receiver is down. A sender that can pipeline (``send_many``: MQTT publishes up to :data:`WINDOW`
+messages before it waits for their acknowledgements) gets the first ``WINDOW`` queued
+notifications at once and answers one result per message in order, stopping at the first failure;
+the lane retries from there (so a message after a lost acknowledgement may arrive twice: delivery
+is at least once, as it is for one message at a time). A permanent failure (see :mod:`.result`) is counted and let go. Each attempt
 uses the subscription's *current* target, so a ``PATCH`` of a wrong URL unblocks a lane.
 
 Bounded: past ``bound`` queued notifications the oldest is dropped and counted
@@ -30,6 +34,8 @@ DEFAULT_BOUND = 10_000
 #: How long an idle lane's thread waits for more work before it ends (a busy subscription keeps
 #: its thread; an idle one holds none).
 LINGER = 5.0
+#: Notifications handed at once to a sender that pipelines (``send_many``).
+WINDOW = 64
 
 
 def backoff_delay(attempt: int, base: float = BACKOFF_BASE, cap: float = BACKOFF_CAP) -> float:
@@ -42,6 +48,11 @@ def backoff_delay(attempt: int, base: float = BACKOFF_BASE, cap: float = BACKOFF
 class Sender(Protocol):
     def send(self, target, msg: Outgoing) -> Result: ...  # type: ignore[no-untyped-def]
     def close(self) -> None: ...
+
+
+class PipeliningSender(Sender, Protocol):
+    def send_many(self, target, msgs: list[Outgoing]) -> list[Result]: ...  # type: ignore[no-untyped-def]
+    """One result per message, in order, ending with the first failure (the rest not tried)."""
 
 
 class Hooks(Protocol):
@@ -65,18 +76,15 @@ class Lane:
         self._more = threading.Condition(self._lock)
         self._queue: deque[Outgoing] = deque()
         self._thread: threading.Thread | None = None
-        self._sending: Outgoing | None = None  # the head while a send is under way: never dropped
+        self._sending = 0   # how many at the head a send is under way for: never dropped
         self._wake = threading.Event()
 
     def put(self, msg: Outgoing) -> None:
         dropped = 0
         with self._lock:
             self._queue.append(msg)
-            while len(self._queue) > self._bound:
-                if self._queue[0] is self._sending:
-                    del self._queue[1]
-                else:
-                    self._queue.popleft()
+            while len(self._queue) > self._bound and len(self._queue) > self._sending:
+                del self._queue[self._sending]   # the oldest not being sent
                 dropped += 1
             self._more.notify()
             if self._thread is None and not self._stop.is_set():
@@ -106,7 +114,8 @@ class Lane:
         if thread is not None:
             thread.join(timeout)
 
-    def _head(self) -> Outgoing | None:
+    def _head(self, count: int = 1) -> list[Outgoing] | None:
+        """The first ``count`` queued (at least one), marked as being sent; None: no more work."""
         with self._more:
             deadline = time.monotonic() + LINGER
             while not self._queue and not self._stop.is_set():
@@ -116,34 +125,52 @@ class Lane:
                 self._more.wait(remaining)
             if not self._queue or self._stop.is_set():
                 self._thread = None
-                self._sending = None
+                self._sending = 0
                 return None
-            self._sending = self._queue[0]
-            return self._sending
+            batch = [self._queue[i] for i in range(min(count, len(self._queue)))]
+            self._sending = len(batch)
+            return batch
 
     def _pop(self, msg: Outgoing) -> None:
         with self._lock:
             if self._queue and self._queue[0] is msg:
                 self._queue.popleft()
+                self._sending = max(0, self._sending - 1)
+
+    def _release(self) -> None:
+        with self._lock:
+            self._sending = 0
 
     def _run(self) -> None:
         attempt = 0
-        while (msg := self._head()) is not None:
+        window = 1
+        while (batch := self._head(window)) is not None:
             sub = self._hooks.current(self.sub_id)
             if sub is None:
                 self.discard()
+                self._release()
                 continue
-            result = self._hooks.sender_for(sub.notification.target).send(sub.notification.target, msg)
-            keep_going = self._hooks.attempted(self.sub_id, result)
-            if result.ok or not result.retry:
-                self._pop(msg)
-                attempt = 0
-            if not keep_going:  # deactivated (maxFailsLimit): what is left will not be sent
-                self._hooks.dropped(self.sub_id, self.discard())
-            elif result.retry and not result.ok:
-                attempt += 1
-                self._wake.clear()
-                self._wake.wait(self._backoff(attempt))
+            target = sub.notification.target
+            sender = self._hooks.sender_for(target)
+            many = getattr(sender, "send_many", None)
+            window = WINDOW if many is not None else 1
+            results = many(target, batch) if many is not None else [sender.send(target, batch[0])]
+            for msg, result in zip(batch, results):
+                keep_going = self._hooks.attempted(self.sub_id, result)
+                if result.ok or not result.retry:
+                    self._pop(msg)
+                    attempt = 0
+                if not keep_going:  # deactivated (maxFailsLimit): what is left will not be sent
+                    self._release()
+                    self._hooks.dropped(self.sub_id, self.discard())
+                    break
+                if result.retry and not result.ok:
+                    self._release()
+                    attempt += 1
+                    self._wake.clear()
+                    self._wake.wait(self._backoff(attempt))
+                    break
+            self._release()
 
 
 class Delivery:

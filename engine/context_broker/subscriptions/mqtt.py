@@ -4,8 +4,10 @@ One persistent client per broker and credentials (``url``, ``user``, ``passwd``)
 network thread reconnects it (0.5 s doubling to 30 s). A publish counts as sent when the broker
 acknowledged it: for QoS 1 and 2 the PUBACK/PUBCOMP must arrive within :data:`ACK_TIMEOUT`, for
 QoS 0 the message must have been handed to a connected client. A client that is not connected is
-a temporary failure (the lane retries). Delivery is at least once: a QoS 1 message whose PUBACK
-was late may arrive twice.
+a temporary failure (the lane retries). Up to the lane's window of notifications are published
+back to back before their acknowledgements are awaited (``send_many``), so a subscription's rate
+is not one broker round trip per notification. Delivery is at least once: a QoS 1 message whose
+PUBACK was late, or that followed one, may arrive twice.
 """
 
 from __future__ import annotations
@@ -51,20 +53,44 @@ class MqttSender:
             return client
 
     def send(self, target: MqttTarget, msg: Outgoing) -> Result:
+        return self.send_many(target, [msg])[0]
+
+    def send_many(self, target: MqttTarget, msgs: list[Outgoing]) -> list[Result]:
+        """Publish ``msgs`` back to back, then wait for their acknowledgements in order: one
+        result per message up to and including the first failure (paho keeps the order on its
+        one connection, so pipelining changes nothing the receiver sees)."""
         client = self._client(target)
         deadline = time.monotonic() + CONNECT_WAIT
         while not client.is_connected():
             if time.monotonic() >= deadline:
                 last = (client.user_data_get() or {}).get("last", "")
-                return Result.temporary(f"MQTT broker {target.host}:{target.port} not connected "
-                                        f"({last})")
+                return [Result.temporary(f"MQTT broker {target.host}:{target.port} not connected "
+                                         f"({last})")]
             time.sleep(0.02)  # polling paho's connection flag, bounded by the deadline above
-        try:
-            info = client.publish(target.topic, msg.body, qos=target.qos, retain=target.retain)
-        except (ValueError, OSError) as err:
-            return Result.temporary(f"MQTT publish failed: {err}")
-        if info.rc != paho.MQTT_ERR_SUCCESS:
-            return Result.temporary(f"MQTT publish failed: {paho.error_string(info.rc)}")
+        published: list[paho.MQTTMessageInfo] = []
+        refused: Result | None = None
+        for msg in msgs:
+            try:
+                info = client.publish(target.topic, msg.body, qos=target.qos, retain=target.retain)
+            except (ValueError, OSError) as err:
+                refused = Result.temporary(f"MQTT publish failed: {err}")
+                break
+            if info.rc != paho.MQTT_ERR_SUCCESS:
+                refused = Result.temporary(f"MQTT publish failed: {paho.error_string(info.rc)}")
+                break
+            published.append(info)
+        results: list[Result] = []
+        for info in published:
+            result = self._acknowledged(target, info)
+            results.append(result)
+            if not result.ok:
+                return results
+        if refused is not None:
+            results.append(refused)
+        return results
+
+    @staticmethod
+    def _acknowledged(target: MqttTarget, info: paho.MQTTMessageInfo) -> Result:
         if target.qos == 0:
             return Result.success()
         try:
