@@ -24,6 +24,7 @@ SECTIONS = (
     ("durability", "A Mosquitto bridge target killed with SIGKILL, per save policy", ()),
     ("web", "Dashboard and SPARQL endpoint", ()),
     ("context_broker", "NGSI-v2 context broker against raw Mosquitto", ()),
+    ("bridge_ngsi", "MQTT → NGSI bridge worker against direct upserts", ()),
     ("validate", "Validation against pySHACL", ()),
     ("reason", "Reasoning against HermiT", ()),
 )

@@ -6,7 +6,7 @@ report afterwards. ``--tiny`` runs each study at a size that takes seconds (what
 does); the defaults are the full sizes of the issue (about ten minutes on two cores for the default studies).
 
 Usage: ``plantkg-bench [STUDY ...] [--tiny] [--out DIR]`` — studies: deploy, load, scale,
-validate, reason, bridge, web, durability, context_broker; default ``deploy load scale``; ``plantkg-bench report`` only rebuilds RESULTS.md.
+validate, reason, bridge, web, durability, context_broker, bridge_ngsi; default ``deploy load scale``; ``plantkg-bench report`` only rebuilds RESULTS.md.
 """
 
 from __future__ import annotations
@@ -16,14 +16,15 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from benchmarks import (bench_bridge, bench_context_broker, bench_deploy, bench_durability, bench_load, bench_reason,
-                        bench_replan, bench_validate, bench_web, report)
+from benchmarks import (bench_bridge, bench_bridge_ngsi, bench_context_broker, bench_deploy, bench_durability,
+                        bench_load, bench_reason, bench_replan, bench_validate, bench_web, report)
 from benchmarks.common import RESULTS
 
 STUDIES: dict[str, Callable[[list[str]], int]] = {
     "deploy": bench_deploy.main, "load": bench_load.main, "scale": bench_replan.main,
     "validate": bench_validate.main, "reason": bench_reason.main, "bridge": bench_bridge.main,
     "web": bench_web.main, "durability": bench_durability.main, "context_broker": bench_context_broker.main,
+    "bridge_ngsi": bench_bridge_ngsi.main,
 }
 DEFAULT = ["deploy", "load", "scale"]
 TINY: dict[str, list[str]] = {
@@ -38,6 +39,7 @@ TINY: dict[str, list[str]] = {
     "durability": ["--messages", "300", "--policies", "default", "1"],
     "web": ["--sizes", "100", "--threads", "1", "--requests", "5"],
     "context_broker": ["--tiny"],
+    "bridge_ngsi": ["--messages", "200", "--topics", "1"],
 }
 
 
