@@ -14,6 +14,9 @@ Every :class:`NgsiError` (also from the subscriptions blueprint) is answered wit
 "MethodNotAlowed" is a typo). Any other exception is a bug: logged with
 its traceback and answered 500 ``InternalServerError``.
 
+The hot writes (``/attrs`` and ``/attrs/{name}/value``) of a plain request are served before
+Flask by :mod:`.fastpath`, with the same functions and the same answers.
+
 Also served: ``GET /version`` (Orion-shaped, FiLiP reads ``orion.version``), ``GET /v2``,
 ``GET /plantkg/v1/graph`` (the whole context as N-Quads), ``GET /plantkg/v1/openapi.json``.
 """
@@ -31,8 +34,9 @@ from werkzeug.exceptions import HTTPException, MethodNotAllowed, NotFound, Reque
 
 from engine.context_broker import batch, routes
 from engine.context_broker.contract import ChangeListener, NgsiError
-from engine.context_broker.names import FORBIDDEN
+from engine.context_broker.fastpath import fast_writes
 from engine.context_broker.openapi import openapi_document
+from engine.context_broker.params import FREE_PARAMS, check_url_param
 from engine.context_broker.routes import json_response
 from engine.context_broker.store import ContextStore
 
@@ -43,9 +47,6 @@ ORION_VERSION = "3.10.1"
 PLANTKG_VERSION = "0.1.0"
 WRITE_METHODS = frozenset({"POST", "PUT", "PATCH", "DELETE"})
 READ_POSTS = ("/v2/op/query",)
-#: URL parameters that may hold Orion's forbidden characters (orion-api.md, "General syntax
-#: restrictions": the query languages, patterns and geo parameters).
-FREE_PARAMS = frozenset({"q", "mq", "idPattern", "typePattern", "georel", "geometry", "coords"})
 
 
 def _error(err: NgsiError) -> Response:
@@ -55,13 +56,15 @@ def _error(err: NgsiError) -> Response:
 def create_app(store: ContextStore, *, token: str | None = None,
                listeners: Iterable[ChangeListener] = (),
                subscriptions_blueprint: Blueprint | None = None,
-               clock: Callable[[], float] = time.time) -> Flask:
+               clock: Callable[[], float] = time.time, fast: bool = True) -> Flask:
     """The WSGI app over ``store``. ``token`` None: writes are open. ``listeners`` are told
     every change (see :class:`ChangeListener`); ``subscriptions_blueprint`` serves
-    ``/v2/subscriptions`` under the same token check and error handling."""
+    ``/v2/subscriptions`` under the same token check and error handling. ``fast`` False: every
+    request goes through Flask (the fast path's tests compare the two)."""
     app = Flask(__name__)
     app.url_map.merge_slashes = False
-    app.wsgi_app = _without_trailing_slash(app.wsgi_app)  # type: ignore[method-assign]
+    inner = fast_writes(app.wsgi_app, store, token, MAX_BODY, clock) if fast else app.wsgi_app
+    app.wsgi_app = _without_trailing_slash(inner)  # type: ignore[method-assign]
     app.config["MAX_CONTENT_LENGTH"] = MAX_BODY
     started = clock()
     for listener in listeners:
@@ -81,7 +84,7 @@ def create_app(store: ContextStore, *, token: str | None = None,
                                 {"WWW-Authenticate": 'Bearer realm="plantkg context broker"'})
         for name, value in request.args.items(multi=True):
             if name not in FREE_PARAMS:
-                _check_param(name, value)
+                check_url_param(name, value)
         if method in ("POST", "PUT", "PATCH"):
             chunked = "chunked" in (request.headers.get("Transfer-Encoding") or "").lower()
             length = request.content_length
@@ -157,14 +160,6 @@ def _drain(environ: dict[str, Any], length: int) -> None:
         if not chunk:
             break
         left -= len(chunk)
-
-
-def _check_param(name: str, value: str) -> None:
-    for position, char in enumerate(value):
-        if char in FORBIDDEN or ord(char) < 32:
-            raise NgsiError(400, "BadRequest", f"Invalid characters in URL parameter {name}: "
-                                               f"{char!r} at position {position} (< > \" ' = ; ( ) "
-                                               "are allowed only in q, mq, idPattern and typePattern)")
 
 
 def _without_trailing_slash(wsgi_app: Callable[..., Any]) -> Callable[..., Any]:

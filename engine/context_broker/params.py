@@ -18,10 +18,13 @@ from engine.context_broker.contract import (
     DEFAULT_SERVICE_PATH, NgsiError, Tenant, bad_request, tenant_from_headers,
 )
 from engine.context_broker.entities import parse_json, parse_text_value
-from engine.context_broker.names import check_identifier
+from engine.context_broker.names import FORBIDDEN, check_identifier
 from engine.context_broker.store import ReadScope
 
 MAX_SERVICE_PATHS = 10
+#: URL parameters that may hold Orion's forbidden characters (orion-api.md, "General syntax
+#: restrictions": the query languages, patterns and geo parameters).
+FREE_PARAMS = frozenset({"q", "mq", "idPattern", "typePattern", "georel", "geometry", "coords"})
 DEFAULT_LIMIT = 20
 MAX_LIMIT = 1000
 
@@ -75,7 +78,10 @@ def limit_offset() -> tuple[int, int]:
 
 
 def options(allowed: frozenset[str]) -> set[str]:
-    raw = request.args.get("options")
+    return parse_options(request.args.get("options"), allowed)
+
+
+def parse_options(raw: str | None, allowed: frozenset[str]) -> set[str]:
     if raw is None:
         return set()
     given = {o.strip() for o in raw.split(",")}
@@ -99,7 +105,10 @@ def render_mode(opts: set[str]) -> str:
 
 
 def entity_type_param() -> str | None:
-    raw = request.args.get("type")
+    return parse_entity_type(request.args.get("type"))
+
+
+def parse_entity_type(raw: str | None) -> str | None:
     if raw is None:
         return None
     return check_identifier(raw, "entity type (URL parameter type)")
@@ -110,12 +119,15 @@ def _mimetype() -> str:
 
 
 def json_body() -> Any:
-    mimetype = _mimetype()
+    return json_from(_mimetype(), request.get_data(cache=False))
+
+
+def json_from(mimetype: str, raw: bytes) -> Any:
+    """A JSON body of content type ``mimetype`` (lower-cased, without parameters)."""
     if mimetype != "application/json":
         raise NgsiError(415, "UnsupportedMediaType",
                         f"not supported content type: {mimetype or 'no Content-Type header'}; "
                         "send Content-Type: application/json")
-    raw = request.get_data(cache=False)
     if not raw.strip():
         raise NgsiError(400, "BadRequest", "empty payload: a JSON body is required")
     return parse_json(raw)
@@ -123,14 +135,24 @@ def json_body() -> Any:
 
 def value_body() -> Any:
     """The body of ``PUT .../attrs/{name}/value``: JSON, or text/plain read as Orion does."""
-    mimetype = _mimetype()
+    return value_from(_mimetype(), request.get_data(cache=False))
+
+
+def value_from(mimetype: str, raw: bytes) -> Any:
     if mimetype not in ("application/json", "text/plain"):
         raise NgsiError(415, "UnsupportedMediaType",
                         f"not supported content type: {mimetype or 'no Content-Type header'}; "
                         "send application/json or text/plain")
-    raw = request.get_data(cache=False)
     if not raw.strip():
         raise NgsiError(400, "BadRequest", "empty payload: send the new value")
     if mimetype == "text/plain":
         return parse_text_value(raw)
     return parse_json(raw)
+
+
+def check_url_param(name: str, value: str) -> None:
+    for position, char in enumerate(value):
+        if char in FORBIDDEN or ord(char) < 32:
+            raise NgsiError(400, "BadRequest", f"Invalid characters in URL parameter {name}: "
+                                               f"{char!r} at position {position} (< > \" ' = ; ( ) "
+                                               "are allowed only in q, mq, idPattern and typePattern)")

@@ -16,7 +16,7 @@ from flask import Blueprint, Response, request
 
 from engine.context_broker import entities as ent
 from engine.context_broker import listing
-from engine.context_broker.contract import NgsiError, bad_request, not_found, unprocessable
+from engine.context_broker.contract import NgsiError, Tenant, bad_request, not_found, unprocessable
 from engine.context_broker.names import check_attribute_name, check_identifier
 from engine.context_broker.params import (
     count_param, entity_type_param, json_body, limit_offset, options, read_scope, render_mode,
@@ -28,6 +28,10 @@ from engine.context_broker.store import ContextStore, Transaction
 LIST_OPTIONS = frozenset({"count", "keyValues", "values", "unique", "normalized", "skipForwarding"})
 GET_OPTIONS = frozenset({"keyValues", "values", "unique", "normalized", "skipForwarding"})
 WRITE_OPTIONS = frozenset({"keyValues", "forcedUpdate", "overrideMetadata", "flowControl"})
+VALUE_OPTIONS = frozenset({"forcedUpdate", "flowControl"})
+#: The options of each /attrs write method, and its mode (see :func:`write_attrs`).
+ATTRS_WRITES = {"POST": (WRITE_OPTIONS | {"append"}, "append"), "PATCH": (WRITE_OPTIONS, "update"),
+                "PUT": (WRITE_OPTIONS, "replace")}
 NO_ATTR = "The entity does not have such an attribute"
 
 
@@ -91,6 +95,40 @@ def _queries() -> tuple[Any, Any]:
 
 def page(found: list[Any], opts: set[str], limit: int, offset: int) -> dict[str, str]:
     return {"Fiware-Total-Count": str(len(found))} if "count" in opts else {}
+
+
+def write_attrs(store: ContextStore, tenant: Tenant, now: float, eid: str, etype: str | None,
+                attrs: dict[str, Any], opts: set[str], mode: str) -> None:
+    """The write of ``/attrs``: ``mode`` append (strict with options=append), update or replace.
+    Orion applies what it can: skipped attributes make a 422 (PartialUpdate when others were
+    written). Shared by the Flask view and the fast path (:mod:`.fastpath`)."""
+    override = "overrideMetadata" in opts
+
+    def work(txn: Transaction) -> NgsiError | None:
+        old = txn.get(eid, etype)
+        if mode == "replace":
+            txn.put(old, ent.replace_attrs(old, attrs, txn.now), attrs, forced="forcedUpdate" in opts)
+            return None
+        split = ent.split_attrs(old, attrs, strict=mode == "append" and "append" in opts,
+                                existing_only=mode == "update")
+        if split.applicable:
+            new = ent.merge_attrs(old, split.applicable, txn.now, override_metadata=override)
+            txn.put(old, new, split.applicable, forced="forcedUpdate" in opts)
+        return split.refusal(old)
+
+    refusal = store.write(tenant, now, work)
+    if refusal is not None:
+        raise refusal
+
+
+def write_value(store: ContextStore, tenant: Tenant, now: float, eid: str, etype: str | None,
+                name: str, value: Any, opts: set[str]) -> None:
+    """``PUT .../attrs/{name}/value``; shared by the Flask view and the fast path."""
+    def work(txn: Transaction) -> None:
+        old = txn.get(eid, etype)
+        txn.put(old, ent.set_value(old, name, value, txn.now), {name}, forced="forcedUpdate" in opts)
+
+    store.write(tenant, now, work)
 
 
 def make_blueprint(store: ContextStore, clock: Callable[[], float] = time.time) -> Blueprint:
@@ -171,41 +209,24 @@ def make_blueprint(store: ContextStore, clock: Callable[[], float] = time.time) 
 
     def _attrs_write(raw_id: str, allowed: frozenset[str], mode: str) -> Response:
         """POST (``mode`` append, or strict with options=append), PATCH (update) or PUT
-        (replace) of /attrs. Orion applies what it can: skipped attributes make a 422
-        (PartialUpdate when others were written)."""
+        (replace) of /attrs (see :func:`write_attrs`)."""
         opts = options(allowed)
         eid, etype = entity_id(raw_id), entity_type_param()
         attrs = ent.parse_attrs(json_body(), key_values="keyValues" in opts)
-        override = "overrideMetadata" in opts
-
-        def work(txn: Transaction) -> NgsiError | None:
-            old = txn.get(eid, etype)
-            if mode == "replace":
-                txn.put(old, ent.replace_attrs(old, attrs, txn.now), attrs, forced="forcedUpdate" in opts)
-                return None
-            split = ent.split_attrs(old, attrs, strict=mode == "append" and "append" in opts,
-                                    existing_only=mode == "update")
-            if split.applicable:
-                new = ent.merge_attrs(old, split.applicable, txn.now, override_metadata=override)
-                txn.put(old, new, split.applicable, forced="forcedUpdate" in opts)
-            return split.refusal(old)
-
-        refusal = write(work)
-        if refusal is not None:
-            raise refusal
+        write_attrs(store, write_tenant(request.headers), clock(), eid, etype, attrs, opts, mode)
         return no_content()
 
     @bp.post("/v2/entities/<raw_id>/attrs")
     def append_attrs(raw_id: str) -> Response:
-        return _attrs_write(raw_id, WRITE_OPTIONS | {"append"}, "append")
+        return _attrs_write(raw_id, *ATTRS_WRITES["POST"])
 
     @bp.patch("/v2/entities/<raw_id>/attrs")
     def update_attrs(raw_id: str) -> Response:
-        return _attrs_write(raw_id, WRITE_OPTIONS, "update")
+        return _attrs_write(raw_id, *ATTRS_WRITES["PATCH"])
 
     @bp.put("/v2/entities/<raw_id>/attrs")
     def replace_attrs(raw_id: str) -> Response:
-        return _attrs_write(raw_id, WRITE_OPTIONS, "replace")
+        return _attrs_write(raw_id, *ATTRS_WRITES["PUT"])
 
     # --- /v2/entities/{id}/attrs/{name} --------------------------------------------------
     @bp.get("/v2/entities/<raw_id>/attrs/<raw_name>")
@@ -260,15 +281,10 @@ def make_blueprint(store: ContextStore, clock: Callable[[], float] = time.time) 
 
     @bp.put("/v2/entities/<raw_id>/attrs/<raw_name>/value")
     def put_value(raw_id: str, raw_name: str) -> Response:
-        opts = options(frozenset({"forcedUpdate", "flowControl"}))
+        opts = options(VALUE_OPTIONS)
         eid, etype, name = entity_id(raw_id), entity_type_param(), attr_name(raw_name)
         value = value_body()
-
-        def work(txn: Transaction) -> None:
-            old = txn.get(eid, etype)
-            txn.put(old, ent.set_value(old, name, value, txn.now), {name}, forced="forcedUpdate" in opts)
-
-        write(work)
+        write_value(store, write_tenant(request.headers), clock(), eid, etype, name, value, opts)
         return no_content()
 
     # --- /v2/types -----------------------------------------------------------------------
