@@ -1,13 +1,15 @@
 """The context broker as a process: arguments, token, store, subscriptions, WSGI server, signals.
 
 ``python -m engine.context_broker --host H --port P --data-dir D [--token-file F | --open]
-[--log-file L] [--allow-remote] [--threads N]``
+[--log-file L] [--allow-remote] [--threads N] [--fsync]``
 
 - Binds loopback unless ``--allow-remote`` (a non-loopback ``--host`` is refused otherwise).
 - Writes need ``Authorization: Bearer <token>`` (the first line of ``--token-file``) unless
   ``--open``; one of the two must be given.
-- The store lives in ``D/oxigraph`` (``D/context.lock`` keeps a second process out, with a clear
-  message and exit code 2); subscriptions in ``D/subscriptions``.
+- The store lives in ``D/oxigraph`` and its write-ahead log in ``D/context.wal`` (``D/context.lock``
+  keeps a second process out, with a clear message and exit code 2); subscriptions in
+  ``D/subscriptions``. An answered write survives kill -9; ``--fsync`` also makes it survive a
+  power loss (one ``fdatasync`` per write).
 - Served by waitress (:mod:`.http_server`): requests are read whole, asynchronously, before a
   worker runs them, so slow or stalled clients hold no worker; 204 answers keep the connection.
   (cheroot was tried too: there, 16 clients stalled mid-body hold all 16 workers.)
@@ -46,6 +48,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--log-file", type=Path)
     parser.add_argument("--allow-remote", action="store_true", help="allow a non-loopback --host")
     parser.add_argument("--threads", type=int, default=DEFAULT_THREADS)
+    parser.add_argument("--fsync", action="store_true",
+                        help="fdatasync the write-ahead log before each write is answered "
+                             "(survives power loss; slower)")
     return parser.parse_args(argv)
 
 
@@ -106,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     _logging(args.log_file)
     try:
-        store = ContextStore(args.data_dir)
+        store = ContextStore(args.data_dir, fsync=args.fsync)
     except StoreLocked as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

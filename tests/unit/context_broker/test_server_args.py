@@ -42,3 +42,8 @@ def test_main_refuses_a_remote_host_before_touching_the_data_dir(tmp_path: Path,
     assert main(["--host", "0.0.0.0", "--data-dir", str(tmp_path / "d"), "--open"]) == 2
     assert "loopback" in capsys.readouterr().err
     assert not (tmp_path / "d").exists()
+
+
+def test_fsync_is_off_unless_asked() -> None:
+    assert parse_args(["--data-dir", "d"]).fsync is False
+    assert parse_args(["--data-dir", "d", "--fsync"]).fsync is True

@@ -156,3 +156,19 @@ def test_graph_dump_shows_every_answered_write(tmp_path: Path, monkeypatch: pyte
         assert b'"s19"' in store.nquads() and not store._pending
     finally:
         store.close()
+
+
+def test_a_store_with_fsync_keeps_every_write(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    synced: list[int] = []
+    real = os.fdatasync
+    monkeypatch.setattr(os, "fdatasync", lambda fd: synced.append(fd) or real(fd))
+    first = ContextStore(tmp_path / "d", fsync=True)
+    _writes(create_app(first).test_client())
+    assert len(synced) == 24  # one per logged write
+    expected = _snapshot(first)
+    first.close()
+    again = ContextStore(tmp_path / "d")
+    try:
+        assert _snapshot(again) == expected
+    finally:
+        again.close()
