@@ -1,13 +1,15 @@
-"""The hot writes served before Flask: ``POST``/``PATCH``/``PUT /v2/entities/{id}/attrs`` and
-``PUT /v2/entities/{id}/attrs/{name}/value``, the requests a fleet sends many times a second.
+"""The hot writes served before Flask: ``POST /v2/entities`` (the bridges' ``options=upsert``),
+``POST``/``PATCH``/``PUT /v2/entities/{id}/attrs`` and ``PUT /v2/entities/{id}/attrs/{name}/value``,
+the requests a fleet sends many times a second.
 
 Flask's per-request machinery (request context, URL adapter, routing, response object) costs
 more than the write itself. :func:`fast_writes` wraps the Flask app's WSGI callable and serves
-these requests directly, with the same functions as the Flask views (:func:`.routes.write_attrs`,
-:func:`.routes.write_value`, :mod:`.params`) in the same order, so answers are the same:
+these requests directly, with the same functions as the Flask views (:func:`.routes.create`,
+:func:`.routes.write_attrs`, :func:`.routes.write_value`, :mod:`.params`) in the same order, so
+answers are the same:
 
-- Only a plain request takes the fast path: an ASCII path matching one of the two routes, a
-  query string of at most ``type`` and ``options`` (once each, nothing percent-encoded), the
+- Only a plain request takes the fast path: an ASCII path matching one of the routes, a
+  query string of at most ``type`` (not for ``/v2/entities``) and ``options`` (once each, nothing percent-encoded), the
   exact token header (``Bearer <token>``; anything else, e.g. a missing or wrong token, goes to
   Flask's gate for its 401), a ``Content-Length`` within the 1 MB limit and no chunked body, a
   ``Content-Type`` without parameters. Everything else goes to Flask unchanged.
@@ -27,20 +29,25 @@ from werkzeug.datastructures import EnvironHeaders
 from werkzeug.http import HTTP_STATUS_CODES
 
 from engine.context_broker.contract import NgsiError
-from engine.context_broker.entities import parse_attrs
+from engine.context_broker.entities import parse_attrs, parse_entity
 from engine.context_broker.names import check_attribute_name, check_identifier
 from engine.context_broker.params import (
     check_url_param, json_from, parse_entity_type, parse_options, value_from, write_tenant,
 )
-from engine.context_broker.routes import ATTRS_WRITES, VALUE_OPTIONS, write_attrs, write_value
+from engine.context_broker.routes import (
+    ATTRS_WRITES, CREATE_OPTIONS, VALUE_OPTIONS, create, created_location, write_attrs, write_value,
+)
 from engine.context_broker.store import ContextStore
 
 log = logging.getLogger("engine.context_broker.app")
 ATTRS_PATH = re.compile(r"/v2/entities/([^/]+)/attrs")
 VALUE_PATH = re.compile(r"/v2/entities/([^/]+)/attrs/([^/]+)/value")
 QUERY_KEYS = frozenset({"type", "options"})
+ENTITIES_PATH = "/v2/entities"
 NO_CONTENT = "204 NO CONTENT"
+CREATED = "201 CREATED"
 NO_CONTENT_HEADERS = [("Content-Type", "text/html; charset=utf-8")]  # what Flask's 204 carries
+CREATED_HEADERS = (("Content-Type", "text/html; charset=utf-8"), ("Content-Length", "0"))  # and its 201
 
 WSGIApp = Callable[[dict[str, Any], Callable[..., Any]], Iterable[bytes]]
 
@@ -74,12 +81,14 @@ def fast_writes(flask_app: WSGIApp, store: ContextStore, token: str | None, max_
         if method not in ATTRS_WRITES:
             return flask_app(environ, start_response)
         path = environ.get("PATH_INFO", "")
-        attrs = ATTRS_PATH.fullmatch(path)
+        entities = method == "POST" and path == ENTITIES_PATH
+        attrs = None if entities else ATTRS_PATH.fullmatch(path)
         value = VALUE_PATH.fullmatch(path) if attrs is None and method == "PUT" else None
         query = _query(environ.get("QUERY_STRING", ""))
         length = environ.get("CONTENT_LENGTH", "")
         mimetype = environ.get("CONTENT_TYPE", "")
-        if ((attrs is None and value is None) or query is None or not path.isascii()
+        if ((not entities and attrs is None and value is None) or query is None
+                or (entities and "type" in query) or not path.isascii()
                 or (auth is not None and environ.get("HTTP_AUTHORIZATION") != auth)
                 or not length.isdigit() or int(length) > max_body or "HTTP_TRANSFER_ENCODING" in environ
                 or mimetype not in ("application/json", "text/plain")):
@@ -87,7 +96,15 @@ def fast_writes(flask_app: WSGIApp, store: ContextStore, token: str | None, max_
         try:
             for name, given in query.items():
                 check_url_param(name, given)
-            if attrs is not None:
+            if entities:
+                opts = parse_options(query.get("options"), CREATE_OPTIONS)
+                parsed = parse_entity(json_from(mimetype, environ["wsgi.input"].read(int(length))),
+                                      key_values="keyValues" in opts)
+                made = create(store, write_tenant(EnvironHeaders(environ)), clock(), parsed, opts)
+                if made is not None:
+                    start_response(CREATED, [("Location", created_location(*made)), *CREATED_HEADERS])
+                    return [b""]
+            elif attrs is not None:
                 allowed, mode = ATTRS_WRITES[method]
                 opts = parse_options(query.get("options"), allowed)
                 eid = check_identifier(attrs.group(1), "entity id")

@@ -29,6 +29,7 @@ LIST_OPTIONS = frozenset({"count", "keyValues", "values", "unique", "normalized"
 GET_OPTIONS = frozenset({"keyValues", "values", "unique", "normalized", "skipForwarding"})
 WRITE_OPTIONS = frozenset({"keyValues", "forcedUpdate", "overrideMetadata", "flowControl"})
 VALUE_OPTIONS = frozenset({"forcedUpdate", "flowControl"})
+CREATE_OPTIONS = WRITE_OPTIONS | {"upsert"}
 #: The options of each /attrs write method, and its mode (see :func:`write_attrs`).
 ATTRS_WRITES = {"POST": (WRITE_OPTIONS | {"append"}, "append"), "PATCH": (WRITE_OPTIONS, "update"),
                 "PUT": (WRITE_OPTIONS, "replace")}
@@ -121,6 +122,39 @@ def write_attrs(store: ContextStore, tenant: Tenant, now: float, eid: str, etype
         raise refusal
 
 
+def create(store: ContextStore, tenant: Tenant, now: float, parsed: tuple[str, str, dict[str, Any]],
+           opts: set[str]) -> tuple[str, str] | None:
+    """``POST /v2/entities``: create, or with options=upsert update an existing entity (422
+    otherwise). The new entity's id and type, None for an upsert; shared with the fast path."""
+    entity_id_, entity_type, attrs = parsed
+    upsert = "upsert" in opts
+
+    def work(txn: Transaction) -> None:
+        old = txn.find(entity_id_, entity_type)
+        if old is None:
+            txn.put(None, ent.create_entity(entity_id_, entity_type, txn.tenant.service_path,
+                                            attrs, txn.now), attrs, forced="forcedUpdate" in opts)
+            return
+        if not upsert:
+            raise unprocessable(f"Already Exists: entity {entity_id_!r} of type "
+                                f"{entity_type!r} (use options=upsert to update it)")
+        new = ent.merge_attrs(old, attrs, txn.now, override_metadata="overrideMetadata" in opts)
+        txn.put(old, new, attrs, forced="forcedUpdate" in opts)
+
+    store.write(tenant, now, work)
+    return None if upsert else (entity_id_, entity_type)
+
+
+def created_location(entity_id: str, entity_type: str) -> str:
+    return f"/v2/entities/{entity_id}?type={entity_type}"
+
+
+def created_response(made: tuple[str, str] | None) -> Response:
+    if made is None:
+        return no_content()
+    return Response(status=201, headers={"Location": created_location(*made)})
+
+
 def write_value(store: ContextStore, tenant: Tenant, now: float, eid: str, etype: str | None,
                 name: str, value: Any, opts: set[str]) -> None:
     """``PUT .../attrs/{name}/value``; shared by the Flask view and the fast path."""
@@ -160,27 +194,9 @@ def make_blueprint(store: ContextStore, clock: Callable[[], float] = time.time) 
 
     @bp.post("/v2/entities")
     def create_entity() -> Response:
-        opts = options(WRITE_OPTIONS | {"upsert"})
-        entity_id_, entity_type, attrs = ent.parse_entity(json_body(), key_values="keyValues" in opts)
-        upsert = "upsert" in opts
-
-        def work(txn: Transaction) -> bool:
-            old = txn.find(entity_id_, entity_type)
-            if old is None:
-                txn.put(None, ent.create_entity(entity_id_, entity_type, txn.tenant.service_path,
-                                                attrs, txn.now), attrs, forced="forcedUpdate" in opts)
-                return True
-            if not upsert:
-                raise unprocessable(f"Already Exists: entity {entity_id_!r} of type "
-                                        f"{entity_type!r} (use options=upsert to update it)")
-            new = ent.merge_attrs(old, attrs, txn.now, override_metadata="overrideMetadata" in opts)
-            txn.put(old, new, attrs, forced="forcedUpdate" in opts)
-            return False
-
-        created = write(work)
-        if upsert:
-            return no_content()
-        return Response(status=201, headers={"Location": f"/v2/entities/{entity_id_}?type={entity_type}"})
+        opts = options(CREATE_OPTIONS)
+        parsed = ent.parse_entity(json_body(), key_values="keyValues" in opts)
+        return created_response(create(store, write_tenant(request.headers), clock(), parsed, opts))
 
     # --- /v2/entities/{id} ---------------------------------------------------------------
     @bp.get("/v2/entities/<raw_id>")

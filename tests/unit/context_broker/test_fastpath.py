@@ -1,6 +1,6 @@
 """The fast path (engine/context_broker/fastpath.py) answers exactly as Flask does: each case is
 sent to an app with it and to one without it (same seed entities, same clock), and the status,
-Content-Type, body, the entities afterwards and the change events must be equal. The cases are
+headers, body, the entities afterwards and the change events must be equal. The cases are
 the hot writes, good and bad, and near-misses that must fall through to Flask."""
 
 from __future__ import annotations
@@ -70,6 +70,22 @@ CASES: list[tuple[str, str, str, str | None, str | None, bytes]] = [
     ("PUT", "/v2/entities/R1/attrs/t/value", "type=Room", "application/xml", GOOD, b'<a/>'),
     ("PATCH", "/v2/entities/R1/attrs/t/value", "type=Room", J, GOOD, b'7'),
     ("PUT", "/v2/entities/R1/attrs/t/value", "type=Room", J, None, b'7'),
+    ("POST", "/v2/entities", "", J, GOOD, b'{"id": "New", "type": "AGV", "s": {"value": 1}}'),
+    ("POST", "/v2/entities", "", J, GOOD, b'{"id": "New", "s": {"value": 1}}'),
+    ("POST", "/v2/entities", "", J, GOOD, b'{"id": "R1", "type": "Room", "t": {"value": 1}}'),
+    ("POST", "/v2/entities", "options=upsert", J, GOOD, b'{"id": "R1", "type": "Room", "t": {"value": 2}}'),
+    ("POST", "/v2/entities", "options=upsert", J, GOOD, b'{"id": "New2", "type": "Room", "t": {"value": 2}}'),
+    ("POST", "/v2/entities", "options=upsert,keyValues", J, GOOD, b'{"id": "R1", "type": "Room", "t": 3, "z": "a"}'),
+    ("POST", "/v2/entities", "options=upsert&options=keyValues", J, GOOD, b'{"id": "R1", "type": "Room", "t": 3}'),
+    ("POST", "/v2/entities", "options=upsert,overrideMetadata", J, GOOD, b'{"id": "R1", "type": "Room", "s": {"value": 1}}'),
+    ("POST", "/v2/entities", "options=upsert,append", J, GOOD, b'{"id": "R1", "type": "Room"}'),
+    ("POST", "/v2/entities", "type=Room", J, GOOD, b'{"id": "N3", "type": "Room"}'),
+    ("POST", "/v2/entities", "", J, GOOD, b'{"type": "Room"}'),
+    ("POST", "/v2/entities", "", J, GOOD, b'{"id": "Bad id", "type": "Room"}'),
+    ("POST", "/v2/entities", "", J, GOOD, b'{"id": "N4", "type": "Room", "t": {"type": "DateTime", "value": "no"}}'),
+    ("POST", "/v2/entities", "", "text/plain", GOOD, b'{"id": "N5"}'),
+    ("POST", "/v2/entities", "", J, None, b'{"id": "N6"}'),
+    ("POST", "/v2/entities/", "options=upsert", J, GOOD, b'{"id": "R1", "type": "Room", "t": {"value": 9}}'),
 ]
 
 
@@ -88,14 +104,15 @@ def _app(tmp_path: Path, name: str, fast: bool) -> tuple[Any, list[EntityChange]
 
 
 def _send(app: Any, method: str, path: str, query: str, ctype: str | None, auth: str | None,
-          body: bytes) -> tuple[int, str, Any]:
+          body: bytes) -> tuple[int, list[tuple[str, str]], Any]:
     headers = {"Authorization": auth} if auth else {}
     builder = EnvironBuilder(method=method, path=path, query_string=query, headers=headers, data=body,
                              content_type=ctype)
     app_iter, status, response_headers = run_wsgi_app(app, builder.get_environ())
     data = b"".join(app_iter)
     ctype_out = dict(response_headers).get("Content-Type", "")
-    return int(status.split()[0]), ctype_out, json.loads(data) if ctype_out == J and data else data
+    return (int(status.split()[0]), sorted(response_headers.items()),
+            json.loads(data) if ctype_out == J and data else data)
 
 
 def _entities(app: Any) -> Any:
