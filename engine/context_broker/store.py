@@ -48,7 +48,7 @@ LOCK_FILE = "context.lock"
 STORE_DIR = "oxigraph"
 WAL_FILE = "context.wal"
 ROTATE_BYTES = 8 * 1024 * 1024
-APPLY_DELAY = 0.005
+APPLY_DELAY = 0.02
 #: One logged change: the tenant's graph IRI, the triples deleted, the triples inserted.
 Change = tuple[str, list[rdf.Triple], list[rdf.Triple]]
 
