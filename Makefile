@@ -1,15 +1,16 @@
 # plantkg: `make test` installs what is missing (scripts/setup.sh) and runs the whole suite.
 # `make demo` runs the robot cell end to end (DEMO_ARGS, e.g. DEMO_ARGS='--duration 20').
 # Pass pytest options with PYTEST_ARGS, e.g. make test PYTEST_ARGS='-m "not integration"'
-# The suite runs on PYTEST_WORKERS pytest-xdist workers (a file stays on one worker; every test
-# picks free ports), PYTEST_WORKERS=0 runs it in this process.
+# PYTEST_WORKERS=N runs the suite on N pytest-xdist workers (a file stays on one worker). Default 0
+# (one process): with two workers, two Mosquitto-bridge tests of tests/integration/test_bridges.py
+# timed out in 2 of 2 runs while passing alone; parallel runs wait until that is understood.
 # `make bench` runs the benchmark studies and rebuilds benchmarks/RESULTS.md (BENCH_ARGS, e.g.
 # BENCH_ARGS='load --tiny'; see benchmarks/README.md).
 
 SHELL := /bin/bash
 VENV := .venv
 PYTEST_ARGS ?=
-PYTEST_WORKERS ?= 2
+PYTEST_WORKERS ?= 0
 DEMO_ARGS ?=
 BENCH_ARGS ?=
 
