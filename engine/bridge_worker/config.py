@@ -122,19 +122,26 @@ class WorkerConfig:
 
     @classmethod
     def from_json(cls, text: str) -> WorkerConfig:
-        try:
-            data = json.loads(text)
-        except (json.JSONDecodeError, TypeError) as exc:
-            raise ConfigValueError("worker.json", str(text)[:80], f"not JSON: {exc}") from None
-        values = _fields_of(cls, data, "worker.json")
-        routes = values["routes"]
-        if not isinstance(routes, list):
-            raise ConfigValueError("routes", routes, "must be a list of routes")
-        values["routes"] = tuple(Route.from_dict(r, f"routes[{i}]") for i, r in enumerate(routes))
+        values = worker_json_fields(cls, text, Route.from_dict)
         if not isinstance(values["state_dir"], str):
             raise ConfigValueError("state_dir", values["state_dir"], "must be a path string")
         values["state_dir"] = Path(values["state_dir"])
         return cls(**values)
+
+
+def worker_json_fields(cls: type, text: str, route: Any) -> dict[str, Any]:
+    """A worker.json's fields for ``cls`` (unknown or missing ones refused), its ``routes`` parsed
+    with ``route(dict, where)``; shared by the Kafka and the NGSI worker configs."""
+    try:
+        data = json.loads(text)
+    except (json.JSONDecodeError, TypeError) as exc:
+        raise ConfigValueError("worker.json", str(text)[:80], f"not JSON: {exc}") from None
+    values = _fields_of(cls, data, "worker.json")
+    routes = values["routes"]
+    if not isinstance(routes, list):
+        raise ConfigValueError("routes", routes, "must be a list of routes")
+    values["routes"] = tuple(route(r, f"routes[{i}]") for i, r in enumerate(routes))
+    return values
 
 
 def _fields_of(cls: type, data: object, where: str) -> dict[str, Any]:

@@ -22,7 +22,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from engine.bridge_worker.config import _BRIDGE_ID, _check_mqtt_topic, _enum, _fields_of
+from engine.bridge_worker.config import (
+    _BRIDGE_ID,
+    _check_mqtt_topic,
+    _enum,
+    _fields_of,
+    worker_json_fields,
+)
 from engine.bridge_worker.ngsi_mapping import Refused, check_name
 from engine.errors import ConfigValueError
 from engine.values import check_host, check_path, check_port
@@ -139,15 +145,7 @@ class NgsiWorkerConfig:
 
     @classmethod
     def from_json(cls, text: str) -> NgsiWorkerConfig:
-        try:
-            data = json.loads(text)
-        except (json.JSONDecodeError, TypeError) as exc:
-            raise ConfigValueError("worker.json", str(text)[:80], f"not JSON: {exc}") from None
-        values = _fields_of(cls, data, "worker.json")
-        routes = values["routes"]
-        if not isinstance(routes, list):
-            raise ConfigValueError("routes", routes, "must be a list of routes")
-        values["routes"] = tuple(NgsiRoute.from_dict(r, f"routes[{i}]") for i, r in enumerate(routes))
+        values = worker_json_fields(cls, text, NgsiRoute.from_dict)
         for name in ("state_dir", "token_file"):
             value = values.get(name)
             if value is None and name == "token_file":
