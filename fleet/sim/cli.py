@@ -1,7 +1,11 @@
-"""``python -m fleet.sim``: N simulated AGVs speaking VDA 5050 2.1 on an MQTT broker.
+"""``python -m fleet.sim``: N simulated AGVs speaking VDA 5050 2.1 (or the paper's channels) on an MQTT broker.
 
     python -m fleet.sim --broker 127.0.0.1:1883 --count 3 --manufacturer plantkg \\
         --serial-prefix sim- --map default --rate 2
+
+``--interface paper`` makes them speak the second paper's five channels instead
+(``<serial>/motion_channel`` ..., :mod:`fleet.sim.paper_adapter`); ``--rate`` is then the movement
+rate and ``--state-interval`` the status heartbeat.
 
 Vehicle i (1-based) is ``<prefix><i:04d>`` and starts on the map's i-th parking spot. Exit codes:
 0 after a clean stop (SIGTERM/SIGINT: OFFLINE published for each vehicle), 2 for unusable
@@ -19,6 +23,7 @@ from pathlib import Path
 from fleet.sim import map as site_map
 from fleet.sim.kinematics import Limits
 from fleet.sim.mqtt_pump import MqttPump
+from fleet.sim.paper_adapter import PaperLink, PaperLinkConfig
 from fleet.sim.runner import FleetRunner
 from fleet.sim.vda5050_adapter import MAX_STATE_INTERVAL, LinkConfig, Vda5050Link
 from fleet.sim.vehicle import SimVehicle, VehicleSpec
@@ -50,6 +55,8 @@ def _positive(kind: type, name: str):
 
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m fleet.sim", description="Simulated AGVs speaking VDA 5050 2.1 over MQTT.")
+    p.add_argument("--interface", choices=("vda5050", "paper"), default="vda5050",
+                   help="VDA 5050 2.1 topics, or the paper's five channels <serial>/<channel>")
     p.add_argument("--broker", type=_broker, default=("127.0.0.1", 1883), help="HOST:PORT of the MQTT broker")
     p.add_argument("--count", type=_positive(int, "--count"), default=1, help="number of vehicles")
     p.add_argument("--manufacturer", default="plantkg", help="the manufacturer topic level")
@@ -76,12 +83,17 @@ def build(args: argparse.Namespace) -> FleetRunner:
     limits = Limits(args.vmax, args.amax, args.omega_max, args.alpha_max)
     config = LinkConfig(host=args.broker[0], port=args.broker[1], state_interval=args.state_interval,
                         visualization_interval=1.0 / args.rate)
+    paper = PaperLinkConfig(host=args.broker[0], port=args.broker[1], movement_interval=1.0 / args.rate,
+                            status_interval=args.state_interval)
     pump = MqttPump()
-    links = []
+    links: list[Vda5050Link | PaperLink] = []
     for i in range(args.count):
         serial = topics.check_serial(f"{args.serial_prefix}{i + 1:04d}")
         spec = VehicleSpec(args.manufacturer, serial, site, spots[i], limits)
-        links.append(Vda5050Link(SimVehicle(spec), config, pump))
+        if args.interface == "paper":
+            links.append(PaperLink(SimVehicle(spec), paper, pump))
+        else:
+            links.append(Vda5050Link(SimVehicle(spec), config, pump))
     return FleetRunner(links, pump, tick=args.tick)
 
 
@@ -96,7 +108,8 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: runner.stop())
     signal.signal(signal.SIGINT, lambda *_: runner.stop())
     host, port = args.broker
-    log.info("starting %d vehicles on %s:%d (manufacturer %s)", args.count, host, port, args.manufacturer)
+    log.info("starting %d vehicles (%s) on %s:%d (manufacturer %s)", args.count, args.interface, host, port,
+             args.manufacturer)
     runner.run(on_all_connected=lambda: log.info("all %d vehicles online", args.count))
     confirmed = runner.shutdown()
     log.info("stopped: OFFLINE confirmed for %d of %d vehicles after %d ticks (%d late)",
