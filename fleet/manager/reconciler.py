@@ -1,0 +1,91 @@
+"""A batch of joins -> one reconcile; a vehicle that makes the plant invalid is refused alone.
+
+:meth:`Reconciler.run` takes the stems (``manufacturer--serial``) of the vehicles written since
+the last run. The plant is its files plus every discovered vehicle's file. If that is invalid:
+
+1. violations whose focus node lives in a new vehicle's file name that vehicle;
+2. if the plant is still invalid and new vehicles remain, each is checked alone with the plant
+   (validation only, no agent asked), and those invalid alone are refused;
+3. a refused vehicle's file moves to ``refused/`` with ``.reason.txt`` (the violations), its
+   record is dropped, a log line names it and the reason; the rest is reconciled.
+
+If the plant is invalid without any new vehicle (a person broke a file), nothing is refused and
+nothing is applied: the report says so. The steps are injected (``apply_step`` by default).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+from fleet.discovery.records import DataDir
+from fleet.manager.apply_step import StepResult, Violation
+
+log = logging.getLogger("fleet.manager")
+
+Step = Callable[[list[Path]], StepResult]
+
+
+@dataclass(frozen=True)
+class ReconcileReport:
+    step: StepResult
+    refused: tuple[tuple[str, str], ...] = ()  # (stem, reason)
+    joined: tuple[str, ...] = ()               # stems reconciled in this run
+
+
+def _reason(violations: Iterable[Violation]) -> str:
+    lines = [f"{v.focus}: {v.message}" if v.focus else v.message for v in violations]
+    return "the plant would be invalid with this vehicle: " + " | ".join(lines[:10])
+
+
+class Reconciler:
+    def __init__(self, plant_files: list[Path], data: DataDir, apply_step: Step, check_step: Step) -> None:
+        self.plant_files = [Path(f) for f in plant_files]
+        self.data = data
+        self.apply_step = apply_step
+        self.check_step = check_step
+
+    def files(self, without: Iterable[Path] = ()) -> list[Path]:
+        skip = {p.resolve() for p in without}
+        return self.plant_files + [p for p in self.data.turtle_files() if p.resolve() not in skip]
+
+    def run(self, new: set[str]) -> ReconcileReport:
+        result = self.apply_step(self.files())
+        refused: list[tuple[str, str]] = []
+        if not result.valid:
+            refused = self._culprits(new, result)
+            if refused:
+                for stem, reason in refused:
+                    path = self.data.discovered / f"{stem}.ttl"
+                    with self.data.lock():
+                        self.data.refuse(stem, reason, turtle=path)
+                    log.warning("refused vehicle %s: %s", stem, reason)
+                result = self.apply_step(self.files())
+        stems = tuple(sorted(new - {s for s, _ in refused}))
+        return ReconcileReport(result, tuple(refused), stems if result.valid else ())
+
+    def _culprits(self, new: set[str], result: StepResult) -> list[tuple[str, str]]:
+        by_stem: dict[str, list[Violation]] = {}
+        paths = {(self.data.discovered / f"{s}.ttl").resolve(): s for s in new}
+        for v in result.violations:
+            if v.file is not None and Path(v.file).resolve() in paths:
+                by_stem.setdefault(paths[Path(v.file).resolve()], []).append(v)
+        found = {stem: _reason(vs) for stem, vs in by_stem.items()}
+        others = [s for s in sorted(new) if s not in found]
+        if others:
+            left = [(self.data.discovered / f"{s}.ttl") for s in found]
+            if not self.check_step(self.files(without=left)).valid:
+                new_paths = [self.data.discovered / f"{s}.ttl" for s in new]
+                base = self.check_step(self.files(without=new_paths))
+                if not base.valid:
+                    log.error("the plant is invalid without the new vehicles; nothing refused, "
+                              "nothing applied: %s", _reason(base.violations))
+                    return list(found.items())
+                for stem in others:
+                    alone = [p for p in new_paths if p.name != f"{stem}.ttl"]
+                    single = self.check_step(self.files(without=alone))
+                    if not single.valid:
+                        found[stem] = _reason(single.violations)
+        return sorted(found.items())
