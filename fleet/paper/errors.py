@@ -22,23 +22,30 @@ class ChannelError(PaperError):
         self.problem = problem
 
 
+MISSING: Any = type("Missing", (), {"__repr__": lambda self: "(missing)"})()
+
+
 class MessageError(PaperError):
-    """A received (or built) message that breaks its schema or a rule the schema cannot express."""
+    """A received (or built) message that breaks its schema or a rule the schema cannot express.
+
+    ``value`` is what was found at ``path`` (:data:`MISSING` for a required field that is absent)."""
 
     def __init__(self, kind: str, path: str, value: Any, reason: str) -> None:
-        where = path or "(message)"
-        shown = _short(value)
-        super().__init__(f"{kind} refused at {where} = {shown}: {reason}" if path else f"{kind} refused: {reason}",
-                         hint=f"send a {kind} that satisfies fleet/paper/schemas/{kind}.json")
         self.kind = kind
         self.path = path
         self.value = value
         self.reason = reason
+        super().__init__(f"{kind} refused: {self.short}",
+                         hint=f"send a {kind} that satisfies fleet/paper/schemas/{kind}.json")
 
     @property
     def short(self) -> str:
         """``path = value: reason`` (no kind), for a status entry."""
-        return f"{self.path} = {_short(self.value)}: {self.reason}" if self.path else self.reason
+        if not self.path:
+            return self.reason
+        if self.value is MISSING:
+            return f"{self.path}: {self.reason}"
+        return f"{self.path} = {_short(self.value)}: {self.reason}"
 
 
 def _short(value: Any, limit: int = 80) -> str:

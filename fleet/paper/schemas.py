@@ -27,7 +27,7 @@ from typing import Any
 from jsonschema import Draft202012Validator
 from jsonschema.exceptions import ValidationError, best_match
 
-from fleet.paper.errors import MessageError
+from fleet.paper.errors import MISSING, MessageError
 
 MAX_MESSAGE_BYTES = 1_000_000
 NGSI_BUILTIN = frozenset({"id", "type", "TimeInstant", "dateCreated", "dateModified", "dateExpires"})
@@ -89,7 +89,7 @@ def check(kind: Kind | str, message: Any) -> dict[str, Any]:
         path, value = _path(best), best.instance
         if best.validator == "required" and isinstance(best.instance, dict):
             missing = [name for name in best.validator_value if name not in best.instance]
-            path, value = "/".join(p for p in (path, missing[0] if missing else "") if p), None
+            path, value = "/".join(p for p in (path, missing[0] if missing else "") if p), MISSING
             raise MessageError(kind.value, path, value, "is required but missing")
         raise MessageError(kind.value, path, value, best.message)
     return message
