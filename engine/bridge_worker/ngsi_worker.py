@@ -11,74 +11,49 @@ worker.json`` deletes them when the bridge is deleted (:func:`remove_subscriptio
 from __future__ import annotations
 
 import logging
-import threading
-import time
+from collections.abc import Sequence
 
+from engine.bridge_worker.loop import BridgeLoop, Half, Startable
 from engine.bridge_worker.mqtt_link import MqttLink
 from engine.bridge_worker.mqtt_to_ngsi import MqttToNgsi
 from engine.bridge_worker.ngsi_client import NgsiClient, NgsiError
 from engine.bridge_worker.ngsi_config import NgsiDirection, NgsiWorkerConfig
 from engine.bridge_worker.ngsi_health import NgsiHealth
 from engine.bridge_worker.ngsi_subscriptions import SubscriptionKeeper, apply_plan
-from engine.bridge_worker.stats import write_stats
+from engine.bridge_worker.stats import WorkerStats
 
 log = logging.getLogger("plantkg.bridge")
 
-STOP_GRACE = 10.0
 PROBE_EVERY = 1.0
 
 
-class NgsiWorker:
+class NgsiWorker(BridgeLoop):
     def __init__(self, cfg: NgsiWorkerConfig) -> None:
+        super().__init__()
         self.cfg = cfg
         self.health = NgsiHealth(cfg.bridge_id)
-        self.stopping = threading.Event()
         inbound = cfg.routes_of(NgsiDirection.MQTT_TO_NGSI)
         self.link = MqttLink(cfg, self.health, topics=[(r.mqtt_topic, r.qos) for r in inbound])
         self.m2n = MqttToNgsi(cfg, self.link, self.health, self.stopping) if inbound else None
         self.keeper = (SubscriptionKeeper(cfg, self.health, self.stopping)
                        if cfg.routes_of(NgsiDirection.NGSI_TO_MQTT) else None)
-        self._probe = threading.Thread(target=self._probe_ngsi, name="ngsi-probe", daemon=True)
 
-    def run(self) -> None:
-        """Forward until :attr:`stopping` is set, then stop cleanly."""
-        self.cfg.state_dir.mkdir(parents=True, exist_ok=True)
-        self._write_stats()
-        if self.m2n:
-            self.m2n.start()
-        if self.keeper:
-            self.keeper.start()
-        self.link.start()
-        self._probe.start()
-        next_stats = 0.0
-        while not self.stopping.wait(0.05):
-            now = time.monotonic()
-            if now >= next_stats or self.health.changed.is_set():
-                self.health.changed.clear()
-                self._write_stats()
-                next_stats = now + self.cfg.stats_interval
-        self._shutdown()
+    def halves(self) -> Sequence[Half]:
+        return [self.m2n] if self.m2n else []
 
-    def _shutdown(self) -> None:
-        log.info("stopping")
-        self._write_stats()
-        if self.m2n:
-            self.m2n.stop(time.monotonic() + STOP_GRACE)
-        self.link.stop()
-        self._write_stats()
-        log.info("stopped: %d forwarded MQTT -> NGSI, %d refused, %d notifications skipped",
-                 self.health.forwarded_mqtt_to_ngsi, self.health.refused, self.health.skipped)
+    def watchers(self) -> Sequence[Startable]:
+        return [self.keeper] if self.keeper else []
 
-    def _write_stats(self) -> None:
-        snapshot = self.health.ngsi_snapshot(needs_subscription=self.m2n is not None,
-                                             needs_ngsi_subscriptions=self.keeper is not None,
-                                             stopping=self.stopping.is_set())
-        try:
-            write_stats(self.cfg.state_dir, snapshot)
-        except OSError as exc:
-            log.warning("cannot write stats: %s", exc)
+    def snapshot(self) -> WorkerStats:
+        return self.health.ngsi_snapshot(needs_subscription=self.m2n is not None,
+                                         needs_ngsi_subscriptions=self.keeper is not None,
+                                         stopping=self.stopping.is_set())
 
-    def _probe_ngsi(self) -> None:
+    def stopped_line(self) -> str:
+        return (f"stopped: {self.health.forwarded_mqtt_to_ngsi} forwarded MQTT -> NGSI, "
+                f"{self.health.refused} refused, {self.health.skipped} notifications skipped")
+
+    def probe(self) -> None:
         client = NgsiClient(self.cfg.ngsi_url, self.cfg.token_file, timeout=2.0)
         try:
             while not self.stopping.is_set():
