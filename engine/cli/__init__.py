@@ -8,6 +8,7 @@ stderr and an exit code — never a traceback. Exit codes: 0 success, 1 the plan
 from __future__ import annotations
 
 import sys
+from importlib.metadata import entry_points
 
 import click
 
@@ -41,6 +42,30 @@ cli.add_command(status_command)
 cli.add_command(agent_command)
 cli.add_command(demo_command)
 cli.add_command(serve_command)
+
+#: Commands of other packages (``plantkg fleet ...``): entry points ``name = "module:click_command"``
+#: in the group ``plantkg.commands``. The engine never imports them by name; a plugin that fails to
+#: load is reported on stderr when its command is used, and the other commands keep working.
+PLUGIN_GROUP = "plantkg.commands"
+
+
+def _add_plugins(group: click.Group) -> None:
+    for entry in sorted(entry_points(group=PLUGIN_GROUP), key=lambda e: e.name):
+        if entry.name in group.commands:
+            continue
+        try:
+            group.add_command(entry.load(), entry.name)
+        except Exception as exc:  # a broken plugin must not take plantkg down
+            message = f"plugin command {entry.name!r} ({entry.value}) cannot be loaded: {exc}"
+
+            @click.command(entry.name, help=message)
+            def broken(message: str = message) -> None:
+                raise click.ClickException(message)
+
+            group.add_command(broken, entry.name)
+
+
+_add_plugins(cli)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,192 @@
+"""``plantkg fleet ...``: the fleet's commands, found by ``plantkg`` through the entry-point group
+``plantkg.commands`` (engine never imports fleet).
+
+| command | what |
+|---------|------|
+| ``plantkg fleet manager PLANT... --data-dir DIR`` | run the fleet manager (as ``python -m fleet.manager``) |
+| ``plantkg fleet simulate ...`` | run simulated vehicles (the options of ``python -m fleet.sim``) |
+| ``plantkg fleet vehicles`` | the discovered vehicles of the data directory (and the refused ones) |
+| ``plantkg fleet pin VEHICLE [--unpin]`` | keep a vehicle as it is even if it sends another factsheet |
+| ``plantkg fleet rename VEHICLE NAME`` | set its ``pk:name`` |
+| ``plantkg fleet remove VEHICLE`` | forget it (its file and record); it is discovered again when it comes back online |
+| ``plantkg fleet order SERIAL NODE...`` | send a VDA 5050 order through the running manager's API |
+
+The data directory is ``--data-dir`` or ``$PLANTKG_FLEET_DATA``. pin/rename/remove change the data
+directory under its lock; a running manager notices within its poll interval (0.5 s) and
+reconciles. Heavy imports happen inside the commands, so ``plantkg --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import json
+import urllib.error
+import urllib.request
+from pathlib import Path
+from typing import Any
+
+import click
+
+from kg.errors import PlantKGError
+
+data_dir_option = click.option(
+    "--data-dir", type=click.Path(path_type=Path, file_okay=False), envvar="PLANTKG_FLEET_DATA",
+    required=True, help="the fleet manager's data directory (or $PLANTKG_FLEET_DATA)")
+
+
+class ManagerUnreachableError(PlantKGError):
+    """No fleet manager answers for this data directory."""
+
+
+@click.group("fleet")
+def fleet_group() -> None:
+    """AGV fleet: plug and play (discovered vehicles), orders, simulated vehicles."""
+
+
+@fleet_group.command("manager", context_settings={"ignore_unknown_options": True, "help_option_names": []})
+@click.argument("args", nargs=-1, type=click.UNPROCESSED)
+def manager_command(args: tuple[str, ...]) -> int:
+    """Run the fleet manager (options of python -m fleet.manager; --help lists them)."""
+    from fleet.manager.__main__ import main
+
+    return main(list(args))
+
+
+@fleet_group.command("simulate", context_settings={"ignore_unknown_options": True, "help_option_names": []})
+@click.argument("args", nargs=-1, type=click.UNPROCESSED)
+def simulate_command(args: tuple[str, ...]) -> int:
+    """Run simulated VDA 5050 vehicles (options of python -m fleet.sim; --help lists them)."""
+    from fleet.sim.cli import main
+
+    try:
+        return main(list(args))
+    except SystemExit as exc:  # argparse's --help and usage errors
+        return int(exc.code or 0)
+
+
+def _data(data_dir: Path) -> Any:
+    from fleet.discovery.records import DataDir
+    from fleet.manager.service import render_record
+
+    if not data_dir.is_dir():
+        raise PlantKGError(f"{data_dir}: no such data directory",
+                           hint="give the --data-dir the fleet manager was started with")
+    return DataDir(data_dir, render_record)
+
+
+@fleet_group.command("vehicles")
+@data_dir_option
+@click.option("--format", "fmt", type=click.Choice(["table", "json"]), default="table", show_default=True)
+def vehicles_command(data_dir: Path, fmt: str) -> int:
+    """List the discovered vehicles (and the refused ones, with their reason)."""
+    data = _data(data_dir)
+    rows = [{"vehicle": r.label, "interface": r.interface, "name": r.name or r.description.get("name"),
+             "connectionState": r.connection_state, "pinned": r.pinned, "discoveredAt": r.discovered_at,
+             "skills": list(r.description.get("skills", ())), "file": str(data.turtle_path(r))}
+            for r in data.records()]
+    refused = data.refused_list()
+    if fmt == "json":
+        click.echo(json.dumps({"vehicles": rows, "refused": refused}, indent=1))
+        return 0
+    if not rows:
+        click.echo("no discovered vehicles")
+    for r in rows:
+        flag = " pinned" if r["pinned"] else ""
+        click.echo(f"{r['vehicle']:<32} {r['connectionState']:<16} {r['interface']:<14} "
+                   f"{r['name']!s:<20}{flag}  skills: {', '.join(r['skills'])}")
+    for r in refused:
+        click.echo(f"refused {r['vehicle']}: {r['reason']}")
+    return 0
+
+
+@fleet_group.command("pin")
+@click.argument("vehicle")
+@click.option("--unpin", is_flag=True, help="accept its next factsheet again")
+@data_dir_option
+def pin_command(vehicle: str, unpin: bool, data_dir: Path) -> int:
+    """Keep VEHICLE (SERIAL or MANUFACTURER/SERIAL) as it is, whatever factsheet it sends."""
+    data = _data(data_dir)
+    with data.lock():
+        record = data.update(data.find(vehicle), pinned=not unpin)
+    click.echo(f"{record.label}: {'pinned' if record.pinned else 'not pinned'}")
+    return 0
+
+
+@fleet_group.command("rename")
+@click.argument("vehicle")
+@click.argument("name")
+@data_dir_option
+def rename_command(vehicle: str, name: str, data_dir: Path) -> int:
+    """Give VEHICLE the pk:name NAME (kept when it sends its factsheet again)."""
+    if not name.strip() or any(c in name for c in "\n\r\t") or len(name) > 200:
+        raise PlantKGError(f"name {name!r}: one line of at most 200 characters, not blank")
+    data = _data(data_dir)
+    with data.lock():
+        record = data.update(data.find(vehicle), name=name)
+    click.echo(f"{record.label}: pk:name {name!r}")
+    return 0
+
+
+@fleet_group.command("remove")
+@click.argument("vehicle")
+@data_dir_option
+def remove_command(vehicle: str, data_dir: Path) -> int:
+    """Forget VEHICLE: its file and record are deleted; the plant no longer has it."""
+    data = _data(data_dir)
+    with data.lock():
+        record = data.find(vehicle)
+        data.remove(record)
+    click.echo(f"{record.label}: removed")
+    return 0
+
+
+def manager_call(data_dir: Path, method: str, path: str, body: Any = None, timeout: float = 10.0) -> Any:
+    """Call the running manager's API (address and token from the data directory)."""
+    try:
+        where = json.loads((data_dir / "manager.json").read_text(encoding="utf-8"))
+        token = (data_dir / "manager.token").read_text(encoding="utf-8").strip()
+    except (OSError, ValueError):
+        raise ManagerUnreachableError(f"no fleet manager runs for {data_dir} (no manager.json)",
+                                      hint="start it: plantkg fleet manager PLANT.ttl --data-dir DIR") from None
+    data = json.dumps(body).encode("utf-8") if body is not None else None
+    request = urllib.request.Request(where["url"] + path, data=data, method=method,
+                                     headers={"Authorization": f"Bearer {token}",
+                                              "Content-Type": "application/json"})
+    try:
+        with urllib.request.urlopen(request, timeout=timeout) as reply:
+            return json.loads(reply.read())
+    except urllib.error.HTTPError as exc:
+        try:
+            detail = json.loads(exc.read()).get("description")
+        except ValueError:
+            detail = exc.reason
+        raise PlantKGError(f"the fleet manager refused: {exc.code} {detail}") from None
+    except (urllib.error.URLError, OSError) as exc:
+        raise ManagerUnreachableError(f"the fleet manager at {where['url']} does not answer: {exc}",
+                                      hint="is it running? (plantkg fleet manager ...)") from None
+
+
+@fleet_group.command("order")
+@click.argument("serial")
+@click.argument("nodes", nargs=-1, required=True)
+@click.option("--manufacturer", default=None, help="when two vehicles share the serial")
+@click.option("--order-id", default=None)
+@click.option("--map", "map_file", default="default", show_default=True,
+              help="map JSON whose stations NODE names (as python -m fleet.sim --map)")
+@data_dir_option
+def order_command(serial: str, nodes: tuple[str, ...], manufacturer: str | None, order_id: str | None,
+                  map_file: str, data_dir: Path) -> int:
+    """Send SERIAL a VDA 5050 order through NODEs: STATION or NAME@X,Y, each optionally
+    followed by :ACTION[,ACTION] (e.g. park-1 pick-1:pick drop-1:drop)."""
+    from fleet.manager.orders import parse_node
+    from fleet.sim import map as site_map
+
+    site = site_map.default_map() if map_file == "default" else site_map.load(Path(map_file))
+    specs = [parse_node(n, site).to_json() for n in nodes]
+    body: dict[str, Any] = {"serial": serial, "nodes": specs}
+    if manufacturer:
+        body["manufacturer"] = manufacturer
+    if order_id:
+        body["orderId"] = order_id
+    reply = manager_call(data_dir, "POST", "/v1/orders", body)
+    click.echo(f"order {reply['orderId']} sent to {reply['vehicle']} ({reply['topic']})")
+    return 0
