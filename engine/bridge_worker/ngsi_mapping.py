@@ -31,13 +31,11 @@ import math
 from datetime import datetime, timezone
 from typing import Any
 
-#: Orion's forbidden characters in names and in string values ("Field syntax restrictions").
-FORBIDDEN_CHARS = frozenset('<>"\'=;()')
-#: Characters Orion refuses in ids, types and attribute names on top of the forbidden ones.
-NAME_ONLY_CHARS = frozenset("&?/#")
+from engine.ngsi_syntax import FORBIDDEN_CHARS, MAX_NAME_LENGTH, NAME_ONLY_CHARS, default_attr_type
+
 RESERVED_NAMES = frozenset({"id", "type", "*", "dateCreated", "dateModified", "dateExpires",
                             "geo:distance", "TimeInstant"})
-MAX_NAME = 256
+MAX_NAME = MAX_NAME_LENGTH
 TIME_ATTRIBUTE = "TimeInstant"
 VALUE_ATTRIBUTE = "value"
 
@@ -98,18 +96,6 @@ def _check_value(where: str, value: Any) -> None:
             _check_value(f"{where}[{index}]", item)
 
 
-def _attr_type(value: Any) -> str:
-    if isinstance(value, bool):
-        return "Boolean"
-    if isinstance(value, (int, float)):
-        return "Number"
-    if isinstance(value, str):
-        return "Text"
-    if value is None:
-        return "None"
-    return "StructuredValue"
-
-
 def _no_constant(name: str) -> Any:
     raise ValueError(f"{name} is not JSON")
 
@@ -140,7 +126,7 @@ def attributes(payload: bytes, received_at: float) -> dict[str, dict[str, Any]]:
                 if isinstance(value, float) and not math.isfinite(value):
                     raise Refused(f"attribute {name!r}: {value} is not a JSON number")
                 _check_value(f"attribute {name!r}", value)
-                attrs[name] = {"type": _attr_type(value), "value": value}
+                attrs[name] = {"type": default_attr_type(value), "value": value}
         else:  # a JSON string is its text; other JSON is kept as written
             text = data if isinstance(data, str) else payload.decode("utf-8").strip()
             _check_value(f"attribute {VALUE_ATTRIBUTE!r}", text)

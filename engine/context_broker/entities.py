@@ -29,24 +29,13 @@ from engine.context_broker.dates import from_epoch, parse_datetime, render_datet
 from engine.context_broker.names import (
     UNRESTRICTED_TYPE, check_attribute_name, check_identifier, check_metadata_name, check_value,
 )
+from engine.ngsi_syntax import default_attr_type
 
 DEFAULT_ENTITY_TYPE = "Thing"
 DATE_TYPES = frozenset({"DateTime", "ISO8601"})
 BUILTIN_ATTRS = ("dateCreated", "dateModified", "servicePath")
 BUILTIN_METADATA = ("dateCreated", "dateModified")
 ATTR_KEYS = frozenset({"value", "type", "metadata"})
-
-
-def default_type(value: Any) -> str:
-    if isinstance(value, bool):
-        return "Boolean"
-    if isinstance(value, (int, float)):
-        return "Number"
-    if isinstance(value, str):
-        return "Text"
-    if value is None:
-        return "None"
-    return "StructuredValue"
 
 
 @dataclass(frozen=True)
@@ -215,7 +204,7 @@ def parse_attr(name: Any, item: Any, *, key_values: bool = False) -> AttrInput:
 def _attr_input(name: str, type_: Any, value: Any, metadata: Any, type_given: bool = False) -> AttrInput:
     if type_given or type_ is not None:
         check_identifier(type_, f"type of attribute {name!r}")
-    attr_type = type_ if isinstance(type_, str) else default_type(value)
+    attr_type = type_ if isinstance(type_, str) else default_attr_type(value)
     value = _checked_value(value, attr_type, f"value of attribute {name!r}", metadata)
     return AttrInput(name, attr_type, value, metadata)
 
@@ -253,7 +242,7 @@ def _metadata(attr: str, value: Any) -> dict[str, dict[str, Any]]:
         if "type" in item:
             check_identifier(md_type, f"type of metadata {name!r} of attribute {attr!r}")
         else:
-            md_type = default_type(md_value)
+            md_type = default_attr_type(md_value)
         md_value = _checked_value(md_value, md_type, f"value of metadata {name!r} of attribute {attr!r}")
         out[name] = {"type": md_type, "value": md_value}
     return out

@@ -17,10 +17,11 @@ from collections.abc import Mapping
 from typing import Any
 
 from engine.context_broker.contract import NgsiError, bad_request
+from engine.ngsi_syntax import FORBIDDEN_CHARS, MAX_NAME_LENGTH, NAME_ONLY_CHARS
 
-MAX_ID_LENGTH = 256
-FORBIDDEN = frozenset('<>"\'=;()')
-FORBIDDEN_IN_IDS = FORBIDDEN | frozenset("&?/#")
+MAX_ID_LENGTH = MAX_NAME_LENGTH
+FORBIDDEN = FORBIDDEN_CHARS
+FORBIDDEN_IN_IDS = FORBIDDEN_CHARS | NAME_ONLY_CHARS
 RESERVED_ATTR_NAMES = frozenset({"id", "type", "geo:distance", "*"})
 UNRESTRICTED_TYPE = "TextUnrestricted"
 
