@@ -151,6 +151,8 @@ class DesiredState:
     brokers: tuple[BrokerSpec, ...] = ()
     topics: tuple[TopicSpec, ...] = ()
     bridges: tuple[BridgeSpec, ...] = ()
+    owner: str | None = None  # the plant that owns what it deploys (engine.owner); None: no
+                              # owner declared, only things nobody owns are the plant's (as before)
 
     def broker(self, broker_id: str) -> BrokerSpec | None:
         return self._brokers_by_id.get(broker_id)
@@ -184,6 +186,7 @@ class ObservedTopic:
     retain: bool | None = None
     entity_id: str | None = None
     entity_type: str | None = None
+    owner: str | None = None  # the plant that owns the topic on its agent (None: nobody)
 
 
 @dataclass(frozen=True)
@@ -198,6 +201,7 @@ class ObservedBroker:
     restarts: int = 0
     config_hash: str | None = None
     last_error: str | None = None
+    owner: str | None = None              # the plant that owns it on its agent (None: nobody)
 
 
 @dataclass(frozen=True)
@@ -213,6 +217,7 @@ class ObservedBridge:
     retried: int | None = None
     last_error: str | None = None
     refused: int | None = None          # messages the remote refused (mqtt-ngsi: a 4xx), acknowledged
+    owner: str | None = None            # the plant that owns it on its agent (None: nobody)
 
 
 @dataclass(frozen=True)
@@ -265,12 +270,24 @@ class Refusal:
 
 
 @dataclass(frozen=True)
+class Foreign:
+    """Something an agent runs that the plant does not own: shown in the plan, never changed.
+    ``owner`` is the plant that owns it, None when nobody does (``--prune`` deletes those)."""
+
+    address: str
+    owner: str | None
+    reason: str = ""
+
+
+@dataclass(frozen=True)
 class Plan:
-    """Ordered changes (brokers, then topics, then bridges; deletes last) and refusals."""
+    """Ordered changes (brokers, then topics, then bridges; deletes last), refusals, and the
+    foreign things the plan leaves alone."""
 
     changes: tuple[Change, ...] = ()
     refusals: tuple[Refusal, ...] = ()
     unreachable: tuple[str, ...] = ()
+    foreign: tuple[Foreign, ...] = ()
 
     @property
     def pending(self) -> tuple[Change, ...]:

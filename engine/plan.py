@@ -24,13 +24,23 @@ Order: brokers, topics, bridges, then deletes (bridges and topics before their b
 broker cannot make (fewer Kafka partitions, another replication factor) are :class:`Refusal` s,
 and brokers on a host whose agent did not answer are left out and the host listed (what runs there
 is unknown, so nothing there can be planned): either makes the plan not applicable.
+
+Ownership (docs/operating.md): agents record the plant that owns each broker, topic and bridge
+(``owner``), and ``DesiredState.owner`` names the planning plant. A plant plans only its own
+things. What another plant owns, or nobody owns, is listed in ``Plan.foreign`` and never deleted;
+with ``prune``, what *nobody* owns (made before ownership existed, or by hand) is deleted — another
+plant's things never are. A thing the plant declares that another plant owns is a refusal; one
+that nobody owns is a refusal too for a broker (``plantkg import`` takes it over), while a topic
+or bridge on the plant's own broker is adopted (an update that records the owner). A plant that
+declares no owner (``owner`` None) owns exactly what nobody owns, as before ownership existed.
 """
 
 from __future__ import annotations
 
+import enum
 import json
 from collections.abc import Iterable, Mapping
-from dataclasses import fields, replace
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 from engine.model import (
@@ -41,6 +51,7 @@ from engine.model import (
     BrokerStatus,
     Change,
     DesiredState,
+    Foreign,
     ObservedBridge,
     ObservedBroker,
     ObservedState,
@@ -65,7 +76,7 @@ TOPIC_SETTINGS: Mapping[str, tuple[str, ...]] = {
     "ngsi-v2": ("entity_id", "entity_type"),
 }
 ALL_TOPIC_SETTINGS: tuple[str, ...] = tuple(
-    f.name for f in fields(ObservedTopic) if f.name != "name"
+    f.name for f in fields(ObservedTopic) if f.name not in ("name", "owner")
 )
 
 #: Statuses after which a broker whose essence matches is started again.
@@ -115,17 +126,41 @@ def topic_essence(topic: TopicSpec | ObservedTopic, broker_id: str, settings: It
 
 # ------------------------------------------------------------------------------------- planning
 
-def plan(desired: DesiredState, observed: ObservedState) -> Plan:
-    """The ordered changes that turn ``observed`` into ``desired`` (pure)."""
+class Ownership(str, enum.Enum):
+    """Whose a thing an agent runs is, seen from the planning plant."""
+
+    MINE = "mine"        # owned by the planning plant
+    NOBODY = "nobody"    # owned by no plant (made before ownership existed, or by hand)
+    OTHER = "other"      # owned by another plant
+
+
+def ownership(owner: str | None, mine: str | None) -> Ownership:
+    """``owner`` (what the agent recorded) seen from the plant that owns ``mine``."""
+    if owner == mine:
+        return Ownership.MINE
+    return Ownership.NOBODY if owner is None else Ownership.OTHER
+
+
+def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False) -> Plan:
+    """The ordered changes that turn ``observed`` into ``desired`` (pure).
+
+    Only the things ``desired.owner`` owns are changed; ``prune`` also deletes what nobody owns."""
+    owner = desired.owner
     unreachable = frozenset(observed.unreachable)
     changes: list[Change] = []
     refusals: list[Refusal] = []
     deletes: list[Change] = []
+    foreign: list[Foreign] = []
     fresh_brokers: set[str] = set()
+    claimed: set[str] = set()
     for spec in desired.brokers:
         if spec.host in unreachable:
             continue  # its state is unknown: no change is planned, the host is listed
         have = observed.broker(spec.id)
+        if have is not None and ownership(have.owner, owner) is not Ownership.MINE:
+            refusals.append(_claimed_refusal(spec.address, have.owner, importable=True))
+            claimed.add(spec.id)
+            continue
         broker_change = _broker_change(spec, have)
         changes.append(broker_change)
         fresh = broker_change.action is Action.CREATE or (
@@ -133,46 +168,116 @@ def plan(desired: DesiredState, observed: ObservedState) -> Plan:
         )
         if fresh:
             fresh_brokers.add(spec.id)
-        topics, refused, removed = _topic_changes(spec, desired.topics_of(spec.id), have, fresh)
-        changes.extend(topics)
-        refusals.extend(refused)
-        deletes.extend(removed)
+        topics = _topic_changes(spec, desired.topics_of(spec.id), have, fresh, owner, prune)
+        changes.extend(topics.changes)
+        refusals.extend(topics.refusals)
+        deletes.extend(topics.deletes)
+        foreign.extend(topics.foreign)
     wanted = {b.id for b in desired.brokers}
     for have in observed.brokers:
-        if have.spec.id not in wanted:
+        if have.spec.id in wanted:
+            continue
+        whose = ownership(have.owner, owner)
+        if whose is Ownership.MINE:
             deletes.extend(_broker_delete(have))
+        elif whose is Ownership.NOBODY and prune:
+            deletes.extend(_broker_delete(have, _PRUNED))
+        else:
+            foreign.append(_foreign(have.spec.address, have.owner))
     hosts = {b.id: b.host for b in desired.brokers}
     for bridge in desired.bridges:
-        if hosts.get(bridge.local.id) in unreachable:
+        if hosts.get(bridge.local.id) in unreachable or bridge.local.id in claimed:
             continue
         have = None if bridge.local.id in fresh_brokers else observed.bridge(bridge.address)
-        changes.append(_bridge_change(bridge, have))
+        whose = Ownership.MINE if have is None else ownership(have.owner, owner)
+        if whose is Ownership.OTHER:
+            refusals.append(_claimed_refusal(bridge.address, have.owner if have else None,
+                                             importable=False))
+            continue
+        change = _bridge_change(bridge, have)
+        changes.append(_adopted(change, owner) if whose is Ownership.NOBODY else change)
     wanted_bridges = {b.address for b in desired.bridges}
-    deletes.extend(_bridge_delete(b.spec) for b in observed.bridges
-                   if b.spec.address not in wanted_bridges)
+    for seen in observed.bridges:
+        if seen.spec.address in wanted_bridges:
+            continue
+        whose = ownership(seen.owner, owner)
+        if whose is Ownership.MINE:
+            deletes.append(_bridge_delete(seen.spec))
+        elif whose is Ownership.NOBODY and prune:
+            deletes.append(_bridge_delete(seen.spec, _PRUNED))
+        else:
+            foreign.append(_foreign(seen.spec.address, seen.owner))
     changes.sort(key=_sort_key)
     deletes.sort(key=_delete_key)
     return Plan(
         changes=tuple(changes) + tuple(deletes),
         refusals=tuple(sorted(refusals, key=lambda r: r.address)),
         unreachable=tuple(sorted(unreachable)),
+        foreign=tuple(sorted(foreign, key=lambda f: f.address)),
     )
 
 
 def destroy_plan(desired: DesiredState, observed: ObservedState) -> Plan:
-    """Delete what the plant deployed: the observed brokers that ``desired`` names, and their topics.
+    """Delete what the plant deployed, and nothing else.
 
-    Brokers the agents run for other plants (ids the plant does not name) are left alone.
+    With an owner: every broker and bridge the plant owns (named in the plant or not any more),
+    with their topics. Without (``desired.owner`` None): the observed brokers that ``desired``
+    names and that nobody owns, with their topics and bridges. Everything else is foreign.
     """
-    ours = {b.id for b in desired.brokers}
+    owner = desired.owner
+    if owner is None:
+        ours = {b.id for b in desired.brokers}
+        mine_broker = lambda b: b.spec.id in ours and b.owner is None  # noqa: E731
+        mine_bridge = lambda b: b.spec.local.id in ours and b.owner is None  # noqa: E731
+    else:
+        mine_broker = lambda b: b.owner == owner  # noqa: E731
+        mine_bridge = lambda b: b.owner == owner  # noqa: E731
     mine = ObservedState(
-        brokers=tuple(b for b in observed.brokers if b.spec.id in ours),
+        brokers=tuple(b for b in observed.brokers if mine_broker(b)),
         unreachable=observed.unreachable,
-        bridges=tuple(b for b in observed.bridges if b.spec.local.id in ours),
+        bridges=tuple(b for b in observed.bridges if mine_bridge(b)),
     )
-    result = plan(DesiredState(), mine)
-    return Plan(tuple(replace(c, reason="destroy: the plant names it") for c in result.changes),
-                result.refusals, result.unreachable)
+    result = plan(DesiredState(owner=owner), mine)
+    foreign = [_foreign(b.spec.address, b.owner) for b in observed.brokers if not mine_broker(b)]
+    foreign += [_foreign(b.spec.address, b.owner) for b in observed.bridges if not mine_bridge(b)]
+    return Plan(tuple(replace(c, reason="destroy: the plant owns it" if owner is not None
+                              else "destroy: the plant names it") for c in result.changes),
+                result.refusals, result.unreachable,
+                tuple(sorted(foreign, key=lambda f: f.address)))
+
+
+_PRUNED = "prune: nobody owns it (made before ownership, or by hand)"
+
+
+def _foreign(address: str, owner: str | None) -> Foreign:
+    if owner is None:
+        return Foreign(address, None, "nobody owns it: left alone (--prune deletes it, "
+                                      "`plantkg import` takes a broker over)")
+    return Foreign(address, owner, f"owned by plant {owner}: left alone")
+
+
+def _claimed_refusal(address: str, owner: str | None, *, importable: bool) -> Refusal:
+    """The plant declares something another plant (or nobody) owns on its agent."""
+    if owner is None:
+        return Refusal(address, f"{address} already runs and nobody owns it (made before ownership, "
+                                f"or by hand): `plantkg import {address}` takes it over for this "
+                                "plant, or give it another pk:id")
+    how = "" if importable else " on its broker"
+    return Refusal(address, f"{address} already runs{how}, owned by plant {owner}: plantkg never "
+                            "changes another plant's things; give it another pk:id, or destroy it "
+                            "from its own plant first")
+
+
+def _adopted(change: Change, owner: str | None) -> Change:
+    """``change`` of a thing nobody owns on the plant's own broker, made an update that records
+    ``owner`` as its owner (the agent stores it with the PUT)."""
+    before = {**(change.before or {}), "owner": None}
+    after = {**(change.after or {}), "owner": owner}
+    why = "adopt: nobody owns it; the plant declares it on its own broker"
+    if change.action is not Action.NOOP and change.reason:
+        why += f"; {change.reason}"
+    action = Action.UPDATE if change.action is Action.NOOP else change.action
+    return Change(change.address, action, before, after, why)
 
 
 def _broker_change(spec: BrokerSpec, have: ObservedBroker | None) -> Change:
@@ -220,8 +325,8 @@ def _bridge_change(spec: BridgeSpec, have: ObservedBridge | None) -> Change:
     return Change(spec.address, Action.NOOP, before, after)
 
 
-def _bridge_delete(spec: BridgeSpec) -> Change:
-    return Change(spec.address, Action.DELETE, bridge_essence(spec), None, "not in the plant")
+def _bridge_delete(spec: BridgeSpec, reason: str = "not in the plant") -> Change:
+    return Change(spec.address, Action.DELETE, bridge_essence(spec), None, reason)
 
 
 def _starts_empty(change: Change) -> bool:
@@ -229,14 +334,23 @@ def _starts_empty(change: Change) -> bool:
     return any(change.before[f] != change.after[f] for f in NEW_BROKER_FIELDS)
 
 
+@dataclass(frozen=True)
+class _TopicPlan:
+    changes: list[Change]
+    refusals: list[Refusal]
+    deletes: list[Change]
+    foreign: list[Foreign]
+
+
 def _topic_changes(
-    spec: BrokerSpec, topics: Iterable[TopicSpec], have: ObservedBroker | None, fresh: bool
-) -> tuple[list[Change], list[Refusal], list[Change]]:
-    """Changes for the topics of one desired broker; observed topics not desired are deleted."""
+    spec: BrokerSpec, topics: Iterable[TopicSpec], have: ObservedBroker | None, fresh: bool,
+    owner: str | None = None, prune: bool = False,
+) -> _TopicPlan:
+    """Changes for the topics of one desired broker; observed topics not desired are deleted if
+    the plant owns them (or nobody does and ``prune``), else listed as foreign."""
     settings = topic_settings(spec.kind)
     present = {} if (have is None or fresh) else {t.name: t for t in have.topics}
-    changes: list[Change] = []
-    refusals: list[Refusal] = []
+    out = _TopicPlan([], [], [], [])
     wanted: set[str] = set()
     for topic in topics:
         wanted.add(topic.name)
@@ -244,24 +358,37 @@ def _topic_changes(
         old = present.get(topic.name)
         if old is None:
             why = "its broker starts anew" if fresh and have is not None else "not on the broker"
-            changes.append(Change(topic.address, Action.CREATE, None, after, why))
+            out.changes.append(Change(topic.address, Action.CREATE, None, after, why))
+            continue
+        whose = ownership(old.owner, owner)
+        if whose is Ownership.OTHER:
+            out.refusals.append(_claimed_refusal(topic.address, old.owner, importable=False))
             continue
         before = topic_essence(old, spec.id, [k for k in after if k not in ("broker_id", "name")])
         if before == after:
-            changes.append(Change(topic.address, Action.NOOP, before, after))
+            change = Change(topic.address, Action.NOOP, before, after)
+        else:
+            refused = _refusal(topic.address, before, after)
+            if refused is not None:
+                out.refusals.append(refused)
+                continue
+            changed = ", ".join(f"{k} {_show(before[k])} → {_show(after[k])}"
+                                for k in after if before[k] != after[k])
+            change = Change(topic.address, Action.UPDATE, before, after, f"{changed} (in place)")
+        out.changes.append(_adopted(change, owner) if whose is Ownership.NOBODY else change)
+    if have is None:
+        return out
+    for name, t in sorted(present.items()):
+        if name in wanted:
             continue
-        refused = _refusal(topic.address, before, after)
-        if refused is not None:
-            refusals.append(refused)
-            continue
-        changed = ", ".join(f"{k} {_show(before[k])} → {_show(after[k])}"
-                            for k in after if before[k] != after[k])
-        changes.append(Change(topic.address, Action.UPDATE, before, after, f"{changed} (in place)"))
-    deletes = [
-        _topic_delete(spec.id, t, topic_settings(have.spec.kind))
-        for name, t in sorted(present.items()) if name not in wanted
-    ] if have is not None else []
-    return changes, refusals, deletes
+        whose = ownership(t.owner, owner)
+        if whose is Ownership.MINE:
+            out.deletes.append(_topic_delete(spec.id, t, topic_settings(have.spec.kind)))
+        elif whose is Ownership.NOBODY and prune:
+            out.deletes.append(_topic_delete(spec.id, t, topic_settings(have.spec.kind), _PRUNED))
+        else:
+            out.foreign.append(_foreign(f"topic.{spec.id}.{name}", t.owner))
+    return out
 
 
 def _show(value: Any) -> str:
@@ -282,17 +409,17 @@ def _refusal(address: str, before: Mapping[str, Any], after: Mapping[str, Any]) 
     return None
 
 
-def _topic_delete(broker_id: str, topic: ObservedTopic, settings: Iterable[str]) -> Change:
+def _topic_delete(broker_id: str, topic: ObservedTopic, settings: Iterable[str],
+                  reason: str = "not in the plant") -> Change:
     before = topic_essence(topic, broker_id, settings)
-    return Change(f"topic.{broker_id}.{topic.name}", Action.DELETE, before, None,
-                  "not in the plant")
+    return Change(f"topic.{broker_id}.{topic.name}", Action.DELETE, before, None, reason)
 
 
-def _broker_delete(have: ObservedBroker) -> list[Change]:
+def _broker_delete(have: ObservedBroker, reason: str = "not in the plant") -> list[Change]:
     settings = topic_settings(have.spec.kind)
-    out = [_topic_delete(have.spec.id, t, settings) for t in sorted(have.topics, key=lambda t: t.name)]
-    out.append(Change(have.spec.address, Action.DELETE, broker_essence(have.spec), None,
-                      "not in the plant"))
+    out = [_topic_delete(have.spec.id, t, settings, reason)
+           for t in sorted(have.topics, key=lambda t: t.name)]
+    out.append(Change(have.spec.address, Action.DELETE, broker_essence(have.spec), None, reason))
     return out
 
 

@@ -9,7 +9,8 @@ Routes and bodies are those of docs/engine-contracts.md; the OpenAPI document
 400    malformed JSON, unknown/missing field, invalid value (``field`` names it)
 401    missing or wrong token
 404    unknown broker or route
-409    the broker cannot do it: fewer Kafka partitions, broker failed or stopped
+409    the broker cannot do it: fewer Kafka partitions, broker failed or stopped; or the
+       request names an ``owner`` and another plant owns the broker, topic or bridge
 422    the agent cannot do it: no driver for the kind, a part missing, the broker exited
        while starting
 503    try again: the broker is still starting, restarting, or did not answer (retryable)
@@ -37,6 +38,7 @@ from engine.agent.manager import (
     BrokerNotRunningError,
 )
 from engine.agent.openapi import openapi_document
+from engine.agent.owners import OWNER_FIELD, OwnershipConflictError, check_owner
 from engine.agent.wire import (
     BROKER_ID,
     WireError,
@@ -150,17 +152,38 @@ def get_broker(broker_id: str) -> Response:
 
 @v1.put("/brokers/<broker_id>")
 def put_broker(broker_id: str) -> Response:
-    spec = broker_spec_from_json(_body())
+    """The body is the BrokerSpec, plus an optional ``owner`` (the plant that owns it)."""
+    body = _body()
+    owner = _owner_of(body)
+    spec = broker_spec_from_json(body)
     if spec.id != _broker_id(broker_id):
         raise WireError("id", f"{spec.id!r} differs from the id in the URL ({broker_id!r})")
-    return jsonify(to_dict(_state().brokers.put(spec)))
+    return jsonify(to_dict(_state().brokers.put(spec, owner)))
+
+
+@v1.put("/brokers/<broker_id>/owner")
+def put_owner(broker_id: str) -> Response:
+    """Import: ``{"owner": ...}`` becomes the owner of the broker and of every topic and bridge
+    on it that nobody owns (409 if another plant owns the broker). Nothing is restarted."""
+    body = _body()
+    if not isinstance(body, dict) or set(body) != {OWNER_FIELD}:
+        raise WireError("body", 'expected {"owner": "<plant>"}')
+    owner = check_owner(body[OWNER_FIELD])
+    if owner is None:
+        raise WireError(OWNER_FIELD, "missing")
+    state = _state()
+    observed = state.brokers.set_owner(_broker_id(broker_id), owner)
+    if state.workers is not None:
+        state.workers.set_owner(broker_id, owner)
+    return jsonify(to_dict(observed))
 
 
 @v1.delete("/brokers/<broker_id>")
 def delete_broker(broker_id: str) -> tuple[str, int]:
-    """Stop the broker; the bridge workers it carries go with it."""
+    """Stop the broker; the bridge workers it carries go with it. ``?owner=``: refused (409) if
+    another plant owns it."""
     state = _state()
-    state.brokers.delete(_broker_id(broker_id))
+    state.brokers.delete(_broker_id(broker_id), _owner_arg())
     if state.workers is not None:
         for bridge in state.workers.list():
             if bridge.spec.local.id == broker_id:
@@ -182,6 +205,7 @@ def put_bridge(broker_id: str, remote_id: str) -> Response:
     context broker's write token), which is kept in the worker's folder and never echoed."""
     body = _body()
     remote_token = body.pop(REMOTE_TOKEN, None) if isinstance(body, dict) else None
+    owner = _owner_of(body)
     spec = bridge_spec_from_json(body)
     if remote_token is not None:
         if spec.mechanism is not BridgeMechanism.NGSI:
@@ -195,41 +219,48 @@ def put_bridge(broker_id: str, remote_id: str) -> Response:
                         f"URL ({broker_id} -> {remote_id})")
     state = _state()
     if spec.mechanism is BridgeMechanism.MOSQUITTO:
-        return jsonify(to_dict(state.brokers.put_native_bridge(spec)))
+        return jsonify(to_dict(state.brokers.put_native_bridge(spec, owner)))
     local = state.brokers.get(broker_id)
     if local is None:
         raise BrokerNotFoundError(broker_id)
+    if owner is not None and local.owner not in (None, owner):
+        raise OwnershipConflictError(f"broker {broker_id!r} is owned by plant {local.owner!r}, "
+                                     f"not by {owner!r}",
+                                     hint="a plant changes only its own things")
     if (local.spec.host, local.spec.port) != (spec.local.host, spec.local.port):
         raise BridgeConflictError(f"{spec.address}: its local end is not broker {broker_id!r} here",
                                   hint="PUT the broker first, then its bridges")
     if state.workers is None:
         raise EngineError("this agent runs no bridge workers", hint="start it with `plantkg agent`")
-    return jsonify(to_dict(state.workers.put(spec, remote_token)))
+    owned = {"owner": owner} if owner is not None else {}  # WorkerManager.put's keyword
+    return jsonify(to_dict(state.workers.put(spec, remote_token, **owned)))
 
 
 @v1.delete("/brokers/<broker_id>/bridges/<remote_id>")
 def delete_bridge(broker_id: str, remote_id: str) -> tuple[str, int]:
     state = _state()
-    local, remote = _broker_id(broker_id), _broker_id(remote_id)
-    if not state.brokers.delete_native_bridge(local, remote) and state.workers is not None:
-        state.workers.delete(local, remote)
+    local, remote, owner = _broker_id(broker_id), _broker_id(remote_id), _owner_arg()
+    if not state.brokers.delete_native_bridge(local, remote, owner) and state.workers is not None:
+        state.workers.delete(local, remote, owner)
     return "", 204
 
 
 @v1.put("/brokers/<broker_id>/topics/<topic:name>")
 def put_topic(broker_id: str, name: str) -> Response:
-    topic = topic_spec_from_json(_body())
+    body = _body()
+    owner = _owner_of(body)
+    topic = topic_spec_from_json(body)
     if topic.broker_id != _broker_id(broker_id):
         raise WireError("broker_id", f"{topic.broker_id!r} differs from the broker id in the URL "
                         f"({broker_id!r})")
     if topic.name != name:
         raise WireError("name", f"{topic.name!r} differs from the topic name in the URL ({name!r})")
-    return jsonify(to_dict(_state().brokers.put_topic(topic)))
+    return jsonify(to_dict(_state().brokers.put_topic(topic, owner)))
 
 
 @v1.delete("/brokers/<broker_id>/topics/<topic:name>")
 def delete_topic(broker_id: str, name: str) -> tuple[str, int]:
-    _state().brokers.delete_topic(_broker_id(broker_id), name)
+    _state().brokers.delete_topic(_broker_id(broker_id), name, _owner_arg())
     return "", 204
 
 
@@ -245,6 +276,16 @@ def _broker_id(value: str) -> str:
         raise WireError("id", "a broker id is 1 to 128 characters of A-Z a-z 0-9 _ . - starting "
                         "with a letter, a digit or _")
     return value
+
+
+def _owner_of(body: Any) -> str | None:
+    """The body's optional ``owner`` transport field, removed from it (it is not a spec field)."""
+    return check_owner(body.pop(OWNER_FIELD, None)) if isinstance(body, dict) else None
+
+
+def _owner_arg() -> str | None:
+    """The ``?owner=`` of a DELETE (None if not given)."""
+    return check_owner(request.args.get(OWNER_FIELD))
 
 
 def _body() -> Any:
@@ -300,6 +341,7 @@ _STATUS: tuple[tuple[type[BaseException], int], ...] = (
     (BrokerNotFoundError, 404),
     (DriverRefusedError, 409),
     (BridgeConflictError, 409),
+    (OwnershipConflictError, 409),
     (BrokerNotRunningError, 409),
     (UnknownDriverError, 422),
     (BrokerUnavailableError, 503),

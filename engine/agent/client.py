@@ -78,20 +78,32 @@ class AgentClient:
         data = self._request("GET", path, missing_ok=True)
         return None if data is None else self._parse(observed_broker_from_json, data, path)
 
-    def put_broker(self, spec: BrokerSpec) -> ObservedBroker:
+    # ``owner`` (every verb that changes something): the plant that owns the thing; the agent
+    # records it and refuses (409, PermanentDispatchError) a thing another plant owns.
+
+    def put_broker(self, spec: BrokerSpec, owner: str | None = None) -> ObservedBroker:
         path = f"/v1/brokers/{_segment(spec.id)}"
-        data = self._request("PUT", path, to_dict(spec), timeout=self.broker_timeout)
+        data = self._request("PUT", path, _owned(to_dict(spec), owner), timeout=self.broker_timeout)
         return self._parse(observed_broker_from_json, data, path)
 
-    def delete_broker(self, broker_id: str) -> None:
-        self._request("DELETE", f"/v1/brokers/{_segment(broker_id)}", timeout=self.broker_timeout)
+    def delete_broker(self, broker_id: str, owner: str | None = None) -> None:
+        self._request("DELETE", f"/v1/brokers/{_segment(broker_id)}{_owner_query(owner)}",
+                      timeout=self.broker_timeout)
 
-    def put_topic(self, spec: TopicSpec) -> ObservedTopic:
+    def set_owner(self, broker_id: str, owner: str) -> ObservedBroker:
+        """Import: ``owner`` takes over the broker and its topics and bridges nobody owns."""
+        path = f"/v1/brokers/{_segment(broker_id)}/owner"
+        return self._parse(observed_broker_from_json, self._request("PUT", path, {"owner": owner}),
+                           path)
+
+    def put_topic(self, spec: TopicSpec, owner: str | None = None) -> ObservedTopic:
         path = f"/v1/brokers/{_segment(spec.broker_id)}/topics/{_segment(spec.name)}"
-        return self._parse(observed_topic_from_json, self._request("PUT", path, to_dict(spec)), path)
+        return self._parse(observed_topic_from_json,
+                           self._request("PUT", path, _owned(to_dict(spec), owner)), path)
 
-    def delete_topic(self, broker_id: str, name: str) -> None:
-        self._request("DELETE", f"/v1/brokers/{_segment(broker_id)}/topics/{_segment(name)}")
+    def delete_topic(self, broker_id: str, name: str, owner: str | None = None) -> None:
+        self._request("DELETE", f"/v1/brokers/{_segment(broker_id)}/topics/{_segment(name)}"
+                                f"{_owner_query(owner)}")
 
     def list_bridges(self) -> list[ObservedBridge]:
         data = self._request("GET", "/v1/bridges")
@@ -100,19 +112,20 @@ class AgentClient:
             raise self._bad_answer("GET /v1/bridges", "no 'bridges' array")
         return [self._parse(observed_bridge_from_json, b, "GET /v1/bridges") for b in bridges]
 
-    def put_bridge(self, spec: BridgeSpec, remote_token: str | None = None) -> ObservedBridge:
+    def put_bridge(self, spec: BridgeSpec, remote_token: str | None = None,
+                   owner: str | None = None) -> ObservedBridge:
         """PUT the bridge; ``remote_token`` (mqtt-ngsi: the context broker's write token) travels
         as the body's transport field ``remote_token``, beside the spec, never inside it."""
         path = f"/v1/brokers/{_segment(spec.local.id)}/bridges/{_segment(spec.remote.id)}"
-        body = to_dict(spec)
+        body = _owned(to_dict(spec), owner)
         if remote_token is not None:
             body["remote_token"] = remote_token
         data = self._request("PUT", path, body, timeout=self.broker_timeout)
         return self._parse(observed_bridge_from_json, data, path)
 
-    def delete_bridge(self, local_id: str, remote_id: str) -> None:
-        self._request("DELETE", f"/v1/brokers/{_segment(local_id)}/bridges/{_segment(remote_id)}",
-                      timeout=self.broker_timeout)
+    def delete_bridge(self, local_id: str, remote_id: str, owner: str | None = None) -> None:
+        self._request("DELETE", f"/v1/brokers/{_segment(local_id)}/bridges/{_segment(remote_id)}"
+                                f"{_owner_query(owner)}", timeout=self.broker_timeout)
 
     # --- HTTP ------------------------------------------------------------------------------
 
@@ -174,6 +187,15 @@ class AgentClient:
             return parse(data)
         except WireError as exc:
             raise self._bad_answer(what, f"unexpected answer: {exc.message}") from None
+
+
+def _owned(body: dict[str, Any], owner: str | None) -> dict[str, Any]:
+    """A PUT body with the transport field ``owner`` (left out when None)."""
+    return body if owner is None else {**body, "owner": owner}
+
+
+def _owner_query(owner: str | None) -> str:
+    return "" if owner is None else "?" + urllib.parse.urlencode({"owner": owner})
 
 
 def _segment(text: str) -> str:

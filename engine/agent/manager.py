@@ -32,6 +32,7 @@ from typing import Any
 
 from engine import process
 from engine.agent.folder import BrokerFolder, PidRecord
+from engine.agent.owners import Owners, claim
 from engine.agent.procs import (
     AdoptedProcess,
     BrokerProcess,
@@ -104,6 +105,12 @@ class _Broker:
     next_start: float | None = None        # monotonic time the supervisor (re)starts it
     healthy_since: float | None = None
     deleted: bool = False
+    owners: Owners | None = None           # owner.json: the broker's, its topics', its bridges'
+
+    def record(self) -> Owners:
+        if self.owners is None:
+            self.owners = Owners.read(self.folder.path)
+        return self.owners
 
 
 class BrokerManager:
@@ -171,16 +178,19 @@ class BrokerManager:
             b = self._brokers.get(broker_id)
         return self._observe(b) if b is not None else None
 
-    def put(self, spec: BrokerSpec) -> ObservedBroker:
-        """Make broker ``spec.id`` run as ``spec``; return it once healthy."""
+    def put(self, spec: BrokerSpec, owner: str | None = None) -> ObservedBroker:
+        """Make broker ``spec.id`` run as ``spec``; return it once healthy. ``owner``: the plant
+        that owns it (refused if another one does; None keeps the recorded owner)."""
         driver = self.registry.get(spec.kind)
         driver.validate(spec)
         b = self._claim(spec, driver)
         try:
+            owner = claim(b.record().owner, owner, f"broker {spec.id!r}")
             if self._unchanged(b, spec, driver):
                 if b.spec != spec:
                     b.folder.write_spec(spec)
                     self._update(b, spec=spec)
+                b.record().set_owner(owner)
                 if b.status is not BrokerStatus.RUNNING:
                     self._wait_healthy(b)
                 return self._observe(b)
@@ -188,8 +198,10 @@ class BrokerManager:
                 self._stop_proc(b)
             if b.spec.kind != spec.kind:
                 self._retire_folder(b)
+                b.owners = Owners(b.folder.path)  # a new broker: its topics and bridges went
             b.folder.path.mkdir(parents=True, exist_ok=True)
             b.folder.write_spec(spec)
+            b.record().set_owner(owner)
             self._update(b, spec=spec, driver=driver, failures=0, next_start=None, last_error=None)
             try:
                 self._start(b, restart=False)
@@ -201,8 +213,9 @@ class BrokerManager:
         finally:
             b.op.release()
 
-    def delete(self, broker_id: str) -> None:
-        """Stop the broker and move its folder to ``<state-dir>/removed/`` (idempotent)."""
+    def delete(self, broker_id: str, owner: str | None = None) -> None:
+        """Stop the broker and move its folder to ``<state-dir>/removed/`` (idempotent); refused
+        if ``owner`` is given and another plant owns the broker."""
         with self._lock:
             b = self._brokers.get(broker_id)
         if b is None:
@@ -210,6 +223,7 @@ class BrokerManager:
         with b.op:
             if b.deleted:
                 return
+            claim(b.record().owner, owner, f"broker {broker_id!r}")
             if b.proc is not None:
                 self._stop_proc(b)
             self._retire_folder(b)
@@ -217,40 +231,77 @@ class BrokerManager:
                 b.deleted = True
                 self._brokers.pop(broker_id, None)
 
-    def put_topic(self, topic: TopicSpec) -> ObservedTopic:
+    def put_topic(self, topic: TopicSpec, owner: str | None = None) -> ObservedTopic:
         """Create or alter a topic; an implicit-topics driver (MQTT) only validates, and the agent
-        records the topic in topics.json."""
+        records the topic in topics.json. ``owner``: as for :meth:`put` (the broker's owner, if
+        any, must be the same)."""
         b = self._existing(topic.broker_id)
         try:
+            record = b.record()
+            claim(record.owner, owner, f"broker {b.spec.id!r}")
+            owner = claim(record.topics.get(topic.name), owner, f"topic {topic.name!r}")
             driver = self._topic_driver(b)
             observed = driver.ensure_topic(b.spec, topic)
             if driver.implicit_topics:
                 kept = [t for t in b.folder.read_topics() if t.name != observed.name]
-                b.folder.write_topics([*kept, observed])
-            return observed
+                b.folder.write_topics([*kept, replace(observed, owner=None)])
+            record.set_topic(topic.name, owner)
+            return replace(observed, owner=owner)
         finally:
             b.op.release()
 
-    def delete_topic(self, broker_id: str, name: str) -> None:
+    def delete_topic(self, broker_id: str, name: str, owner: str | None = None) -> None:
         try:
             b = self._existing(broker_id)
         except BrokerNotFoundError:
             return
         try:
+            record = b.record()
+            claim(record.topics.get(name), owner, f"topic {name!r}")
             driver = self._topic_driver(b)
             driver.delete_topic(b.spec, name)
             if driver.implicit_topics:
                 b.folder.write_topics([t for t in b.folder.read_topics() if t.name != name])
+            record.set_topic(name, None)
         finally:
             b.op.release()
 
+    def set_owner(self, broker_id: str, owner: str, bridges: list[str] | None = None) -> ObservedBroker:
+        """Import: record ``owner`` for the broker, and for every topic and native bridge on it that
+        nobody owns (refused if another plant owns the broker). Nothing runs differently."""
+        b = self._existing(broker_id)
+        try:
+            record = b.record()
+            claim(record.owner, owner, f"broker {broker_id!r}")
+            record.owner = owner
+            record.topics = {**{t: owner for t in self._topic_names(b)}, **record.topics}
+            bridges = b.folder.read_bridges() if b.folder.path.exists() else ()
+            record.bridges = {**{x.remote.id: owner for x in bridges}, **record.bridges}
+            record.write()
+        finally:
+            b.op.release()
+        return self._observe(b)
+
+    def _topic_names(self, b: _Broker) -> list[str]:
+        if b.driver is not None and b.driver.implicit_topics:
+            return [t.name for t in b.folder.read_topics()]
+        if b.driver is not None and b.status is BrokerStatus.RUNNING:
+            try:
+                return [t.name for t in b.driver.observe_topics(b.spec)]
+            except DriverError as exc:
+                log.warning("topics of broker %s not observed: %s", b.spec.id, exc)
+        return []
+
     # --- native bridges (carried in the broker's own config) ---------------------------------
 
-    def put_native_bridge(self, bridge: BridgeSpec) -> ObservedBridge:
+    def put_native_bridge(self, bridge: BridgeSpec, owner: str | None = None) -> ObservedBridge:
         """Render ``bridge`` into its local broker's config; restart that broker (only) if the
         rendered config changed. The remote may be down: the broker keeps reconnecting."""
         b = self._existing(bridge.local.id)
         try:
+            record = b.record()
+            claim(record.owner, owner, f"broker {b.spec.id!r}")
+            owner = claim(record.bridges.get(bridge.remote.id), owner, bridge.address)
             if (b.spec.host, b.spec.port) != (bridge.local.host, bridge.local.port):
                 raise BridgeConflictError(
                     f"{bridge.address}: its local end {bridge.local.host}:{bridge.local.port} is "
@@ -258,11 +309,12 @@ class BrokerManager:
                     hint="PUT the broker first, then its bridges")
             kept = tuple(x for x in b.folder.read_bridges() if x.address != bridge.address)
             self._rerender(b, tuple(sorted((*kept, bridge), key=lambda x: x.address)))
+            record.set_bridge(bridge.remote.id, owner)
         finally:
             b.op.release()
         return next(o for o in self.native_bridges() if o.spec.address == bridge.address)
 
-    def delete_native_bridge(self, local_id: str, remote_id: str) -> bool:
+    def delete_native_bridge(self, local_id: str, remote_id: str, owner: str | None = None) -> bool:
         """Remove the bridge from its broker's config (restarting it); False if not carried."""
         try:
             b = self._existing(local_id)
@@ -273,7 +325,10 @@ class BrokerManager:
             kept = tuple(x for x in bridges if x.remote.id != remote_id)
             if kept == bridges:
                 return False
+            record = b.record()
+            claim(record.bridges.get(remote_id), owner, f"bridge.{local_id}.{remote_id}")
             self._rerender(b, kept)
+            record.set_bridge(remote_id, None)
             return True
         finally:
             b.op.release()
@@ -289,10 +344,12 @@ class BrokerManager:
             states: dict[str, bool] = {}
             if status is BrokerStatus.RUNNING and isinstance(driver, BridgeCarrier):
                 states = driver.bridge_states(b.spec, bridges, 0.5)
+            owners = b.record().bridges
             for bridge in bridges:
                 out.append(ObservedBridge(
                     spec=bridge, status=_native_status(status, states.get(bridge.address)),
-                    last_error=None if states.get(bridge.address) else b.last_error))
+                    last_error=None if states.get(bridge.address) else b.last_error,
+                    owner=owners.get(bridge.remote.id)))
         return out
 
     def _rerender(self, b: _Broker, bridges: tuple[BridgeSpec, ...]) -> None:
@@ -378,12 +435,14 @@ class BrokerManager:
         )
 
     def _observe(self, b: _Broker) -> ObservedBroker:
+        record = b.record()
         with self._lock:
             spec, driver, proc, status = b.spec, b.driver, b.proc, b.status
             observed = ObservedBroker(
                 spec=spec, status=status, pid=proc.pid if proc else None,
                 started_at=started_at(proc.start_ticks) if proc else None,
                 restarts=b.restarts, config_hash=b.config_hash, last_error=b.last_error,
+                owner=record.owner,
             )
         topics: list[ObservedTopic] = []
         if driver is not None and driver.implicit_topics:
@@ -393,7 +452,9 @@ class BrokerManager:
                 topics = driver.observe_topics(spec)
             except DriverError as exc:
                 log.warning("topics of broker %s not observed: %s", spec.id, exc)
-        return replace(observed, topics=tuple(sorted(topics, key=lambda t: t.name)))
+        owners = dict(record.topics)
+        return replace(observed, topics=tuple(sorted(
+            (replace(t, owner=owners.get(t.name)) for t in topics), key=lambda t: t.name)))
 
     # --- processes -------------------------------------------------------------------------
 

@@ -20,7 +20,8 @@ def _error_responses(*codes: int) -> dict[str, Any]:
         400: "Invalid JSON, unknown or missing field, or invalid value (`field` names it)",
         401: "Missing or wrong bearer token",
         404: "Unknown broker",
-        409: "The broker cannot do this (fewer Kafka partitions, broker failed or stopped)",
+        409: "The broker cannot do this (fewer Kafka partitions, broker failed or stopped), or "
+             "the request names an owner and another plant owns the broker, topic or bridge",
         422: "The agent cannot do this (no driver for the kind, a part missing, the broker "
              "exited while starting)",
         503: "Try again: the broker is starting, restarting, or did not answer",
@@ -36,6 +37,16 @@ def _json(schema: dict[str, Any], description: str) -> dict[str, Any]:
 
 _BROKER_ID = {"name": "broker_id", "in": "path", "required": True,
               "schema": {"type": "string", "pattern": "^[A-Za-z0-9_][A-Za-z0-9_.-]{0,127}$"}}
+#: Ownership (docs/operating.md): the plant that owns a broker, topic or bridge on this agent.
+_OWNER = {"type": "string", "minLength": 1, "maxLength": 512, "pattern": "^[^\\s]+$",
+          "description": "The owning plant (its owner name or ontology IRI); stored with the thing "
+                         "in the agent's state dir (survives restarts). A request naming an owner "
+                         "is refused (409) on a thing another plant owns; without one the "
+                         "recorded owner is kept"}
+_NULLABLE_OWNER = {"type": ["string", "null"],
+                   "description": "The plant that owns it on this agent; null: nobody"}
+_OWNER_QUERY = {"name": "owner", "in": "query", "required": False, "schema": _OWNER,
+                "description": "Refuse (409) if another plant owns it"}
 _TOPIC_NAME = {"name": "name", "in": "path", "required": True,
                "description": "The topic name, percent-encoded (MQTT names hold slashes: %2F)",
                "schema": {"type": "string"}}
@@ -94,6 +105,7 @@ _SCHEMAS: dict[str, Any] = {
             "retain": {"type": ["boolean", "null"]},
             "entity_id": {"type": ["string", "null"]},
             "entity_type": {"type": ["string", "null"]},
+            "owner": _NULLABLE_OWNER,
         },
     },
     "ObservedBroker": {
@@ -108,6 +120,7 @@ _SCHEMAS: dict[str, Any] = {
             "restarts": {"type": "integer", "description": "Restarts after crashes"},
             "config_hash": {"type": ["string", "null"]},
             "last_error": {"type": ["string", "null"]},
+            "owner": _NULLABLE_OWNER,
         },
     },
     "BridgeEnd": {
@@ -150,6 +163,7 @@ _SCHEMAS: dict[str, Any] = {
                         "description": "mqtt-ngsi: messages the context broker refused (4xx), "
                                        "acknowledged and not retried"},
             "last_error": {"type": ["string", "null"]},
+            "owner": _NULLABLE_OWNER,
         },
     },
     "Health": {
@@ -170,8 +184,16 @@ _SCHEMAS["BridgePut"] = {
     **_SCHEMAS["BridgeSpec"],
     "properties": {**_SCHEMAS["BridgeSpec"]["properties"],
                    "remote_token": {"type": "string", "writeOnly": True,
-                                    "description": "mqtt-ngsi: the context broker's write token"}},
+                                    "description": "mqtt-ngsi: the context broker's write token"},
+                   "owner": _OWNER},
 }
+#: PUT bodies of brokers and topics: the spec plus the optional transport field owner.
+_SCHEMAS["BrokerPut"] = {**_SCHEMAS["BrokerSpec"],
+                         "properties": {**_SCHEMAS["BrokerSpec"]["properties"], "owner": _OWNER}}
+_SCHEMAS["TopicPut"] = {**_SCHEMAS["TopicSpec"],
+                        "properties": {**_SCHEMAS["TopicSpec"]["properties"], "owner": _OWNER}}
+_SCHEMAS["OwnerPut"] = {"type": "object", "additionalProperties": False, "required": ["owner"],
+                        "properties": {"owner": _OWNER}}
 
 
 def openapi_document(version: str) -> dict[str, Any]:
@@ -219,14 +241,30 @@ def openapi_document(version: str) -> dict[str, Any]:
                                    "Otherwise stopped, re-rendered, started; answers once the "
                                    "driver's health check passes (503 after its start deadline).",
                     "requestBody": {"required": True, "content": {
-                        "application/json": {"schema": _ref("BrokerSpec")}}},
+                        "application/json": {"schema": _ref("BrokerPut")}}},
                     "responses": {"200": _json(_ref("ObservedBroker"), "Running and healthy"),
-                                  **_error_responses(400, 401, 422, 503, 500)},
+                                  **_error_responses(400, 401, 409, 422, 503, 500)},
                 },
                 "delete": {
                     "operationId": "deleteBroker",
                     "summary": "Stop the broker and retire its folder (idempotent)",
-                    "responses": {"204": {"description": "Gone"}, **_error_responses(400, 401)},
+                    "parameters": [_OWNER_QUERY],
+                    "responses": {"204": {"description": "Gone"},
+                                  **_error_responses(400, 401, 409)},
+                },
+            },
+            "/v1/brokers/{broker_id}/owner": {
+                "parameters": [_BROKER_ID],
+                "put": {
+                    "operationId": "putOwner",
+                    "summary": "Import: record the owner of the broker and of its unowned topics "
+                               "and bridges",
+                    "description": "Nothing is restarted or changed but the recorded owner. 409 if "
+                                   "another plant owns the broker.",
+                    "requestBody": {"required": True, "content": {
+                        "application/json": {"schema": _ref("OwnerPut")}}},
+                    "responses": {"200": _json(_ref("ObservedBroker"), "The broker, owned"),
+                                  **_error_responses(400, 401, 404, 409)},
                 },
             },
             "/v1/brokers/{broker_id}/topics/{name}": {
@@ -234,12 +272,13 @@ def openapi_document(version: str) -> dict[str, Any]:
                 "put": {
                     "operationId": "putTopic", "summary": "Create or alter a topic",
                     "requestBody": {"required": True, "content": {
-                        "application/json": {"schema": _ref("TopicSpec")}}},
+                        "application/json": {"schema": _ref("TopicPut")}}},
                     "responses": {"200": _json(_ref("ObservedTopic"), "The topic as observed"),
                                   **_error_responses(400, 401, 404, 409, 422, 503)},
                 },
                 "delete": {
                     "operationId": "deleteTopic", "summary": "Delete a topic (idempotent)",
+                    "parameters": [_OWNER_QUERY],
                     "responses": {"204": {"description": "Gone"},
                                   **_error_responses(400, 401, 409, 503)},
                 },
@@ -269,8 +308,9 @@ def openapi_document(version: str) -> dict[str, Any]:
                 },
                 "delete": {
                     "operationId": "deleteBridge", "summary": "Stop the bridge (idempotent)",
+                    "parameters": [_OWNER_QUERY],
                     "responses": {"204": {"description": "Gone"},
-                                  **_error_responses(400, 401, 503)},
+                                  **_error_responses(400, 401, 409, 503)},
                 },
             },
             "/v1/openapi.json": {"get": {

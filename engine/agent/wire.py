@@ -140,7 +140,8 @@ def observed_topic_from_json(data: Any, where: str = "") -> ObservedTopic:
     ints = {k: _typed(data, k, (int,), where, optional=True)
             for k in ("partitions", "replication_factor", "retention_ms", "qos")}
     retain = _typed(data, "retain", (bool,), where, optional=True)
-    return ObservedTopic(name=name, retain=retain, **ints, **_entity(data, where))
+    return ObservedTopic(name=name, retain=retain, **ints, **_entity(data, where),
+                         owner=_typed(data, "owner", (str,), where, optional=True))
 
 
 def _entity(data: dict[str, Any], where: str) -> dict[str, str | None]:
@@ -175,6 +176,7 @@ def observed_broker_from_json(data: Any, where: str = "") -> ObservedBroker:
         restarts=_typed(data, "restarts", (int,), where) if "restarts" in data else 0,
         config_hash=_typed(data, "config_hash", (str,), where, optional=True),
         last_error=_typed(data, "last_error", (str,), where, optional=True),
+        owner=_typed(data, "owner", (str,), where, optional=True),
     )
 
 
@@ -246,4 +248,5 @@ def observed_bridge_from_json(data: Any, where: str = "") -> ObservedBridge:
         retried=_typed(data, "retried", (int,), where, optional=True),
         refused=_typed(data, "refused", (int,), where, optional=True),
         last_error=_typed(data, "last_error", (str,), where, optional=True),
+        owner=_typed(data, "owner", (str,), where, optional=True),
     )

@@ -39,6 +39,7 @@ from pathlib import Path
 
 from engine import process
 from engine.agent.folder import SPEC_FILE, BrokerFolder, PidRecord, write_atomic
+from engine.agent.owners import Owners, claim
 from engine.agent.procs import (
     AdoptedProcess,
     BrokerProcess,
@@ -167,6 +168,12 @@ class _Worker:
     failures: int = 0
     next_start: float | None = None
     last_error: str | None = None
+    owners: Owners | None = None  # owner.json: the plant that owns the bridge
+
+    def record(self) -> Owners:
+        if self.owners is None:
+            self.owners = Owners.read(self.folder.path)
+        return self.owners
 
 
 class WorkerManager:
@@ -210,9 +217,11 @@ class WorkerManager:
 
     # --- API -------------------------------------------------------------------------------
 
-    def put(self, spec: BridgeSpec, remote_token: str | None = None) -> ObservedBridge:
+    def put(self, spec: BridgeSpec, remote_token: str | None = None,
+            owner: str | None = None) -> ObservedBridge:
         """Make the worker of ``spec`` run with its configuration (restarted if it changed).
-        ``remote_token``: the context broker's write token (mqtt-ngsi only; None: it is open)."""
+        ``remote_token``: the context broker's write token (mqtt-ngsi only; None: it is open).
+        ``owner``: the plant that owns the bridge (refused if another one does)."""
         if spec.mechanism not in WORKER_MECHANISMS:
             raise EngineError(f"{spec.address} is not a worker bridge", hint="a bug in the agent")
         key = folder_name(spec.local.id, spec.remote.id)
@@ -221,6 +230,7 @@ class WorkerManager:
         with self._lock:
             w = self._workers.setdefault(key, _Worker(spec, folder))
         with w.op:
+            owner = claim(w.record().owner, owner, spec.address)
             files = {WORKER_FILE: text}
             if remote_token is not None:
                 files[TOKEN_FILE] = remote_token
@@ -229,6 +239,7 @@ class WorkerManager:
                 if w.spec != spec:
                     w.folder.write_bridge(spec)
                     w.spec = spec
+                w.record().set_owner(owner)
                 return self._observe(w)
             self._stop_proc(w)
             folder.path.mkdir(parents=True, exist_ok=True)
@@ -238,17 +249,24 @@ class WorkerManager:
             else:
                 (folder.path / TOKEN_FILE).unlink(missing_ok=True)
             folder.write_rendered({WORKER_FILE: text})
+            w.record().set_owner(owner)
             self._set(w, spec=spec, failures=0, last_error=None)
             self._start(w, restart=False)
             return self._observe(w)
 
-    def delete(self, local_id: str, remote_id: str) -> bool:
-        """Stop the worker and retire its folder; False if there was none."""
+    def delete(self, local_id: str, remote_id: str, owner: str | None = None) -> bool:
+        """Stop the worker and retire its folder; False if there was none. Refused if ``owner``
+        is given and another plant owns the bridge."""
         key = folder_name(local_id, remote_id)
         with self._lock:
-            w = self._workers.pop(key, None)
+            w = self._workers.get(key)
         if w is None:
             return False
+        claim(w.record().owner, owner, w.spec.address)
+        with self._lock:
+            if self._workers.get(key) is not w:
+                return False
+            self._workers.pop(key)
         with w.op:
             self._stop_proc(w)
             if w.spec.mechanism is BridgeMechanism.NGSI and (w.folder.path / WORKER_FILE).exists():
@@ -277,6 +295,14 @@ class WorkerManager:
 
     def list(self) -> list[ObservedBridge]:
         return [self._observe(w) for w in sorted(self._all(), key=lambda w: w.spec.address)]
+
+    def set_owner(self, local_id: str, owner: str) -> None:
+        """Import: record ``owner`` for every worker bridge of broker ``local_id`` nobody owns."""
+        for w in self._all():
+            if w.spec.local.id == local_id:
+                with w.op:
+                    if w.record().owner is None and w.folder.path.exists():
+                        w.record().set_owner(owner)
 
     # --- processes -------------------------------------------------------------------------
 
@@ -333,6 +359,7 @@ class WorkerManager:
             retried=stats.retried if stats is not None else None,
             last_error=error,
             refused=stats.refused if stats is not None and stats.mechanism == "mqtt-ngsi" else None,
+            owner=w.record().owner,
         )
 
     # --- re-adoption and supervision ------------------------------------------------------

@@ -210,7 +210,7 @@ def test_mosquitto_life_cycle(client: FlaskClient, state: AgentState, tmp_path: 
     assert answer.status_code == 200, answer.get_json()
     assert answer.get_json() == {"name": name, "partitions": None, "replication_factor": None,
                                  "retention_ms": None, "qos": 1, "retain": True,
-                                 "entity_id": None, "entity_type": None}
+                                 "entity_id": None, "entity_type": None, "owner": None}
     assert put(client, url("m1", "other"), topic(name)).status_code == 400
     assert put(client, url("m1", name), topic(name, partitions=3)).status_code == 400
     assert put(client, url("m1", name), topic(name, broker_id="m2")).status_code == 400
