@@ -10,6 +10,7 @@ package imports (and its pure parts are testable) on their own.
 from __future__ import annotations
 
 import dataclasses
+import json
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -50,7 +51,8 @@ def render(description: Any, binding: Any, *, connection_state: str, pinned: boo
 
 
 def description_to_json(description: Any) -> dict[str, Any]:
-    return dataclasses.asdict(description)
+    """Plain JSON (lists, not tuples), so a description compares equal to its record on disk."""
+    return json.loads(json.dumps(dataclasses.asdict(description)))
 
 
 def description_from_json(data: dict[str, Any]) -> Any:
