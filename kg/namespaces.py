@@ -12,6 +12,9 @@ from rdflib.namespace import OWL, RDF, RDFS, SH, XSD
 #: The ontology itself (owl:Ontology IRI) and its terms.
 ONTOLOGY_IRI = "https://w3id.org/plantkg/ontology"
 PK = Namespace(ONTOLOGY_IRI + "#")
+#: The fleet module (ontology/plantkg-fleet.ttl): AGVs, their interfaces and channels.
+FLEET_ONTOLOGY_IRI = ONTOLOGY_IRI + "/fleet"
+FLEET = Namespace("https://w3id.org/plantkg/fleet#")
 #: SWRL rules in RDF (swrl:Imp, swrl:ClassAtom, ...), as Protégé writes them.
 SWRL = Namespace("http://www.w3.org/2003/11/swrl#")
 #: Shapes of shapes/*.ttl.
@@ -38,9 +41,12 @@ PREFIXES: dict[str, str] = {
     "xsd": str(XSD),
     "sh": str(SH),
     "ngsi": str(NGSI),   # the context brokers' context (docs/context-broker.md)
+    "fleet": str(FLEET),  # AGVs (ontology/plantkg-fleet.ttl, docs/fleet.md)
 }
 
 __all__ = [
+    "FLEET",
+    "FLEET_ONTOLOGY_IRI",
     "GRAPH_INFERRED",
     "GRAPH_OBSERVED",
     "GRAPH_ONTOLOGY",
