@@ -73,7 +73,7 @@ class PaperLinkConfig:
 def safe_text(text: str, limit: int) -> str:
     """Text for the status: without the characters NGSI-v2 refuses in values (the status becomes an
     entity on the context broker through the bridge), at most ``limit`` characters."""
-    return text.translate(NGSI_UNSAFE)[:limit]
+    return text.replace(" = ", " is ").translate(NGSI_UNSAFE)[:limit]
 
 
 def _dumps(message: dict[str, Any]) -> bytes:

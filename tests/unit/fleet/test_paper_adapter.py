@@ -157,7 +157,7 @@ def test_what_it_publishes_passes_the_schemas(link: PaperLink) -> None:
 
 
 def test_safe_text_removes_what_ngsi_refuses() -> None:
-    assert safe_text("'a' (b) <c> = \"d\"; e", 100) == "`a` [b] lt cgt  : `d`, e"
+    assert safe_text("'a' (b) <c> = \"d\"; e=f", 100) == "`a` [b] lt cgt  is `d`, e:f"
     assert len(safe_text("x" * 500, 300)) == 300
 
 
