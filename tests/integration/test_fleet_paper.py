@@ -12,13 +12,16 @@ FiLiP, polling the status channel's entity, sees the task finished and the movem
 point. Then bad items, one by one (wrong types, missing UUIDs, NaN and huge coordinates, a
 polygon of two corners, an action before a motion in one task): each is refused with its reason
 in the status entity and a log line of the vehicle, and a good task afterwards still runs.
-SIGTERM: the status entity says OFFLINE. ``destroy`` and the agents' stop leave nothing behind.
+SIGTERM: the status entity says OFFLINE; kill -9 of a second run: OFFLINE again, the last will. ``destroy`` and the agents' stop leave nothing behind.
 """
 
 from __future__ import annotations
 
 import json
+import os
+import signal
 import sys
+import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -133,7 +136,7 @@ class Planner:
             return None
         return {a.name: a.value for a in found.get_attributes()}
 
-    def wait_status(self, predicate, what: str, child: process.Child) -> dict[str, Any]:
+    def wait_status(self, predicate, what: str, child: process.Child | None) -> dict[str, Any]:
         return process.wait_until(lambda: (s := self.read(STATUS_ENTITY)) is not None and predicate(s) and s,
                                   DEADLINE, 0.1, what=what, child=child)
 
@@ -178,10 +181,15 @@ def test_a_paper_agv_runs_a_task_written_on_the_context_broker(plant, tmp_path: 
         # the paper's test: a point to reach, then a waiting action that ends the task
         task, goal = str(uuid.uuid4()), [START.x + 3.0, START.y + 2.0]
         motion = motion_item(task, 1, goal)
+        began = time.monotonic()
         planner.write(MOTION_ENTITY, motion)
         planner.wait_status(lambda s: s.get("motion_id") == motion["motion_id"], "the motion running", sim)
+        seen_running = time.monotonic() - began
         planner.write(ACTION_ENTITY, action_item("wait", task, 2, duration=0.5))
         status = planner.wait_status(lambda s: s.get("finished_task_id") == task, "the task finished", sim)
+        print(f"\nmotion item written -> status entity shows it running: {seen_running * 1000:.0f} ms; "
+              f"task of {((goal[0] - START.x) ** 2 + (goal[1] - START.y) ** 2) ** 0.5:.1f} m + 0.5 s wait "
+              f"seen finished after {time.monotonic() - began:.1f} s")
         assert (status["state"], status["last_finished_sequence"], status["refused"]) == ("IDLE", 2, 0)
         pose = process.wait_until(
             lambda: (m := planner.read(MOVEMENT_ENTITY)) and abs(m["pose"]["x"] - goal[0]) < 0.01
@@ -230,7 +238,12 @@ def test_a_paper_agv_runs_a_task_written_on_the_context_broker(plant, tmp_path: 
         assert status["refused"] == refused
 
         assert process.stop(sim) == 0
-        planner.wait_status(lambda s: s.get("state") == "OFFLINE", "OFFLINE after SIGTERM", sim)
+        planner.wait_status(lambda s: s.get("state") == "OFFLINE", "OFFLINE after SIGTERM", None)
+        # kill -9: the broker publishes the last will, status OFFLINE
+        sim = process.spawn(sim.argv, log_dir=tmp_path, name="fleet-sim-paper-2", cwd=ROOT)
+        planner.wait_status(lambda s: s.get("state") == "IDLE", "the vehicle back", sim)
+        os.killpg(sim.pid, signal.SIGKILL)
+        planner.wait_status(lambda s: s.get("state") == "OFFLINE", "OFFLINE as the last will after kill -9", None)
     finally:
         planner.close()
         process.stop(sim)
