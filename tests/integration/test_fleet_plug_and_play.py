@@ -1,0 +1,289 @@
+"""Plug and play end to end, real processes: agents, Mosquitto, the context broker, the MQTT ->
+NGSI bridge worker, the fleet manager (``python -m fleet.manager``), vehicles of two
+implementations (PyPI vda5050-sdk's ``VehicleClient`` + ``OrderExecutor``, and ``plantkg fleet
+simulate``).
+
+One plant per module (ontology/examples/agv-fleet.ttl on free ports, applied through real
+agents), one fleet manager started as a process on it; each test uses serials of its own:
+
+- an sdk vehicle the plant has never seen connects: within 2 s it is in the graph (SPARQL through
+  ``plantkg query`` sees it with its skills) and applied (its topics on Mosquitto and the context
+  broker, routes of the running mqtt-ngsi bridge); its NGSI entity shows its battery; it executes
+  an order sent with ``plantkg fleet order`` and reports lastNodeId and FINISHED actions; it
+  disconnects: unavailable, not deleted. The time from its ONLINE to "applied" is printed;
+- 10 simulated vehicles join at once: each discovered once, no duplicate files, ``plan`` after
+  shows no changes; rename / pin / remove by a person are picked up;
+- hostile factsheets are refused one by one with their reason and nothing running changes; a
+  flood of ONLINE asks one factsheet.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+from paho.mqtt import client as mqtt
+from paho.mqtt.enums import CallbackAPIVersion
+
+from benchmarks.context_broker_rig import Http
+from engine import process
+from engine.cli import main
+from engine.render_plan import NO_CHANGES
+from engine.model import BridgeMechanism
+from tests.integration.agents import AgentFleet, plant_copy, start_agents
+from tests.unit.fleet import discovery_data as d
+
+pytestmark = pytest.mark.integration
+
+ROOT = Path(__file__).resolve().parents[2]
+MQTT_HOST, CB_HOST = "127.0.0.2", "127.0.0.3"
+FLEET = "https://w3id.org/plantkg/fleet#"
+
+
+@dataclass
+class Rig:
+    plant: Path
+    data: Path
+    agents: AgentFleet
+    manager: process.Child
+    mqtt_port: int
+    cb_port: int
+
+    @property
+    def agents_args(self) -> list[str]:
+        return ["--agents", str(self.agents.agents_file)]
+
+    def status(self) -> dict[str, Any]:
+        try:
+            return json.loads((self.data / "status.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return {}
+
+    def vehicle(self, serial: str) -> dict[str, Any] | None:
+        return next((v for v in self.status().get("vehicles", []) if v["serial"] == serial), None)
+
+    def discovered(self) -> list[Path]:
+        return sorted((self.data / "discovered").glob("*.ttl"))
+
+    def files(self) -> list[str]:
+        return [str(self.plant), *map(str, self.discovered())]
+
+    def log(self) -> str:
+        return self.manager.log_path.read_text(encoding="utf-8", errors="replace")
+
+    def wait(self, predicate: Any, deadline: float = 20.0, what: str = "the fleet manager") -> Any:
+        return process.wait_until(predicate, deadline, 0.02, what=what, child=self.manager)
+
+    def running(self) -> dict[str, Any]:
+        """What the agents run: brokers, topics per broker, the mqtt-ngsi bridge's routes."""
+        out: dict[str, Any] = {}
+        for host in (MQTT_HOST, CB_HOST):
+            client = self.agents.client(host)
+            for broker in client.list_brokers():
+                out[f"broker.{broker.spec.id}"] = (broker.spec.port, broker.status.value)
+                out[f"topics.{broker.spec.id}"] = sorted(t.name for t in broker.topics)
+            for bridge in client.list_bridges():
+                out[f"bridge.{bridge.spec.local.id}.{bridge.spec.remote.id}"] = sorted(
+                    r.topic for r in bridge.spec.routes)
+        return out
+
+
+def mqtt_client(port: int, name: str) -> mqtt.Client:
+    client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"{name}-{os.getpid()}")
+    client.connect(MQTT_HOST, port)
+    client.loop_start()
+    return client
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
+    tmp = tmp_path_factory.mktemp("plug-and-play")
+    plant, ports = plant_copy("agv-fleet.ttl", tmp)
+    agents = start_agents([MQTT_HOST, CB_HOST], tmp / "agents")
+    data = tmp / "fleet-data"
+    manager = None
+    try:
+        assert main(["apply", str(plant), "--agents", str(agents.agents_file), "--yes"]) == 0
+        manager = process.spawn([sys.executable, "-m", "fleet.manager", plant, "--data-dir", data,
+                                 "--agents", agents.agents_file, "--resync", "5"],
+                                log_dir=tmp / "logs", name="fleet-manager", cwd=ROOT)
+        r = Rig(plant, data, agents, manager, ports["fleet-mqtt"], ports["fleet-context"])
+        r.wait(lambda: r.status().get("manager", {}).get("connected")
+               and (r.status().get("lastReconcile") or {}).get("ok"), 60.0, "the manager connected and reconciled")
+        yield r
+        assert process.stop(manager, grace=15.0) == 0, manager.log_tail()
+        assert main(["destroy", *r.files(), "--agents", str(agents.agents_file), "--yes"]) == 0
+    finally:
+        if manager is not None and manager.running():
+            process.stop(manager, grace=5.0)
+        agents.stop()
+
+
+def sparql(rig: Rig, capsys: pytest.CaptureFixture[str], query: str) -> list[dict[str, Any]]:
+    capsys.readouterr()
+    assert main(["query", *rig.files(), f"PREFIX fleet: <{FLEET}>\n{query}", "--format", "json"]) == 0
+    answer = json.loads(capsys.readouterr().out)
+    return [{k: v["value"] for k, v in row.items()} for row in answer["results"]["bindings"]]
+
+
+# ----------------------------------------------------------------------- an outside vehicle
+
+def sdk_factsheet(serial: str) -> Any:
+    from vda5050.model.factsheet import Factsheet as SdkFactsheet
+
+    return SdkFactsheet.model_validate(d.factsheet("other", serial))
+
+
+def test_an_unknown_sdk_vehicle_is_discovered_applied_ordered_and_marked_unavailable(
+        rig: Rig, capsys: pytest.CaptureFixture[str]) -> None:
+    from vda5050 import VehicleClient, VehicleConfig
+    from vda5050.model.state import BatteryState
+
+    serial = "sdk-new-1"
+    state_topic = f"uagv/v2/other/{serial}/state"
+    assert rig.vehicle(serial) is None and not any(serial in p.name for p in rig.discovered())
+    got: dict[str, Any] = {}
+
+    async def scenario() -> None:
+        vehicle = VehicleClient(VehicleConfig(broker_url=f"mqtt://{MQTT_HOST}:{rig.mqtt_port}", manufacturer="other",
+                                              serial_number=serial, state_interval=1.0, validate_messages=True),
+                                factsheet_provider=lambda: sdk_factsheet(serial))
+        runs: list[asyncio.Task] = []
+        began = time.monotonic()
+        await vehicle.connect()
+        vehicle.update_position(x=0.0, y=0.0, theta=0.0, map_id="hall-1")
+        vehicle.publisher.set_battery(BatteryState(battery_charge=73.5, charging=False))
+        vehicle.on_order(lambda order: runs.append(asyncio.ensure_future(vehicle.executor.run(order))))
+
+        async def until(check: Any, timeout: float, what: str) -> Any:
+            end = time.monotonic() + timeout
+            while time.monotonic() < end:
+                value = check()
+                if value:
+                    return value
+                await asyncio.sleep(0.02)
+            raise AssertionError(f"timed out ({timeout} s) waiting for {what}; manager log:\n{rig.manager.log_tail()}")
+
+        try:
+            row = await until(lambda: (rig.vehicle(serial) or {}).get("readySeconds") is not None and rig.vehicle(serial),
+                              10.0, "the vehicle applied")
+            got["wall"] = time.monotonic() - began
+            got["ready"] = row["readySeconds"]
+            got["row"] = row
+            got["running"] = rig.running()
+
+            def entity() -> dict | None:
+                reply = Http(CB_HOST, rig.cb_port).request(
+                    "GET", f"/v2/entities/urn:ngsi-ld:AGV:{serial}?type=AGV&options=keyValues")
+                body = reply.json() if reply.status == 200 else None
+                return body if body and "batteryState" in body else None
+            got["entity"] = await until(entity, 15.0, "the AGV entity with its battery")
+
+            capsys.readouterr()
+            code = await asyncio.to_thread(main, ["fleet", "order", serial, "n0@0,0", "n1@1,0:pick", "n2@2,0:drop",
+                                                  "--order-id", "pp-order-1", "--data-dir", str(rig.data)])
+            got["order"] = (code, capsys.readouterr())
+            await until(lambda: runs and runs[0].done(), 30.0, "the sdk vehicle to execute the order")
+            await vehicle.publish_state()
+
+            def finished() -> dict | None:
+                state = (rig.vehicle(serial) or {}).get("state") or {}
+                actions = {a["actionId"]: a["actionStatus"] for a in state.get("actionStates", [])}
+                return state if (state.get("orderId") == "pp-order-1" and state.get("lastNodeId") == "n2"
+                                 and actions and set(actions.values()) == {"FINISHED"}) else None
+            got["state"] = await until(finished, 15.0, "lastNodeId n2 and FINISHED actions in the manager's status")
+        finally:
+            await vehicle.disconnect()
+
+    asyncio.run(scenario())
+    with capsys.disabled():
+        print(f"\nplug and play, 1 vehicle: ONLINE -> applied {got['ready']:.3f} s (manager), "
+              f"{got['wall']:.3f} s from connect() to the status file (test)")
+    assert got["wall"] < 2.0, got
+    row = got["row"]
+    assert row["connectionState"] == "ONLINE" and row["interface"] == "vda5050" and "pick" in row["skills"]
+
+    # in the graph, with its skills (SPARQL over the plant + the discovered folder)
+    rows = sparql(rig, capsys, f"""SELECT ?skill WHERE {{ ?agv fleet:serialNumber "{serial}" ;
+        fleet:discovered true ; pk:executes ?s . ?s pk:id ?skill }}""")
+    assert {"move", "pick", "drop"} <= {r["skill"] for r in rows}, rows
+
+    # applied: its topics on both brokers, its bridged channels in the running bridge's routes
+    running = got["running"]
+    assert f"uagv/v2/other/{serial}/order" in running["topics.fleet-mqtt"]
+    assert state_topic in running["topics.fleet-context"]
+    assert state_topic in running["bridge.fleet-mqtt.fleet-context"]
+    bridge = next(b for b in rig.agents.client(MQTT_HOST).list_bridges() if b.spec.mechanism is BridgeMechanism.NGSI)
+    assert bridge.status.value == "running"
+    assert got["entity"]["batteryState"]["batteryCharge"] == 73.5
+
+    code, out = got["order"]
+    assert code == 0 and f"order pp-order-1 sent to other/{serial}" in out.out, out
+    assert {a["actionStatus"] for a in got["state"]["actionStates"]} == {"FINISHED"}
+
+    # disconnected: unavailable, not deleted
+    row = rig.wait(lambda: (v := rig.vehicle(serial)) and v["connectionState"] == "OFFLINE" and v, 10.0, "OFFLINE")
+    assert row["available"] is False
+    rows = sparql(rig, capsys, f"""SELECT ?state WHERE {{ ?agv fleet:serialNumber "{serial}" ;
+        fleet:connectionState ?state }}""")
+    assert rows == [{"state": "OFFLINE"}]
+
+
+# ----------------------------------------------------------------------- ten at once
+
+def test_ten_simulated_vehicles_join_at_once_each_once_and_plan_has_no_changes(
+        rig: Rig, capsys: pytest.CaptureFixture[str]) -> None:
+    logs = rig.manager.log_path.parent
+    runs_before = rig.log().count("reconcile: ")
+    sim = process.spawn([sys.executable, "-m", "engine.cli", "fleet", "simulate", "--broker",
+                         f"{MQTT_HOST}:{rig.mqtt_port}", "--count", "10", "--manufacturer", "swarm",
+                         "--serial-prefix", "sw-", "--state-interval", "5"], log_dir=logs, name="swarm", cwd=ROOT)
+    try:
+        began = time.monotonic()
+        rows = rig.wait(lambda: (rows := [v for v in rig.status().get("vehicles", []) if v["manufacturer"] == "swarm"])
+                        and len(rows) == 10 and all(v["readySeconds"] is not None for v in rows) and rows,
+                        30.0, "10 vehicles applied")
+        took = time.monotonic() - began
+        names = [p.name for p in rig.discovered() if p.name.startswith("swarm--")]
+        assert names == [f"swarm--sw-{i:04d}.ttl" for i in range(1, 11)]
+        log = rig.log()
+        assert sorted(line.split("discovered vehicle ")[1].split(" ")[0]
+                      for line in log.splitlines() if "discovered vehicle swarm/" in line) == \
+            [f"swarm/sw-{i:04d}" for i in range(1, 11)]
+        runs = log.count("reconcile: ") - runs_before
+        ready = sorted(v["readySeconds"] for v in rows)
+        with capsys.disabled():
+            print(f"\n10 vehicles: all applied {took:.2f} s after the simulator started; ONLINE -> applied "
+                  f"min {ready[0]:.3f} s, max {ready[-1]:.3f} s; {runs} reconcile run(s)")
+        capsys.readouterr()
+        assert main(["plan", *rig.files(), *rig.agents_args]) == 0
+        assert NO_CHANGES in capsys.readouterr().out
+
+        # a person renames, pins and removes; the running manager picks it up
+        assert main(["fleet", "rename", "sw-0001", "Swarm one", "--data-dir", str(rig.data)]) == 0
+        assert main(["fleet", "pin", "swarm/sw-0003", "--data-dir", str(rig.data)]) == 0
+        assert main(["fleet", "remove", "sw-0002", "--data-dir", str(rig.data)]) == 0
+        rig.wait(lambda: "swarm/sw-0002/" not in json.dumps(rig.running()), 20.0, "sw-0002's topics removed")
+        names = {r["name"] for r in sparql(rig, capsys, """SELECT ?name WHERE {
+            ?agv fleet:serialNumber "sw-0001" ; pk:name ?name }""")}
+        assert names == {"Swarm one"}
+        assert sparql(rig, capsys, 'SELECT ?p WHERE { ?a fleet:serialNumber "sw-0003" ; fleet:pinned ?p }') == \
+            [{"p": "true"}]
+        assert main(["fleet", "vehicles", "--data-dir", str(rig.data), "--format", "json"]) == 0
+        listed = json.loads(capsys.readouterr().out)["vehicles"]
+        assert {v["vehicle"]: v["pinned"] for v in listed if v["vehicle"].startswith("swarm/")}["swarm/sw-0003"] is True
+        assert "swarm/sw-0002" not in {v["vehicle"] for v in listed}
+        assert not any("sw-0002" in t for t in rig.running()["topics.fleet-mqtt"])
+    finally:
+        assert process.stop(sim, grace=15.0) == 0
+    rig.wait(lambda: all(v["connectionState"] == "OFFLINE"
+                         for v in rig.status()["vehicles"] if v["manufacturer"] == "swarm"), 15.0, "all OFFLINE")
