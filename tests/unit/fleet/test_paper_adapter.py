@@ -167,3 +167,55 @@ def test_cli_builds_paper_links_and_refuses_a_long_agv_id(capsys) -> None:
     assert runner.links[1].agv_id == "p-0002"
     assert cli.main(["--interface", "paper", "--serial-prefix", "x" * 70]) == 2
     assert "at most 64" in capsys.readouterr().err
+
+
+class RecordingClient:
+    """Stands in for the paho client after construction: connected, keeps what is published."""
+
+    def __init__(self) -> None:
+        self.sent: list[tuple[str, dict[str, Any], int, bool]] = []
+
+    def is_connected(self) -> bool:
+        return True
+
+    def publish(self, topic: str, payload: bytes, qos: int, retain: bool) -> None:
+        self.sent.append((topic, json.loads(payload), qos, retain))
+
+
+def test_the_last_will_is_a_retained_offline_status(link: PaperLink) -> None:
+    client = link.client
+    assert (client._will_topic, client._will_qos, client._will_retain) == (b"agv-7/status_channel", 1, True)
+    will = schemas.decode("status", client._will_payload)[0]
+    assert (will["agv_id"], will["state"]) == ("agv-7", "OFFLINE")
+
+
+def test_status_on_change_and_heartbeat_movement_at_its_rate(link: PaperLink) -> None:
+    from fleet.sim.vehicle import Outbox
+
+    link.config = PaperLinkConfig(movement_interval=0.5, status_interval=10.0)
+    client = link.client = RecordingClient()  # type: ignore[assignment]
+    now = 100.0
+    link.publish(Outbox(), now)
+    task = uid()
+    send(link, Channel.MOTION, motion(task, 0, point=[START.x + 1.0, START.y]))
+    send(link, Channel.ACTION, action("wait", task, 1, duration=0.2))
+    for _ in range(int(8 / DT)):  # 8 s
+        link.poll()
+        link.vehicle.tick(DT)
+        now += DT
+        link.publish(Outbox(), now)
+    by_channel: dict[str, list[tuple[dict[str, Any], int, bool]]] = {}
+    for topic, message, qos, retain in client.sent:
+        by_channel.setdefault(topic.split("/")[1], []).append((message, qos, retain))
+    assert {(q, r) for _, q, r in by_channel["status_channel"]} == {(1, True)}
+    assert {(q, r) for _, q, r in by_channel["movement_channel"]} == {(0, False)}
+    assert 16 <= len(by_channel["movement_channel"]) <= 17  # 8 s at 2 Hz
+    states = [m["state"] for m, _, _ in by_channel["status_channel"]]
+    assert states[0] == "IDLE" and "MOVING" in states and "ACTING" in states and states[-1] == "IDLE"
+    assert len(states) < 40  # on change (and the battery's tenths), not every tick
+    assert [m["header"]["seq"] for m, _, _ in by_channel["status_channel"]] == list(range(1, len(states) + 1))
+    for message, _, _ in by_channel["status_channel"] + by_channel["movement_channel"]:
+        schemas.check("status" if "state" in message else "movement", message)
+    count = len(states)
+    link.publish(Outbox(), now + 10.0)  # nothing changed: the heartbeat
+    assert len([t for t, *_ in client.sent if t.endswith("status_channel")]) == count + 1
