@@ -287,3 +287,95 @@ def test_ten_simulated_vehicles_join_at_once_each_once_and_plan_has_no_changes(
         assert process.stop(sim, grace=15.0) == 0
     rig.wait(lambda: all(v["connectionState"] == "OFFLINE"
                          for v in rig.status()["vehicles"] if v["manufacturer"] == "swarm"), 15.0, "all OFFLINE")
+
+
+# ----------------------------------------------------------------------- hostile vehicles
+
+def _edit(message: dict[str, Any], value: Any, *path: str) -> dict[str, Any]:
+    out = json.loads(json.dumps(message))
+    target = out
+    for part in path[:-1]:
+        target = target[part]
+    if value is _DELETE:
+        del target[path[-1]]
+    else:
+        target[path[-1]] = value
+    return out
+
+
+_DELETE = object()
+
+# (case, serial, payload of its factsheet, where the refusal shows, words of the reason)
+HOSTILE = [
+    ("missing fields", "h-missing", lambda s: d.wire(_edit(d.factsheet("evil", s), _DELETE, "physicalParameters")),
+     "message", "'physicalParameters' is a required property"),
+    ("serial with / in the header", "h-slash", lambda s: d.wire(_edit(d.factsheet("evil", s), "h/slash", "serialNumber")),
+     "message", "character '/' at position 1"),
+    ("serial with # in the header", "h-hash", lambda s: d.wire(_edit(d.factsheet("evil", s), "h#hash", "serialNumber")),
+     "message", "character '#' at position 1"),
+    ("10 MB payload", "h-huge", lambda s: b'{"pad": "' + b"x" * 10_000_000 + b'"}', "message", "bytes, more than the"),
+    ("wrong types", "h-types", lambda s: d.wire(_edit(d.factsheet("evil", s), "fast", "physicalParameters", "speedMax")),
+     "message", "'fast' is not of type 'number'"),
+    ("values the model refuses", "h-model", lambda s: d.wire(_edit(d.factsheet("evil", s), -2.0, "physicalParameters",
+                                                                   "speedMax")), "vehicle", "speedMax"),
+]
+
+
+@pytest.mark.parametrize("case,serial,payload,where,reason", HOSTILE, ids=[c[0] for c in HOSTILE])
+def test_a_hostile_factsheet_is_refused_with_its_reason_and_nothing_running_changes(
+        rig: Rig, case: str, serial: str, payload: Any, where: str, reason: str) -> None:
+    before = (rig.discovered(), rig.running())
+    client = mqtt_client(rig.mqtt_port, f"hostile-{serial}")
+    try:
+        client.publish(d.topic("connection", "evil", serial), d.wire(d.connection("ONLINE", "evil", serial)), qos=1).wait_for_publish(5)
+        client.publish(d.topic("factsheet", "evil", serial), payload(serial), qos=1).wait_for_publish(10)
+        if where == "message":
+            topic = d.topic("factsheet", "evil", serial)
+            seen = rig.wait(lambda: [m for m in rig.status().get("refusedMessages", []) if m["topic"] == topic],
+                            15.0, f"the refusal of {case}")
+            assert reason in seen[-1]["reason"], seen
+            assert f"message on '{topic}' refused" in rig.log()
+        else:
+            why = rig.data / "refused" / f"evil--{serial}.reason.txt"
+            rig.wait(why.exists, 15.0, f"the refusal of {case}")
+            assert reason in why.read_text()
+            assert f"refused vehicle evil/{serial}: " in rig.log()
+            rig.wait(lambda: any(r["vehicle"] == f"evil--{serial}" for r in rig.status()["refused"]), 5.0,
+                     "the refusal in status.json")
+        assert rig.vehicle(serial) is None
+        assert (rig.discovered(), rig.running()) == before
+    finally:
+        client.disconnect()
+        client.loop_stop()
+
+
+def test_a_flood_of_online_asks_one_factsheet_and_a_vehicle_seen_twice_is_discovered_once(rig: Rig) -> None:
+    serial = "flood-1"
+    requests: list[dict] = []
+    got = threading.Event()
+    watcher = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"flood-watch-{os.getpid()}")
+    watcher.on_message = lambda _c, _u, m: requests.append(json.loads(m.payload))
+    watcher.on_subscribe = lambda *_: got.set()
+    watcher.connect(MQTT_HOST, rig.mqtt_port)
+    watcher.subscribe(d.topic("instantActions", "evil", serial), qos=1)
+    watcher.loop_start()
+    client = mqtt_client(rig.mqtt_port, "flood")
+    try:
+        process.wait_until(got.is_set, 5.0, what="the watcher's subscription")
+        for _ in range(300):
+            client.publish(d.topic("connection", "evil", serial), d.wire(d.connection("ONLINE", "evil", serial)), qos=1)
+        rig.wait(lambda: requests, 10.0, "a factsheetRequest")
+        for _ in range(2):  # the answer, and the same factsheet again
+            client.publish(d.topic("factsheet", "evil", serial), d.wire(d.factsheet("evil", serial)), qos=1).wait_for_publish(5)
+        row = rig.wait(lambda: (v := rig.vehicle(serial)) and v["readySeconds"] is not None and v, 15.0, "flood-1 applied")
+        assert row["connectionState"] == "ONLINE"
+        kinds = [a["actionType"] for r in requests for a in r["actions"]]
+        assert kinds.count("factsheetRequest") == 1, kinds  # (and one stateRequest once it is applied)
+        assert [p.name for p in rig.discovered() if serial in p.name] == [f"evil--{serial}.ttl"]
+        assert rig.log().count(f"discovered vehicle evil/{serial} ") == 1
+        assert rig.log().count(f"vehicle evil/{serial}") == rig.log().count(f"evil/{serial} ")  # no update lines
+    finally:
+        client.disconnect()
+        client.loop_stop()
+        watcher.disconnect()
+        watcher.loop_stop()
