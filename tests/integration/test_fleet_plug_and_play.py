@@ -340,7 +340,7 @@ def test_a_hostile_factsheet_is_refused_with_its_reason_and_nothing_running_chan
             rig.wait(why.exists, 15.0, f"the refusal of {case}")
             assert reason in why.read_text()
             assert f"refused vehicle evil/{serial}: " in rig.log()
-            rig.wait(lambda: any(r["vehicle"] == f"evil--{serial}" for r in rig.status()["refused"]), 5.0,
+            rig.wait(lambda: any(r["vehicle"] == f"evil--{serial}" for r in rig.status().get("refused", [])), 10.0,
                      "the refusal in status.json")
         assert rig.vehicle(serial) is None
         assert (rig.discovered(), rig.running()) == before
