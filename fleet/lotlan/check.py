@@ -11,6 +11,7 @@ names unknown to an expression are errors). docs/fleet-manager.md lists the diff
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass
 
 from fleet.lotlan import cycles
@@ -187,7 +188,7 @@ class _Checker:
         if isinstance(found, Location):
             return found
         if name.text in self.instances:
-            self.error(name.at, f"'{name.text}' is a {self.instances[name.text].template.text}, not a "
+            self.error(name.at, f"'{name.text}' is {_a(self.instances[name.text].template.text)}, not a "
                        f"Location: name a Location in TransportOrderStep '{step.name.text}'")
         elif not self.broken("instance", name.text):
             self.error(name.at, f"unknown location '{name.text}' in TransportOrderStep '{step.name.text}': "
@@ -323,7 +324,13 @@ def _words(items) -> str:
     return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
 
 
+def _a(word: str) -> str:
+    return ("an " if word[:1] in "AEIOU" else "a ") + word
+
+
 def _suggest(name: str, known) -> str:
-    close = [k for k in known if k.lower() == name.lower()]
+    """A hint naming the closest known name, if one is close (same letters in another case, a typo)."""
+    known = list(known)
+    close = [k for k in known if k.lower() == name.lower()] or difflib.get_close_matches(name, known, 1, 0.8)
     return f" (did you mean '{close[0]}'?)" if close else ""
 

@@ -20,32 +20,38 @@ from collections.abc import Callable
 from fleet.lotlan.model import And, Expr, Or, Pos, Task, TaskAttribute
 
 
-def follow_ups(task: Task) -> tuple[str, ...]:
-    """The tasks started when ``task`` is done: its OnDone and its steps' OnDone, in order."""
-    names = list(task.on_done) + list(task.pickup.step.on_done) + list(task.delivery.step.on_done)
-    return tuple(dict.fromkeys(names))
+def follow_ups(task: Task) -> tuple[tuple[str, str], ...]:
+    """The tasks started when ``task`` is done, each with where the OnDone is written."""
+    edges = [(name, "") for name in task.on_done]
+    for use in (task.pickup, task.delivery):
+        edges += [(name, f"OnDone of step {use.step.name}") for name in use.step.on_done]
+    return tuple(dict.fromkeys(edges))
 
 
-def find_cycles(tasks: list[Task]) -> list[list[str]]:
-    """One cycle (as a closed list of task names, first == last) per cyclic group of tasks."""
-    graph = {t.name: list(follow_ups(t)) for t in tasks}
-    cycles = []
+def find_cycles(tasks: list[Task]) -> list[list[tuple[str, str]]]:
+    """One cycle per cyclic group of tasks: [(task, ""), (next, via), ..., (task, via)]."""
+    edges = {t.name: follow_ups(t) for t in tasks}
+    graph = {name: [n for n, _ in targets] for name, targets in edges.items()}
+    found = []
     for group in _strongly_connected(graph):
         first = group[0]
         if len(group) == 1 and first not in graph.get(first, ()):
             continue
-        cycles.append(_path_back(graph, first, set(group)))
-    return cycles
+        path = _path_back(graph, first, set(group))
+        cycle = [(first, "")]
+        for here, there in zip(path, path[1:]):
+            cycle.append((there, next(via for n, via in edges[here] if n == there)))
+        found.append(cycle)
+    return found
 
 
 def check_on_done_cycles(error: Callable[[Pos, str], None], tasks: list[Task]) -> None:
     by_name = {t.name: t for t in tasks}
     for cycle in find_cycles(tasks):
-        last = by_name[cycle[-2]]
-        chain = " -> ".join(cycle)
-        error(last.at, f"OnDone cycle without end: {chain}; these tasks start each other forever "
-              f"and never finish: remove one OnDone of the chain (to run a transport several times "
-              "use Repeat N)")
+        chain = cycle[0][0] + "".join(f" -> {name}" + (f" ({via})" if via else "") for name, via in cycle[1:])
+        error(by_name[cycle[-2][0]].at, f"OnDone cycle without end: {chain}; these tasks start each "
+              "other forever and never finish: remove one OnDone of the chain (to run a transport "
+              "several times use Repeat N)")
 
 
 def required_tasks(expr: Expr | None) -> frozenset[str]:

@@ -15,6 +15,7 @@ inside ``and``/``or`` in some places while refusing ``(a or b)`` in others):
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Callable
 from dataclasses import replace
 
@@ -93,14 +94,19 @@ class ExprChecker:
                 return None  # the instance itself has errors, reported there
             if ("instance", ref.name) not in self.broken:
                 define = "Constraint" if constraints else "Event"
+                known = [n for n, v in self.instances.items() if isinstance(v, (Constraint,) if constraints
+                                                                               else (Event, Time))]
+                close = difflib.get_close_matches(ref.name, known, 1, 0.8)
+                hint = f" (did you mean '{close[0]}'?)" if close else ""
                 self.error(ref.at, f"unknown name '{ref.name}' in {keyword}: define {define} {ref.name} "
-                           f"(or correct the name); {keyword} names {wanted}")
+                           f"or correct the name{hint}; {keyword} names {wanted}")
             return None
         kind = {Event: RefKind.EVENT, Time: RefKind.TIME, Constraint: RefKind.CONSTRAINT}.get(type(found))
         allowed = (RefKind.CONSTRAINT,) if constraints else (RefKind.EVENT, RefKind.TIME)
         if kind not in allowed:
             template = type(found).__name__
-            self.error(ref.at, f"'{ref.name}' is a {template}; {keyword} names {wanted}")
+            article = "an" if template[0] in "AEIOU" else "a"
+            self.error(ref.at, f"'{ref.name}' is {article} {template}; {keyword} names {wanted}")
             return None
         return replace(ref, kind=kind)
 

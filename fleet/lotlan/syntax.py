@@ -233,6 +233,8 @@ def _syntax_diagnostic(error: lark.exceptions.UnexpectedInput, file: str, lines:
         message += f"; keywords are case-sensitive: write '{fixed[0]}'"
     elif token.type != "_NL" and token.column == 1 and "'End'" in expected:
         message += "; the block before has no End: add End before this line"
+    elif word.startswith('"'):
+        message += "; close the quote on the same line"
     elif word == "not":
         message += "; negation is written '!'"
     elif word in ("&&", "||"):
