@@ -3,14 +3,15 @@
 :meth:`Reconciler.run` takes the stems (``manufacturer--serial``) of the vehicles written since
 the last run. The plant is its files plus every discovered vehicle's file. If that is invalid:
 
-1. violations whose focus node lives in a new vehicle's file name that vehicle;
-2. if the plant is still invalid and new vehicles remain, each is checked alone with the plant
-   (validation only, no agent asked), and those invalid alone are refused;
-3. a refused vehicle's file moves to ``refused/`` with ``.reason.txt`` (the violations), its
+1. the plant without the new vehicles is checked (validation only, no agent asked): if that is
+   invalid too, a person broke it, and nothing is refused or applied (the report says so);
+2. violations whose focus node lives in a new vehicle's file name that vehicle, if the plant
+   without those vehicles is valid;
+3. otherwise each new vehicle is checked alone with the plant, and those invalid alone are refused;
+4. a refused vehicle's file moves to ``refused/`` with ``.reason.txt`` (the violations), its
    record is dropped, a log line names it and the reason; the rest is reconciled.
 
-If the plant is invalid without any new vehicle (a person broke a file), nothing is refused and
-nothing is applied: the report says so. The steps are injected (``apply_step`` by default).
+The steps are injected (``apply_step`` by default).
 """
 
 from __future__ import annotations
@@ -36,8 +37,9 @@ class ReconcileReport:
 
 
 def _reason(violations: Iterable[Violation]) -> str:
-    lines = [f"{v.focus}: {v.message}" if v.focus else v.message for v in violations]
-    return "the plant would be invalid with this vehicle: " + " | ".join(lines[:10])
+    lines = list(dict.fromkeys(f"{v.focus}: {v.message}" if v.focus else v.message for v in violations))
+    more = f" | ... {len(lines) - 10} more" if len(lines) > 10 else ""
+    return "the plant would be invalid with this vehicle: " + " | ".join(lines[:10]) + more
 
 
 class Reconciler:
@@ -67,25 +69,24 @@ class Reconciler:
         return ReconcileReport(result, tuple(refused), stems if result.valid else ())
 
     def _culprits(self, new: set[str], result: StepResult) -> list[tuple[str, str]]:
+        new_paths = {s: self.data.discovered / f"{s}.ttl" for s in new}
+        base = self.check_step(self.files(without=new_paths.values())) if new else result
+        if not base.valid:
+            log.error("the plant is invalid without the new vehicles; nothing refused, nothing applied: %s",
+                      _reason(base.violations))
+            return []
         by_stem: dict[str, list[Violation]] = {}
-        paths = {(self.data.discovered / f"{s}.ttl").resolve(): s for s in new}
+        owner = {p.resolve(): s for s, p in new_paths.items()}
         for v in result.violations:
-            if v.file is not None and Path(v.file).resolve() in paths:
-                by_stem.setdefault(paths[Path(v.file).resolve()], []).append(v)
+            stem = owner.get(Path(v.file).resolve()) if v.file is not None else None
+            if stem is not None:
+                by_stem.setdefault(stem, []).append(v)
         found = {stem: _reason(vs) for stem, vs in by_stem.items()}
-        others = [s for s in sorted(new) if s not in found]
-        if others:
-            left = [(self.data.discovered / f"{s}.ttl") for s in found]
-            if not self.check_step(self.files(without=left)).valid:
-                new_paths = [self.data.discovered / f"{s}.ttl" for s in new]
-                base = self.check_step(self.files(without=new_paths))
-                if not base.valid:
-                    log.error("the plant is invalid without the new vehicles; nothing refused, "
-                              "nothing applied: %s", _reason(base.violations))
-                    return list(found.items())
-                for stem in others:
-                    alone = [p for p in new_paths if p.name != f"{stem}.ttl"]
-                    single = self.check_step(self.files(without=alone))
-                    if not single.valid:
-                        found[stem] = _reason(single.violations)
+        if found and self.check_step(self.files(without=[new_paths[s] for s in found])).valid:
+            return sorted(found.items())
+        found = {}
+        for stem, path in sorted(new_paths.items()):  # each new vehicle alone with the plant
+            single = self.check_step(self.files(without=[p for p in new_paths.values() if p != path]))
+            if not single.valid:
+                found[stem] = _reason(single.violations)
         return sorted(found.items())

@@ -90,6 +90,8 @@ class FleetManager:
         self.joining: dict[VehicleKey, float] = {}
         self.ready: dict[VehicleKey, float] = {}
         self.pending: set[str] = set()
+        self.unconfirmed: set[str] = set()  # written, not yet part of a reconcile that converged
+        self._in_run: set[str] = set()
         self.pending_since = 0.0
         self.force = True  # reconcile once at start
         self.refused_messages: deque[dict[str, str]] = deque(maxlen=50)
@@ -204,6 +206,7 @@ class FleetManager:
         if not self.pending:
             self.pending_since = at
         self.pending.add(record.stem)
+        self.unconfirmed.add(record.stem)
         self._fingerprint = self._dir_fingerprint()
         self._dirty = True
 
@@ -235,6 +238,7 @@ class FleetManager:
         if not (due or self.force):
             return
         batch, self.pending, self.force = set(self.pending), set(), False
+        self._in_run = set(self.unconfirmed)
         self._work = self._pool.submit(self.reconciler.run, batch)
 
     def _collect(self, now: float) -> None:
@@ -254,9 +258,12 @@ class FleetManager:
                 self.records.pop(key, None)
                 self.joining.pop(key, None)
         step = report.step
+        refused = {stem for stem, _ in report.refused}
+        self.unconfirmed -= refused
         if step.ok:
-            for stem in report.joined:
+            for stem in sorted(self._in_run - refused):
                 key = by_stem.get(stem)
+                self.unconfirmed.discard(stem)
                 if key is None:
                     continue
                 started = self.joining.pop(key, None)
@@ -266,8 +273,8 @@ class FleetManager:
                              key.label, self.ready[key])
                 if key.interface is Interface.VDA5050:
                     self.link.instant_action(key.manufacturer, key.serial, "stateRequest")
-        elif step.valid and report.joined:
-            self.pending |= set(report.joined)
+        elif step.valid and self._in_run - refused:  # agents failed: try again soon
+            self.pending |= self._in_run - refused
             self.pending_since = now + self.config.retry_delay
         log.info("reconcile: %s%s", step.summary(),
                  f"; joined {', '.join(report.joined)}" if report.joined else "")
@@ -276,7 +283,8 @@ class FleetManager:
                             "joined": list(report.joined),
                             "refused": [{"vehicle": s, "reason": r} for s, r in report.refused],
                             "problems": list(step.problems)}
-        self._fingerprint = self._dir_fingerprint()
+        if report.refused:  # the reconciler moved their files: not a person's change
+            self._fingerprint = self._dir_fingerprint()
         self._dirty = True
 
     # ------------------------------------------------------------------ data directory
@@ -297,10 +305,13 @@ class FleetManager:
         with self.data.lock():
             records = self.data.records()
             self._fingerprint = self._dir_fingerprint()
+        before = set(self.records)
         self.records = {key_of(r): r for r in records}
         self.registry.load({k: Known(r.description, r.connection_state, r.pinned) for k, r in self.records.items()})
-        for key in [k for k in self.states if k not in self.records and not initial]:
+        for key in before - set(self.records):  # removed by a person: forgotten until it comes back
             self.registry.forget(key)
+            self.ready.pop(key, None)
+            log.info("vehicle %s was removed from the data directory", key.label)
         if initial and records:
             log.info("%d discovered vehicle(s) in %s", len(records), self.data.root)
         self._dirty = True
