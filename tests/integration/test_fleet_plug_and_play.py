@@ -382,3 +382,29 @@ def test_a_flood_of_online_asks_one_factsheet_and_a_vehicle_seen_twice_is_discov
         client.loop_stop()
         watcher.disconnect()
         watcher.loop_stop()
+
+
+# ----------------------------------------------------------------------- the paper's channels
+
+def test_a_paper_vehicle_announcing_itself_on_description_channel_is_discovered_and_applied(rig: Rig) -> None:
+    sim = process.spawn([sys.executable, "-m", "engine.cli", "fleet", "simulate", "--interface", "paper",
+                         "--broker", f"{MQTT_HOST}:{rig.mqtt_port}", "--count", "1", "--manufacturer", "papersim",
+                         "--serial-prefix", "pp-", "--state-interval", "1"],
+                        log_dir=rig.manager.log_path.parent, name="paper-sim", cwd=ROOT)
+    try:
+        row = rig.wait(lambda: (v := rig.vehicle("pp-0001")) and v["readySeconds"] is not None and v, 20.0,
+                       "the paper vehicle applied")
+        assert (row["interface"], row["manufacturer"], row["connectionState"]) == ("paper-channels", "papersim", "ONLINE")
+        assert "move" in row["skills"]
+        running = rig.running()
+        assert "pp-0001/motion_channel" in running["topics.fleet-mqtt"]
+        assert "pp-0001/status_channel" in running["bridge.fleet-mqtt.fleet-context"]
+
+        def entity() -> dict | None:
+            reply = Http(CB_HOST, rig.cb_port).request("GET", "/v2/entities/urn:ngsi-ld:AGV:pp-0001?type=AGV&options=keyValues")
+            body = reply.json() if reply.status == 200 else None
+            return body if body and "battery" in body else None
+        assert isinstance(rig.wait(entity, 20.0, "the paper AGV's entity with its battery")["battery"], (int, float))
+    finally:
+        assert process.stop(sim, grace=15.0) == 0
+    rig.wait(lambda: (rig.vehicle("pp-0001") or {}).get("connectionState") == "OFFLINE", 15.0, "OFFLINE")
