@@ -66,6 +66,10 @@ DIFFERENCES: dict[str, str] = {
                                      "takes the '(' for an operand and refuses it"),
     "ours/isdone-in-condition": ("task.IsDone inside and/or: lotlan-scheduler accepts a task's "
                                  "state only as the whole condition"),
+    "ours/header-whitespace": ("a tab between Task and its name: lotlan-scheduler's lexer wants "
+                               "a space there"),
+    "ours/transport-blank-line": ("a blank or comment line between Transport, From and To: "
+                                  "lotlan-scheduler wants them on consecutive lines"),
     "ours/lenient-values": ('quoted values may hold any character but a quote, e.g. NGSI ids '
                             '"urn:ngsi-ld:Station:loading-1"; lotlan-scheduler allows only letters, '
                             "digits and _ (or digits, *, / and spaces)"),
