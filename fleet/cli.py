@@ -19,8 +19,6 @@ reconciles. Heavy imports happen inside the commands, so ``plantkg --help`` stay
 from __future__ import annotations
 
 import json
-import urllib.error
-import urllib.request
 from pathlib import Path
 from typing import Any
 
@@ -31,10 +29,6 @@ from kg.errors import PlantKGError
 data_dir_option = click.option(
     "--data-dir", type=click.Path(path_type=Path, file_okay=False), envvar="PLANTKG_FLEET_DATA",
     required=True, help="the fleet manager's data directory (or $PLANTKG_FLEET_DATA)")
-
-
-class ManagerUnreachableError(PlantKGError):
-    """No fleet manager answers for this data directory."""
 
 
 @click.group("fleet")
@@ -139,32 +133,6 @@ def remove_command(vehicle: str, data_dir: Path) -> int:
     return 0
 
 
-def manager_call(data_dir: Path, method: str, path: str, body: Any = None, timeout: float = 10.0) -> Any:
-    """Call the running manager's API (address and token from the data directory)."""
-    try:
-        where = json.loads((data_dir / "manager.json").read_text(encoding="utf-8"))
-        token = (data_dir / "manager.token").read_text(encoding="utf-8").strip()
-    except (OSError, ValueError):
-        raise ManagerUnreachableError(f"no fleet manager runs for {data_dir} (no manager.json)",
-                                      hint="start it: plantkg fleet manager PLANT.ttl --data-dir DIR") from None
-    data = json.dumps(body).encode("utf-8") if body is not None else None
-    request = urllib.request.Request(where["url"] + path, data=data, method=method,
-                                     headers={"Authorization": f"Bearer {token}",
-                                              "Content-Type": "application/json"})
-    try:
-        with urllib.request.urlopen(request, timeout=timeout) as reply:
-            return json.loads(reply.read())
-    except urllib.error.HTTPError as exc:
-        try:
-            detail = json.loads(exc.read()).get("description")
-        except ValueError:
-            detail = exc.reason
-        raise PlantKGError(f"the fleet manager refused: {exc.code} {detail}") from None
-    except (urllib.error.URLError, OSError) as exc:
-        raise ManagerUnreachableError(f"the fleet manager at {where['url']} does not answer: {exc}",
-                                      hint="is it running? (plantkg fleet manager ...)") from None
-
-
 @fleet_group.command("order")
 @click.argument("serial")
 @click.argument("nodes", nargs=-1, required=True)
@@ -177,16 +145,12 @@ def order_command(serial: str, nodes: tuple[str, ...], manufacturer: str | None,
                   map_file: str, data_dir: Path) -> int:
     """Send SERIAL a VDA 5050 order through NODEs: STATION or NAME@X,Y, each optionally
     followed by :ACTION[,ACTION] (e.g. park-1 pick-1:pick drop-1:drop)."""
+    from fleet.manager.client import ManagerClient
     from fleet.manager.orders import parse_node
     from fleet.sim import map as site_map
 
     site = site_map.default_map() if map_file == "default" else site_map.load(Path(map_file))
-    specs = [parse_node(n, site).to_json() for n in nodes]
-    body: dict[str, Any] = {"serial": serial, "nodes": specs}
-    if manufacturer:
-        body["manufacturer"] = manufacturer
-    if order_id:
-        body["orderId"] = order_id
-    reply = manager_call(data_dir, "POST", "/v1/orders", body)
+    specs = [parse_node(n, site) for n in nodes]
+    reply = ManagerClient.for_data_dir(data_dir).order(serial, specs, manufacturer=manufacturer, order_id=order_id)
     click.echo(f"order {reply['orderId']} sent to {reply['vehicle']} ({reply['topic']})")
     return 0

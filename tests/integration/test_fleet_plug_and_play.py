@@ -408,3 +408,44 @@ def test_a_paper_vehicle_announcing_itself_on_description_channel_is_discovered_
     finally:
         assert process.stop(sim, grace=15.0) == 0
     rig.wait(lambda: (rig.vehicle("pp-0001") or {}).get("connectionState") == "OFFLINE", 15.0, "OFFLINE")
+
+
+# ----------------------------------------------------------------------- the manager's API
+
+def test_the_api_wants_the_token_and_names_what_is_wrong_in_an_order(rig: Rig) -> None:
+    from fleet.manager.client import ManagerClient, ManagerRefusedError
+
+    client = ManagerClient.for_data_dir(rig.data)
+    assert client.url.startswith("http://127.0.0.1:")
+    with pytest.raises(ManagerRefusedError) as info:
+        ManagerClient(client.url, "not-the-token").vehicles()
+    assert info.value.status == 401
+
+    serial = "api-1"
+    vehicle = mqtt_client(rig.mqtt_port, serial)
+    try:
+        vehicle.publish(d.topic("connection", "evil", serial), d.wire(d.connection("ONLINE", "evil", serial)), qos=1)
+        vehicle.publish(d.topic("factsheet", "evil", serial), d.wire(d.factsheet("evil", serial)), qos=1)
+        rig.wait(lambda: (rig.vehicle(serial) or {}).get("readySeconds") is not None, 15.0, "api-1 applied")
+        cases = [
+            ({"serial": "nobody", "nodes": []}, 404, "no discovered vehicle with serial 'nobody'"),
+            ({"serial": serial, "nodes": [{"nodeId": "n0", "x": "zero", "y": 0, "mapId": "m"}]}, 400,
+             "nodes[0].x: expected a finite number, got 'zero'"),
+            ({"serial": serial, "nodes": "n0"}, 400, "nodes: expected a list"),
+            ({"serial": serial, "nodes": []}, 400, "at least one node"),
+            (["not", "an", "object"], 400, "the body is a JSON object"),
+        ]
+        for body, status, words in cases:
+            with pytest.raises(ManagerRefusedError) as info:
+                client.call("POST", "/v1/orders", body)
+            assert (info.value.status, words in info.value.description) == (status, True), info.value
+        assert client.vehicle(serial)["connectionState"] == "ONLINE"
+        vehicle.publish(d.topic("connection", "evil", serial), d.wire(d.connection("CONNECTIONBROKEN", "evil", serial)),
+                        qos=1).wait_for_publish(5)
+        rig.wait(lambda: client.vehicle(serial)["connectionState"] == "CONNECTIONBROKEN", 10.0, "CONNECTIONBROKEN")
+        with pytest.raises(ManagerRefusedError) as info:
+            client.call("POST", "/v1/orders", {"serial": serial, "nodes": [{"nodeId": "n0", "x": 0, "y": 0, "mapId": "m"}]})
+        assert info.value.status == 409 and "unavailable (CONNECTIONBROKEN)" in info.value.description
+    finally:
+        vehicle.disconnect()
+        vehicle.loop_stop()
