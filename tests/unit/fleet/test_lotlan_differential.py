@@ -59,6 +59,11 @@ DIFFERENCES: dict[str, str] = {
     "ours/bad-characters": ("we refuse a character that is no part of the language; "
                             "lotlan-scheduler's lexer drops it silently (its lexer errors are "
                             "switched off) and accepts the file"),
+    "ours/end-followed-by-text": ("we refuse text after End; lotlan-scheduler's lexer drops it "
+                                  "silently"),
+    "ours/primitive-template-redefined": (
+        "we refuse a Template Event without the primitive's attributes; lotlan-scheduler ignores "
+        "the templates a program declares and always uses its built-in four"),
     # more lenient: we accept, lotlan-scheduler refuses (its bugs, or for the fleet's data)
     "ours/parameters": ("three Parameters: lotlan-scheduler counts the values of From wrongly when "
                         "there are more than two (it nests them) and refuses a correct program"),
