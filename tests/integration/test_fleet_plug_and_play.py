@@ -23,6 +23,7 @@ import asyncio
 import json
 import os
 import re
+import signal
 import sys
 import threading
 import time
@@ -84,6 +85,15 @@ class Rig:
     def wait(self, predicate: Any, deadline: float = 20.0, what: str = "the fleet manager") -> Any:
         return process.wait_until(predicate, deadline, 0.02, what=what, child=self.manager)
 
+    def wait_started(self) -> None:
+        began = time.time()
+
+        def started() -> bool:
+            status = self.status()
+            return bool(status.get("manager", {}).get("pid") == self.manager.pid
+                        and status["manager"].get("connected") and (status.get("lastReconcile") or {}).get("ok"))
+        self.wait(started, 60.0, "the manager connected and reconciled")
+
     def running(self) -> dict[str, Any]:
         """What the agents run: brokers, topics per broker, the mqtt-ngsi bridge's routes."""
         out: dict[str, Any] = {}
@@ -96,6 +106,11 @@ class Rig:
                 out[f"bridge.{bridge.spec.local.id}.{bridge.spec.remote.id}"] = sorted(
                     r.topic for r in bridge.spec.routes)
         return out
+
+
+def spawn_manager(plant: Path, data: Path, agents_file: Path, logs: Path, name: str) -> process.Child:
+    return process.spawn([sys.executable, "-m", "fleet.manager", plant, "--data-dir", data,
+                          "--agents", agents_file, "--resync", "5"], log_dir=logs, name=name, cwd=ROOT)
 
 
 def mqtt_client(port: int, name: str) -> mqtt.Client:
@@ -114,14 +129,13 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
     manager = None
     try:
         assert main(["apply", str(plant), "--agents", str(agents.agents_file), "--yes"]) == 0
-        manager = process.spawn([sys.executable, "-m", "fleet.manager", plant, "--data-dir", data,
-                                 "--agents", agents.agents_file, "--resync", "5"],
-                                log_dir=tmp / "logs", name="fleet-manager", cwd=ROOT)
+        manager = spawn_manager(plant, data, agents.agents_file, tmp / "logs", "fleet-manager")
         r = Rig(plant, data, agents, manager, ports["fleet-mqtt"], ports["fleet-context"])
-        r.wait(lambda: r.status().get("manager", {}).get("connected")
-               and (r.status().get("lastReconcile") or {}).get("ok"), 60.0, "the manager connected and reconciled")
+        r.wait_started()
         yield r
-        assert process.stop(manager, grace=15.0) == 0, manager.log_tail()
+        manager = r.manager
+        if manager.running():  # (the kill -9 test stops the manager it started itself)
+            assert process.stop(manager, grace=15.0) == 0, manager.log_tail()
         assert main(["destroy", *r.files(), "--agents", str(agents.agents_file), "--yes"]) == 0
     finally:
         if manager is not None and manager.running():
@@ -342,7 +356,8 @@ def test_a_hostile_factsheet_is_refused_with_its_reason_and_nothing_running_chan
             why = rig.data / "refused" / f"evil--{serial}.reason.txt"
             rig.wait(why.exists, 15.0, f"the refusal of {case}")
             assert reason in why.read_text()
-            assert re.search(rf"refused vehicle evil(/|--){re.escape(serial)}: ", rig.log())
+            rig.wait(lambda: re.search(rf"refused vehicle evil(/|--){re.escape(serial)}: ", rig.log()), 5.0,
+                     "the log line")
             rig.wait(lambda: any(r["vehicle"] == f"evil--{serial}" for r in rig.status().get("refused", [])), 10.0,
                      "the refusal in status.json")
         assert rig.vehicle(serial) is None
@@ -449,3 +464,28 @@ def test_the_api_wants_the_token_and_names_what_is_wrong_in_an_order(rig: Rig) -
     finally:
         vehicle.disconnect()
         vehicle.loop_stop()
+
+
+
+# ----------------------------------------------------------------------- kill -9 and restart
+
+def test_after_kill_9_a_new_manager_knows_every_vehicle_and_discovers_none_again(
+        rig: Rig, capsys: pytest.CaptureFixture[str]) -> None:
+    files_before = [p.name for p in rig.discovered()]
+    vehicles_before = sorted(v["vehicle"] for v in rig.status()["vehicles"])
+    assert len(vehicles_before) >= 10
+    os.killpg(rig.manager.pid, signal.SIGKILL)
+    rig.manager.popen.wait(timeout=10)
+    rig.manager = spawn_manager(rig.plant, rig.data, rig.agents.agents_file, rig.manager.log_path.parent,
+                                "fleet-manager-2")
+    rig.wait_started()
+    assert [p.name for p in rig.discovered()] == files_before
+    assert sorted(v["vehicle"] for v in rig.status()["vehicles"]) == vehicles_before
+    try:
+        assert " INFO discovered vehicle " not in rig.log() and " INFO updated vehicle " not in rig.log()
+        assert f"{len(vehicles_before)} discovered vehicle(s)" in rig.log()
+        capsys.readouterr()
+        assert main(["plan", *rig.files(), *rig.agents_args]) == 0
+        assert NO_CHANGES in capsys.readouterr().out
+    finally:  # a test leaves no process it started behind
+        assert process.stop(rig.manager, grace=15.0) == 0, rig.manager.log_tail()
