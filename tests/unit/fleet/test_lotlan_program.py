@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import random
 from pathlib import Path
 
 import pytest
@@ -162,3 +163,25 @@ def test_a_long_on_done_cycle_is_reported_once_with_its_chain() -> None:
     diagnostics = lotlan.check_text(text)
     assert len(diagnostics) == 1
     assert "t0 -> t1 -> t2 -> t3 -> t0" in diagnostics[0].message
+
+
+def test_mangled_programs_give_diagnostics_never_exceptions() -> None:
+    """Seeded mutations of every case file: bad input is reported, never raised."""
+    rng = random.Random(20261124)
+    files = sorted(CASES.glob("*/*.tl"))
+    pieces = list("aZ09_ \t\n#\"=.,()!<>-$") + ["End", "Task ", "From ", "\n    ", "OnDone x", "Repeat"]
+    refused = 0
+    for _ in range(600):
+        text = rng.choice(files).read_text(encoding="utf-8")
+        for _ in range(rng.randint(1, 3)):
+            at = rng.randint(0, len(text))
+            if rng.random() < 0.5:
+                text = text[:at] + rng.choice(pieces) + text[at:]
+            else:
+                text = text[:at] + text[at + rng.randint(1, 20):]
+        program, diagnostics = lotlan.analyse(text, "mangled.tl")
+        assert (program is None) == bool(diagnostics)
+        lines = text.count("\n") + 1
+        assert all(1 <= d.line <= lines and d.column >= 1 for d in diagnostics), diagnostics
+        refused += program is None
+    assert refused > 300  # the mutations do break programs
