@@ -165,6 +165,9 @@ class Call:
     #: token (the context broker's write token), looked up only when the call is made, so no
     #: token is ever part of a plan, an operation or an event.
     remote_token_of: str | None = None
+    #: the plant that owns what the call makes or deletes (DesiredState.owner): the agent records
+    #: it and refuses another plant's things. None: no owner is sent (a plant without one).
+    owner: str | None = None
 
 
 @dataclass(frozen=True)
@@ -196,11 +199,12 @@ def operations(plan: Plan, desired: DesiredState) -> list[Operation]:
     for change in plan.pending:
         kind = change.address.split(".", 1)[0]
         if kind == "broker":
-            out.append(Operation(change, _broker_calls(change, desired)))
+            calls = _broker_calls(change, desired)
         elif kind == "topic":
-            out.append(Operation(change, _topic_calls(change, desired, host_of)))
+            calls = _topic_calls(change, desired, host_of)
         else:
-            out.append(Operation(change, _bridge_calls(change, desired)))
+            calls = _bridge_calls(change, desired)
+        out.append(Operation(change, tuple(replace(c, owner=desired.owner) for c in calls)))
     return out
 
 
@@ -339,11 +343,10 @@ class _Runner:
             tally[0] += 1
             try:
                 client = self.directory.client_for(call.host)
+                extra: dict[str, Any] = {} if call.owner is None else {"owner": call.owner}
                 if call.remote_token_of is not None:
-                    getattr(client, call.verb)(*call.args, remote_token=_token_of(self.directory,
-                                                                                  call.remote_token_of))
-                else:
-                    getattr(client, call.verb)(*call.args)
+                    extra["remote_token"] = _token_of(self.directory, call.remote_token_of)
+                getattr(client, call.verb)(*call.args, **extra)
                 return
             except TemporaryDispatchError as exc:
                 with self.rng_lock:
@@ -382,13 +385,15 @@ def apply(
     clock: Clock = time.monotonic,
     sleep: Callable[[float], None] = time.sleep,
     rng: random.Random | None = None,
+    prune: bool = False,
 ) -> ApplyResult:
     """Dispatch ``plan`` (made from ``desired``) to the agents, then check it converged.
 
     ``destroy``: the plan came from :func:`engine.plan.destroy_plan`; the check re-plans that way.
     ``on_event`` is called for every start, finish, retry, failure and skip (one call at a time).
     ``hosts``: the agents to ask again afterwards (default: every host the plan or plant names,
-    and the agents file's).
+    and the agents file's). ``prune``: the plan was made with ``prune`` (the check re-plans so).
+    Every call names ``desired.owner``, so an agent refuses to touch another plant's things.
     """
     if not plan.applicable:
         raise PlanNotApplicableError(plan)
@@ -417,7 +422,7 @@ def apply(
     except PlantKGError as exc:  # the changes are made; say what is known, and why no check
         problem = Unexpected("check", f"could not ask the agents again: {exc}")
         return ApplyResult(plan, tuple(outcomes), None, (problem,), clock() - began)
-    after = destroy_plan(desired, observed) if destroy else make_plan(desired, observed)
+    after = destroy_plan(desired, observed) if destroy else make_plan(desired, observed, prune=prune)
     return ApplyResult(plan, tuple(outcomes), after, tuple(unexpected(plan, outcomes, after)),
                        clock() - began)
 

@@ -35,7 +35,7 @@ from engine.model import (
 from kg import resources
 from kg.validate import ValidationReport, ValidationResult
 
-FORMAT = 1
+FORMAT = 2  # 2: the desired state holds its owner
 
 
 def default_dir() -> Path:
@@ -98,6 +98,7 @@ def desired_from_dict(data: dict) -> DesiredState:
         brokers=tuple(BrokerSpec(**b) for b in data["brokers"]),
         topics=tuple(TopicSpec(**t) for t in data["topics"]),
         bridges=tuple(bridge_from_dict(b) for b in data["bridges"]),
+        owner=data.get("owner"),
     )
 
 

@@ -4,6 +4,9 @@ load → validate → reason → derive → observe → (observed graph) → pla
 function of its module; this one only strings them together, times them, and stops early:
 an invalid plant stops after ``validate`` (``Pipeline.valid`` is False, nothing else is run and
 no agent is asked), ``observe=False`` stops after ``derive`` (no network).
+
+The desired state carries the plant's owner (engine.owner: its ``pk:plantName``, else its ontology
+IRI, unless the caller names one), so the plan touches only what the plant owns.
 """
 
 from __future__ import annotations
@@ -11,7 +14,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +24,7 @@ from engine.desired_cache import DesiredCache
 from engine.model import DesiredState, ObservedState, Plan
 from engine.observed import observe as observe_agents
 from engine.observed import write_observed
+from engine.owner import check_owner_name, plant_owner
 from engine.plan import destroy_plan, plan as make_plan
 from engine.reason import reason
 from kg.load import PlantGraph, load_plant
@@ -66,11 +70,15 @@ def run_pipeline(
     reason_engine: str = "auto",
     validate_engine: str = "auto",
     cache: DesiredCache | None = None,
+    owner: str | None = None,
+    prune: bool = False,
 ) -> Pipeline:
     """Run the stages on plant ``files``; ``destroy`` plans the removal of what the plant runs.
 
     With ``cache``, a valid plant whose files did not change since it was last derived skips
     load/validate/reason/derive (``Pipeline.plant`` is then None and no observed graph is written).
+    ``owner``: the plant's owner (default: the plant's own, engine.owner); ``prune``: the plan
+    also deletes what nobody owns.
     """
     files = list(files)
     timings: dict[str, float] = {}
@@ -90,10 +98,13 @@ def run_pipeline(
         result = Pipeline(plant, report, timings=timings)
         if not report.conforms:
             return result
-        desired = derive_desired(plant, result, reason_engine)
+        desired = replace(derive_desired(plant, result, reason_engine), owner=plant_owner(plant))
         result.desired = desired
         if cache is not None and key is not None:
             cache.put(key, desired, report)
+    if owner is not None:
+        desired = replace(desired, owner=check_owner_name(owner))
+        result.desired = desired
     if not observe or directory is None:
         return result
     with _timed(timings, "observe"):
@@ -101,7 +112,8 @@ def run_pipeline(
         if result.plant is not None:
             write_observed(result.plant, result.observed)
     with _timed(timings, "plan"):
-        result.plan = (destroy_plan if destroy else make_plan)(desired, result.observed)
+        result.plan = (destroy_plan(desired, result.observed) if destroy
+                       else make_plan(desired, result.observed, prune=prune))
     return result
 
 

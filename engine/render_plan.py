@@ -71,6 +71,12 @@ def render_plan(plan: Plan, *, color: bool = False) -> str:
         for refusal in plan.refusals:
             lines.append(f"  ! {refusal.address}: {refusal.reason}")
         lines.append("")
+    if plan.foreign:
+        lines.append(paint("Foreign (other plants' or nobody's; left alone):", Action.NOOP, True))
+        for item in plan.foreign:
+            whose = f"owned by {item.owner}" if item.owner else "owned by nobody (--prune deletes it)"
+            lines.append(f"  = {item.address}: {whose}")
+        lines.append("")
     if plan.unreachable:
         lines.append(paint("Agents that did not answer (what runs there is unknown):",
                            Action.DELETE, True))
@@ -144,6 +150,7 @@ def plan_dict(plan: Plan) -> dict[str, Any]:
         "changes": [to_dict(c) for c in plan.changes],
         "refusals": [to_dict(r) for r in plan.refusals],
         "unreachable": list(plan.unreachable),
+        "foreign": [to_dict(f) for f in plan.foreign],
     }
 
 

@@ -17,6 +17,7 @@ from engine.cli.common import run_guarded
 from engine.cli.demo import demo_command
 from engine.cli.apply import apply_command
 from engine.cli.destroy import destroy_command
+from engine.cli.import_ import import_command
 from engine.cli.plan import plan_command
 from engine.cli.query import query_command
 from engine.cli.serve import serve_command
@@ -38,6 +39,7 @@ cli.add_command(query_command)
 cli.add_command(plan_command)
 cli.add_command(apply_command)
 cli.add_command(destroy_command)
+cli.add_command(import_command)
 cli.add_command(status_command)
 cli.add_command(agent_command)
 cli.add_command(demo_command)

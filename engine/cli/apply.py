@@ -16,7 +16,7 @@ from pathlib import Path
 import click
 
 from engine.cli.common import file_argument
-from engine.cli.reconcile import agents_option, make_changes, yes_option
+from engine.cli.reconcile import agents_option, make_changes, owner_option, prune_option, yes_option
 
 
 @click.command("apply")
@@ -25,11 +25,15 @@ from engine.cli.reconcile import agents_option, make_changes, yes_option
 @agents_option
 @click.option("--parallelism", type=click.IntRange(1, 64), default=8, show_default=True,
               help="how many brokers are changed at once")
-def apply_command(files: tuple[str, ...], yes: bool, agents_file: Path | None, parallelism: int) -> int:
+@owner_option
+@prune_option
+def apply_command(files: tuple[str, ...], yes: bool, agents_file: Path | None, parallelism: int,
+                  owner: str | None, prune: bool) -> int:
     """Make the brokers run as the plant in FILE(s) describes.
 
     \b
     Example:
       plantkg apply ontology/examples/robot-cell.ttl --agents agents.toml
     """
-    return make_changes(files, agents_file, yes=yes, parallelism=parallelism, destroy=False)
+    return make_changes(files, agents_file, yes=yes, parallelism=parallelism, destroy=False,
+                        owner=owner, prune=prune)

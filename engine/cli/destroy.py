@@ -1,6 +1,7 @@
 """``plantkg destroy FILE...``: stop and remove the brokers (and their topics) the plant deployed.
 
-Only brokers the plant names are touched; other brokers on the same agents stay. Same
+Only what the plant owns is touched (a plant without an owner: the unowned brokers it names);
+other plants' brokers, and brokers nobody owns, stay. Same
 confirmation rules and exit codes as ``plantkg apply``.
 """
 
@@ -11,7 +12,7 @@ from pathlib import Path
 import click
 
 from engine.cli.common import file_argument
-from engine.cli.reconcile import agents_option, make_changes, yes_option
+from engine.cli.reconcile import agents_option, make_changes, owner_option, yes_option
 
 
 @click.command("destroy")
@@ -20,11 +21,14 @@ from engine.cli.reconcile import agents_option, make_changes, yes_option
 @agents_option
 @click.option("--parallelism", type=click.IntRange(1, 64), default=8, show_default=True,
               help="how many brokers are removed at once")
-def destroy_command(files: tuple[str, ...], yes: bool, agents_file: Path | None, parallelism: int) -> int:
+@owner_option
+def destroy_command(files: tuple[str, ...], yes: bool, agents_file: Path | None, parallelism: int,
+                    owner: str | None) -> int:
     """Stop and remove every broker of the plant in FILE(s), with its topics.
 
     \b
     Example:
       plantkg destroy ontology/examples/robot-cell.ttl --agents agents.toml --yes
     """
-    return make_changes(files, agents_file, yes=yes, parallelism=parallelism, destroy=True)
+    return make_changes(files, agents_file, yes=yes, parallelism=parallelism, destroy=True,
+                        owner=owner)

@@ -12,7 +12,7 @@ from pathlib import Path
 import click
 
 from engine.cli.common import file_argument
-from engine.cli.reconcile import agents_option, prepare, print_violations
+from engine.cli.reconcile import agents_option, owner_option, prepare, print_violations, prune_option
 from engine.render_plan import plan_json, render_plan
 from kg.errors import EXIT_UNUSABLE, EXIT_VIOLATIONS
 
@@ -26,18 +26,22 @@ EXIT_CHANGES = 1
 @agents_option
 @click.option("--detailed-exitcode", is_flag=True,
               help="exit 1 when changes are pending, 0 when none (as terraform plan)")
+@owner_option
+@prune_option
 def plan_command(files: tuple[str, ...], fmt: str, agents_file: Path | None,
-                 detailed_exitcode: bool) -> int:
+                 detailed_exitcode: bool, owner: str | None, prune: bool) -> int:
     """Compare the plant in FILE(s) with what the agents run and show the changes apply would make.
 
     The plant is validated, reasoned over and derived; every agent of the plant's hosts is asked
-    what it runs. Nothing is started, stopped or changed.
+    what it runs. Nothing is started, stopped or changed. Only what the plant owns is planned;
+    other plants' things, and things nobody owns, are listed as foreign (--prune: deleted if
+    nobody owns them).
 
     \b
     Example:
       plantkg plan ontology/examples/robot-cell.ttl --agents agents.toml
     """
-    result, _ = prepare(files, agents_file)
+    result, _ = prepare(files, agents_file, owner=owner, prune=prune)
     if not result.valid:
         print_violations(result, fmt)
         return EXIT_UNUSABLE if detailed_exitcode else EXIT_VIOLATIONS

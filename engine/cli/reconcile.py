@@ -24,6 +24,14 @@ agents_option = click.option(
     help="agents file (TOML); default $PLANTKG_AGENTS or ~/.config/plantkg/agents.toml",
 )
 yes_option = click.option("--yes", "-y", is_flag=True, help="do not ask for confirmation")
+owner_option = click.option(
+    "--owner", default=None, metavar="NAME",
+    help="the plant's owner name (default: its pk:plantName, else its owl:Ontology IRI); only "
+         "what this owner owns is changed")
+prune_option = click.option(
+    "--prune", is_flag=True,
+    help="also delete what nobody owns (made before ownership, or by hand); other plants' "
+         "things are never deleted")
 
 
 class ConfirmationRequiredError(EngineError):
@@ -43,11 +51,13 @@ def _warn(warnings: list[str]) -> None:
 
 
 def prepare(files: tuple[str, ...], agents_file: Path | None, *, destroy: bool = False,
-            observe: bool = True) -> tuple[Pipeline, AgentDirectory | None]:
+            observe: bool = True, owner: str | None = None,
+            prune: bool = False) -> tuple[Pipeline, AgentDirectory | None]:
     """Run the pipeline; the directory is None when ``observe`` is False."""
     directory = load_directory(agents_file) if observe else None
     seen = len(directory.warnings) if directory else 0
-    result = run_pipeline(files, directory, destroy=destroy, observe=observe, cache=DesiredCache())
+    result = run_pipeline(files, directory, destroy=destroy, observe=observe, cache=DesiredCache(),
+                          owner=owner, prune=prune)
     if directory is not None:
         _warn(directory.warnings[seen:])  # token files read while observing
     return result, directory
@@ -82,13 +92,13 @@ EXIT_NOT_CONVERGED = 3  # some changes failed or did not take effect: run again 
 
 
 def make_changes(files: tuple[str, ...], agents_file: Path | None, *, yes: bool, parallelism: int,
-                 destroy: bool) -> int:
+                 destroy: bool, owner: str | None = None, prune: bool = False) -> int:
     """What ``apply`` and ``destroy`` share: validate, plan, show, confirm, dispatch, report.
 
     Exit codes: 0 converged, 1 violations (nothing dispatched), 3 some changes failed or did not
     take effect; a plan that cannot be applied raises PlanNotApplicableError (exit 2).
     """
-    result, directory = prepare(files, agents_file, destroy=destroy)
+    result, directory = prepare(files, agents_file, destroy=destroy, owner=owner, prune=prune)
     if not result.valid:
         print_violations(result)
         return EXIT_VIOLATIONS
@@ -110,7 +120,7 @@ def make_changes(files: tuple[str, ...], agents_file: Path | None, *, yes: bool,
     click.echo("")
     with Progress() as progress:
         outcome = apply(plan, desired, directory, parallelism=parallelism, on_event=progress,
-                        destroy=destroy)
+                        destroy=destroy, prune=prune)
     click.echo("")
     for line in result_lines(outcome, verb="Destroy" if destroy else "Apply"):
         click.echo(line)

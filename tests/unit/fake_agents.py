@@ -4,7 +4,8 @@ It keeps brokers per host in memory and enforces what the real agents and broker
 orchestration mistake fails loudly: a topic call before its broker exists, a call sent to the
 agent of the wrong host, two brokers on one address, fewer Kafka partitions. Every call is logged
 (``calls``) so tests can check order; failures can be scripted per call (``fail``); a host can be
-``down`` (connection refused). Integration tests never use this: they run the real agent.
+``down`` (connection refused). Like the agent, it records the ``owner`` a call names and refuses
+(409) another owner's things. Integration tests never use this: they run the real agent.
 """
 
 from __future__ import annotations
@@ -72,7 +73,15 @@ class FakeFleet:
         """Run the plan's agent calls one after another (no retries, no threads)."""
         for op in operations(plan, desired):
             for call in op.calls:
-                getattr(self.client(f"http://{call.host}:7300", "test-token"), call.verb)(*call.args)
+                extra = {} if call.owner is None else {"owner": call.owner}
+                getattr(self.client(f"http://{call.host}:7300", "test-token"), call.verb)(*call.args, **extra)
+
+
+def _claim(current: str | None, given: str | None, what: str) -> str | None:
+    """As engine.agent.owners.claim: another owner's thing is refused."""
+    if given is not None and current is not None and current != given:
+        raise PermanentDispatchError(f"409: {what} is owned by plant {current!r}")
+    return given if given is not None else current
 
 
 @dataclass
@@ -118,13 +127,14 @@ class FakeClient:
             b = self.fleet.brokers.get(broker_id)
             return b if b is not None and b.spec.host == self.host else None
 
-    def put_broker(self, spec: BrokerSpec) -> ObservedBroker:
+    def put_broker(self, spec: BrokerSpec, owner: str | None = None) -> ObservedBroker:
         self._enter("put_broker", spec.id)
         fleet = self.fleet
         with fleet.lock:
             if spec.host != self.host:
                 raise PermanentDispatchError(f"400: broker {spec.id} is for {spec.host}, sent to {self.host}")
             old = fleet.brokers.get(spec.id)
+            owner = _claim(old.owner if old is not None else None, owner, spec.address)
             if old is not None and old.spec.host != self.host:
                 raise PermanentDispatchError(f"409: {spec.id} still runs on {old.spec.host}")
             for other in fleet.brokers.values():
@@ -139,15 +149,17 @@ class FakeClient:
                 fleet.next_pid += 1
             new = ObservedBroker(spec=spec, status=BrokerStatus.RUNNING, topics=topics,
                                  pid=fleet.next_pid if restart else old.pid,  # type: ignore[union-attr]
-                                 started_at=1.0, restarts=0 if old is None else old.restarts)
+                                 started_at=1.0, restarts=0 if old is None else old.restarts,
+                                 owner=owner)
             fleet.brokers[spec.id] = new
             return new
 
-    def delete_broker(self, broker_id: str) -> None:
+    def delete_broker(self, broker_id: str, owner: str | None = None) -> None:
         self._enter("delete_broker", broker_id)
         with self.fleet.lock:
             broker = self.fleet.brokers.get(broker_id)
             if broker is not None and broker.spec.host == self.host:
+                _claim(broker.owner, owner, broker.spec.address)
                 del self.fleet.brokers[broker_id]
                 self._drop_bridges_of(broker_id)
 
@@ -160,25 +172,29 @@ class FakeClient:
         with self.fleet.lock:
             return [b for b in self.fleet.bridges.values() if b.spec.local.host == self.host]
 
-    def put_bridge(self, spec: BridgeSpec) -> ObservedBridge:
+    def put_bridge(self, spec: BridgeSpec, owner: str | None = None) -> ObservedBridge:
         """As the agent: the local broker must run here; the remote may be anywhere, or down."""
         self._enter("put_bridge", spec.address)
         with self.fleet.lock:
             local = self._mine(spec.local.id)
+            old = self.fleet.bridges.get(spec.address)
+            owner = _claim(old.owner if old is not None else None, owner, spec.address)
             if (local.spec.host, local.spec.port) != (spec.local.host, spec.local.port):
                 raise PermanentDispatchError(f"409: {spec.address}: local end is not the broker here")
-            new = ObservedBridge(spec=spec, status=BridgeStatus.RUNNING, forwarded=0, retried=0)
+            new = ObservedBridge(spec=spec, status=BridgeStatus.RUNNING, forwarded=0, retried=0,
+                                 owner=owner)
             self.fleet.bridges[spec.address] = new
             return new
 
-    def delete_bridge(self, local_id: str, remote_id: str) -> None:
+    def delete_bridge(self, local_id: str, remote_id: str, owner: str | None = None) -> None:
         self._enter("delete_bridge", f"bridge.{local_id}.{remote_id}")
         with self.fleet.lock:
             bridge = self.fleet.bridges.get(f"bridge.{local_id}.{remote_id}")
             if bridge is not None and bridge.spec.local.host == self.host:
+                _claim(bridge.owner, owner, bridge.spec.address)
                 del self.fleet.bridges[bridge.spec.address]
 
-    def put_topic(self, spec: TopicSpec) -> ObservedTopic:
+    def put_topic(self, spec: TopicSpec, owner: str | None = None) -> ObservedTopic:
         self._enter("put_topic", f"{spec.broker_id}/{spec.name}")
         with self.fleet.lock:
             broker = self._mine(spec.broker_id)
@@ -187,20 +203,23 @@ class FakeClient:
             if foreign:  # as the drivers' check_topic_fields
                 raise PermanentDispatchError(f"400: {foreign[0]} does not apply to a {broker.spec.kind} broker")
             old = next((t for t in broker.topics if t.name == spec.name), None)
+            owner = _claim(old.owner if old is not None else None, owner, spec.address)
             values = {k: getattr(spec, k) for k in settings}
             if old is not None:
                 if old.partitions and values.get("partitions") and values["partitions"] < old.partitions:
                     raise PermanentDispatchError("422: Kafka cannot remove partitions")
                 values = {k: (v if v is not None else getattr(old, k)) for k, v in values.items()}
-            topic = ObservedTopic(name=spec.name, **values)
+            topic = ObservedTopic(name=spec.name, **values, owner=owner)
             others = tuple(t for t in broker.topics if t.name != spec.name)
             self.fleet.brokers[spec.broker_id] = replace(
                 broker, topics=tuple(sorted(others + (topic,), key=lambda t: t.name)))
             return topic
 
-    def delete_topic(self, broker_id: str, name: str) -> None:
+    def delete_topic(self, broker_id: str, name: str, owner: str | None = None) -> None:
         self._enter("delete_topic", f"{broker_id}/{name}")
         with self.fleet.lock:
             broker = self._mine(broker_id)
+            old = next((t for t in broker.topics if t.name == name), None)
+            _claim(old.owner if old is not None else None, owner, f"topic.{broker_id}.{name}")
             self.fleet.brokers[broker_id] = replace(
                 broker, topics=tuple(t for t in broker.topics if t.name != name))
