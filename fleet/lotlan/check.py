@@ -127,7 +127,7 @@ class _Checker:
                                "a Location, Event, Time or Constraint")
                 else:
                     self.error(instance.template.at, f"{label}: unknown template '{template}': "
-                               "use Location, Event, Time or Constraint")
+                               f"use Location, Event, Time or Constraint{_suggest(template, PRIMITIVES)}")
                 continue
             expected = PRIMITIVES[template]
             for member in instance.members:

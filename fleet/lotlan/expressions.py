@@ -98,6 +98,8 @@ class ExprChecker:
                                                                                else (Event, Time))]
                 close = difflib.get_close_matches(ref.name, known, 1, 0.8)
                 hint = f" (did you mean '{close[0]}'?)" if close else ""
+                if ref.name in self.tasks and not constraints:
+                    hint = f" (to wait for task {ref.name}, write {ref.name}.IsDone)"
                 self.error(ref.at, f"unknown name '{ref.name}' in {keyword}: define {define} {ref.name} "
                            f"or correct the name{hint}; {keyword} names {wanted}")
             return None
