@@ -37,7 +37,8 @@ RDF = "http://www.w3.org/1999/02/22-rdf-syntax-ns#"
 RDFS = "http://www.w3.org/2000/01/rdf-schema#"
 OWL = "http://www.w3.org/2002/07/owl#"
 #: Prefixes an expected focus, path or value may use (a path without one is a pk: local name).
-PREFIXES = {"ex:": EX, "pk:": PK, "rdf:": RDF, "rdfs:": RDFS, "owl:": OWL}
+FLEET = "https://w3id.org/plantkg/fleet#"
+PREFIXES = {"ex:": EX, "pk:": PK, "rdf:": RDF, "rdfs:": RDFS, "owl:": OWL, "fleet:": FLEET}
 
 HEADER = """\
 @prefix pk:  <https://w3id.org/plantkg/ontology#> .
@@ -196,6 +197,83 @@ CB = """ex:cb1 a pk:Broker ;
     pk:ip "127.0.0.7" ;
     pk:port 1026 ;
     pk:hasTopic ex:command ."""
+
+
+#: Two AGVs (ontology/plantkg-fleet.ttl) on ex:mqtt1, valid for every shape: a VDA 5050 vehicle with
+#: its state and order topics, a paper-channel vehicle with its status and motion channels. Fleet
+#: cases add it (with edits) through ``add``; :func:`fleet` applies the edits.
+FLEET_AGVS = """@prefix fleet: <https://w3id.org/plantkg/fleet#> .
+ex:agv1 a pk:Resource ;
+    pk:id "agv-SN1" ;
+    pk:name "AGV SN1" ;
+    pk:isType fleet:agv ;
+    fleet:interface "vda5050" ;
+    fleet:manufacturer "acme" ;
+    fleet:serialNumber "SN1" ;
+    pk:sendsTo ex:mqtt1 ;
+    pk:publishes ex:agv1-state ;
+    pk:subscribes ex:agv1-order .
+
+ex:agv1-state a pk:Topic ;
+    pk:id "agv-SN1-state" ;
+    pk:name "uagv/v2/acme/SN1/state" ;
+    fleet:channel "state" ;
+    pk:qos 0 ;
+    pk:retain false ;
+    pk:entityId "urn:ngsi-ld:AGV:SN1" ;
+    pk:entityType "AGV" .
+
+ex:agv1-order a pk:Topic ;
+    pk:id "agv-SN1-order" ;
+    pk:name "uagv/v2/acme/SN1/order" ;
+    fleet:channel "order" ;
+    pk:qos 0 ;
+    pk:retain false .
+
+ex:cart a pk:Resource ;
+    pk:id "agv-cart" ;
+    pk:name "Cart" ;
+    pk:isType fleet:agv ;
+    fleet:interface "paper-channels" ;
+    fleet:manufacturer "acme" ;
+    fleet:serialNumber "cart" ;
+    fleet:discovered true ;
+    fleet:connectionState "ONLINE" ;
+    fleet:pinned false ;
+    pk:sendsTo ex:mqtt1 ;
+    pk:publishes ex:cart-status ;
+    pk:subscribes ex:cart-motion .
+
+ex:cart-status a pk:Topic ;
+    pk:id "agv-cart-status_channel" ;
+    pk:name "cart/status_channel" ;
+    fleet:channel "status_channel" ;
+    pk:qos 1 ;
+    pk:retain true ;
+    pk:entityId "urn:ngsi-ld:AGV:cart" ;
+    pk:entityType "AGV" .
+
+ex:cart-motion a pk:Topic ;
+    pk:id "agv-cart-motion_channel" ;
+    pk:name "cart/motion_channel" ;
+    fleet:channel "motion_channel" ;
+    pk:qos 1 ;
+    pk:retain false .
+
+ex:mqtt1 pk:hasTopic ex:agv1-state , ex:agv1-order , ex:cart-status , ex:cart-motion ."""
+
+
+def fleet(*edits: tuple[str, str], extra: str = "") -> str:
+    """FLEET_AGVS with ``edits`` (old, new; old occurs once) and ``extra`` Turtle after it."""
+    text = FLEET_AGVS
+    for old, new in edits:
+        assert text.count(old) == 1, f"{old!r} occurs {text.count(old)} times in FLEET_AGVS"
+        text = text.replace(old, new)
+    return text + ("\n" + extra if extra else "")
+
+
+#: Every fleet property of a resource, for the cases that put them on a non-AGV resource.
+_FLEET_PROPS = ("interface", "manufacturer", "serialNumber", "discovered", "connectionState", "pinned")
 
 
 @dataclass
@@ -964,6 +1042,93 @@ ex:kafka1 pk:bridgesTo ex:kafka2 .""",
     Case("domain-allowAnonymous-on-topic", "pk:allowAnonymous (domain Broker) on a topic",
          edits=[("pk:retain true .", "pk:retain true ;\n    pk:allowAnonymous true .")],
          expected=[R("ex:command", "allowAnonymous", "true", "Broker-domain", "SPARQL")]),
+    # --- the fleet (shapes/plantkg-fleet.ttl): AGVs and their channel topics ---
+    Case("fleet-valid", "two AGVs, VDA 5050 and paper channels, with well-named channels (no result)",
+         add=fleet()),
+    Case("fleet-agv-without-serial", "an AGV without fleet:serialNumber",
+         add=fleet(('    fleet:serialNumber "SN1" ;\n', "")),
+         expected=[R("ex:agv1", "fleet:serialNumber", "ex:agv1", "Agv-identity", "SPARQL")]),
+    Case("fleet-agv-without-interface-and-manufacturer", "an AGV that names neither its interface nor its manufacturer",
+         add=fleet(('    fleet:interface "paper-channels" ;\n    fleet:manufacturer "acme" ;\n', "")),
+         expected=[R("ex:cart", "fleet:interface", "ex:cart", "Agv-identity", "SPARQL"),
+                   R("ex:cart", "fleet:manufacturer", "ex:cart", "Agv-identity", "SPARQL")]),
+    Case("fleet-agv-duplicate", "two AGVs with the same manufacturer and serial number",
+         add=fleet(extra='ex:agv2 a pk:Resource ;\n    pk:id "agv-SN1-again" ;\n    pk:name "AGV SN1 again" ;\n'
+                         '    pk:isType fleet:agv ;\n    fleet:interface "vda5050" ;\n    fleet:manufacturer "acme" ;\n'
+                         '    fleet:serialNumber "SN1" .'),
+         expected=[R("ex:agv1", "fleet:serialNumber", "SN1", "Agv-uniqueSerial", "SPARQL"),
+                   R("ex:agv2", "fleet:serialNumber", "SN1", "Agv-uniqueSerial", "SPARQL")]),
+    Case("fleet-agv-same-serial-other-manufacturer", "two AGVs of different manufacturers with one serial number (one NGSI entity)",
+         add=fleet(extra='ex:agv2 a pk:Resource ;\n    pk:id "agv-SN1-other" ;\n    pk:name "Other SN1" ;\n'
+                         '    pk:isType fleet:agv ;\n    fleet:interface "vda5050" ;\n    fleet:manufacturer "other" ;\n'
+                         '    fleet:serialNumber "SN1" .'),
+         expected=[R("ex:agv1", "fleet:serialNumber", "SN1", "Agv-uniqueSerial", "SPARQL"),
+                   R("ex:agv2", "fleet:serialNumber", "SN1", "Agv-uniqueSerial", "SPARQL")]),
+    Case("fleet-agv-unknown-interface", "an AGV whose fleet:interface is vda5051",
+         add=fleet(('fleet:interface "vda5050"', 'fleet:interface "vda5051"')),
+         expected=[R("ex:agv1", "fleet:interface", "vda5051", "FleetResource-interface", "In")]),
+    Case("fleet-channel-name-mismatch", "a VDA 5050 state topic named with another serial number",
+         add=fleet(('pk:name "uagv/v2/acme/SN1/state"', 'pk:name "uagv/v2/acme/SN2/state"')),
+         expected=[R("ex:agv1-state", "name", "uagv/v2/acme/SN2/state", "FleetTopic-name", "SPARQL")]),
+    Case("fleet-channel-paper-name-mismatch", "a paper status channel named after the VDA 5050 layout",
+         add=fleet(('pk:name "cart/status_channel"', 'pk:name "uagv/v2/acme/cart/status_channel"')),
+         expected=[R("ex:cart-status", "name", "uagv/v2/acme/cart/status_channel", "FleetTopic-name", "SPARQL")]),
+    Case("fleet-channel-not-of-interface", "a paper-channel vehicle with a VDA 5050 channel",
+         add=fleet(('fleet:channel "motion_channel"', 'fleet:channel "order"')),
+         expected=[R("ex:cart-motion", "fleet:channel", "order", "FleetTopic-name", "SPARQL")]),
+    Case("fleet-channel-wrong-direction", "a VDA 5050 vehicle that publishes its order topic",
+         add=fleet(("    pk:publishes ex:agv1-state ;\n    pk:subscribes ex:agv1-order .",
+                    "    pk:publishes ex:agv1-state , ex:agv1-order .")),
+         expected=[R("ex:agv1", "publishes", "ex:agv1-order", "Agv-channelDirection", "SPARQL")]),
+    Case("fleet-entity-missing", "a VDA 5050 state topic without the vehicle's entity id",
+         add=fleet(('    pk:entityId "urn:ngsi-ld:AGV:SN1" ;\n', "")),
+         expected=[R("ex:agv1-state", "entityId", "ex:agv1-state", "FleetTopic-entity", "SPARQL")]),
+    Case("fleet-entity-other-id", "a paper status channel that is another vehicle's entity",
+         add=fleet(('pk:entityId "urn:ngsi-ld:AGV:cart"', 'pk:entityId "urn:ngsi-ld:AGV:cart-2"')),
+         expected=[R("ex:cart-status", "entityId", "urn:ngsi-ld:AGV:cart-2", "FleetTopic-entity", "SPARQL")]),
+    Case("fleet-entity-wrong-type", "a VDA 5050 state topic of entity type Robot",
+         add=fleet(('pk:entityType "AGV" .\n\nex:agv1-order', 'pk:entityType "Robot" .\n\nex:agv1-order')),
+         expected=[R("ex:agv1-state", "entityType", "Robot", "FleetTopic-entity", "SPARQL")]),
+    Case("fleet-entity-on-command", "a motion channel that is the vehicle's own entity (it would get its own state)",
+         add=fleet(('pk:name "cart/motion_channel" ;', 'pk:name "cart/motion_channel" ;\n    pk:entityId "urn:ngsi-ld:AGV:cart" ;\n    pk:entityType "AGV" ;')),
+         expected=[R("ex:cart-motion", "entityId", "urn:ngsi-ld:AGV:cart", "FleetTopic-entity", "SPARQL")]),
+    Case("fleet-properties-twice", "every fleet property of a resource given twice",
+         add=fleet(extra='ex:scada fleet:interface "vda5050" , "paper-channels" ;\n    fleet:manufacturer "a" , "b" ;\n'
+                         '    fleet:serialNumber "s1" , "s2" ;\n    fleet:discovered true , false ;\n'
+                         '    fleet:connectionState "ONLINE" , "OFFLINE" ;\n    fleet:pinned true , false .'),
+         expected=[R("ex:scada", f"fleet:{p}", None, f"FleetResource-{p}", "MaxCount") for p in _FLEET_PROPS]),
+    Case("fleet-properties-ill-typed", "every fleet property of a resource with a value of the wrong kind",
+         add=fleet(extra='ex:scada fleet:interface "VDA5050" ;\n    fleet:manufacturer "acme"@en ;\n'
+                         '    fleet:serialNumber 42 ;\n    fleet:discovered "yes" ;\n'
+                         '    fleet:connectionState "online" ;\n    fleet:pinned 1 .'),
+         expected=[R("ex:scada", "fleet:interface", "VDA5050", "FleetResource-interface", "In"),
+                   R("ex:scada", "fleet:manufacturer", "acme", "FleetResource-manufacturer", "Datatype"),
+                   R("ex:scada", "fleet:serialNumber", "42", "FleetResource-serialNumber", "Datatype"),
+                   R("ex:scada", "fleet:discovered", "yes", "FleetResource-discovered", "Datatype"),
+                   R("ex:scada", "fleet:connectionState", "online", "FleetResource-connectionState", "In"),
+                   R("ex:scada", "fleet:pinned", "1", "FleetResource-pinned", "Datatype")]),
+    Case("fleet-serial-and-manufacturer-bad-characters", "serial numbers with / # and a trailing newline, a manufacturer of 65 characters",
+         add=fleet(extra='ex:scada fleet:serialNumber "SN/1#" .\nex:meter fleet:manufacturer "' + "m" * 65 + '" .\n'
+                         'ex:robot fleet:serialNumber "SN1\\n" .'),
+         expected=[R("ex:scada", "fleet:serialNumber", "SN/1#", "FleetResource-levels", "SPARQL"),
+                   R("ex:meter", "fleet:manufacturer", "m" * 65, "FleetResource-levels", "SPARQL"),
+                   R("ex:robot", "fleet:serialNumber", "SN1\n", "FleetResource-levels", "SPARQL")]),
+    Case("fleet-serial-longest", "a serial number of exactly 64 characters with every allowed kind (no result)",
+         add=fleet(extra='ex:scada fleet:serialNumber "' + "Az09_.:-" * 8 + '" .')),
+    Case("fleet-resource-domain", "fleet:interface on a broker",
+         add=fleet(extra='ex:mqtt2 fleet:interface "vda5050" .'),
+         expected=[R("ex:mqtt2", "fleet:interface", "vda5050", "FleetResource-domain", "SPARQL")]),
+    Case("fleet-channel-domain", "fleet:channel on a resource",
+         add=fleet(extra='ex:robot fleet:channel "state" .'),
+         expected=[R("ex:robot", "fleet:channel", "state", "FleetTopic-domain", "SPARQL")]),
+    Case("fleet-channel-unknown-and-twice", "a topic with two channels, one of them unknown",
+         add=fleet(extra='ex:temperature fleet:channel "state" , "status" .'),
+         expected=[R("ex:temperature", "fleet:channel", None, "FleetTopic-channel", "MaxCount"),
+                   R("ex:temperature", "fleet:channel", "status", "FleetTopic-channel", "In")]),
+    Case("topic-ngsi-shared-given-id", "two topics on one context broker that both name one entity with pk:entityId (no result: merged on purpose)",
+         add=CB.replace("pk:hasTopic ex:command .", "pk:hasTopic ex:command , ex:ab , ex:ab2 .")
+             + '\nex:ab a pk:Topic ;\n    pk:id "t-ab" ;\n    pk:name "a/b" ;\n    pk:entityId "urn:x" ;\n    pk:entityType "A" .'
+             + '\nex:ab2 a pk:Topic ;\n    pk:id "t-ab2" ;\n    pk:name "a:b" ;\n    pk:entityId "urn:x" ;\n    pk:entityType "A" .'),
 ]
 
 
