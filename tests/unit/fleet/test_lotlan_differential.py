@@ -64,6 +64,9 @@ DIFFERENCES: dict[str, str] = {
     "ours/primitive-template-redefined": (
         "we refuse a Template Event without the primitive's attributes; lotlan-scheduler ignores "
         "the templates a program declares and always uses its built-in four"),
+    "ours/repeated-settings": ("we refuse an attribute set twice, Parameters given twice and a "
+                               "task state other than IsDone; lotlan-scheduler keeps the last "
+                               "value and accepts any word after the dot"),
     # more lenient: we accept, lotlan-scheduler refuses (its bugs, or for the fleet's data)
     "ours/parameters": ("three Parameters: lotlan-scheduler counts the values of From wrongly when "
                         "there are more than two (it nests them) and refuses a correct program"),
