@@ -67,6 +67,10 @@ DIFFERENCES: dict[str, str] = {
     "ours/repeated-settings": ("we refuse an attribute set twice, Parameters given twice and a "
                                "task state other than IsDone; lotlan-scheduler keeps the last "
                                "value and accepts any word after the dot"),
+    "ours/constraint-in-condition": ("we refuse a Constraint in FinishedBy (it belongs in "
+                                     "Constraints); lotlan-scheduler accepts it in a comparison"),
+    "ours/number-in-condition": ("we refuse a number as a condition inside and/or; lotlan-scheduler "
+                                 "refuses it only as the whole condition"),
     # more lenient: we accept, lotlan-scheduler refuses (its bugs, or for the fleet's data)
     "ours/parameters": ("three Parameters: lotlan-scheduler counts the values of From wrongly when "
                         "there are more than two (it nests them) and refuses a correct program"),
