@@ -24,7 +24,7 @@ from engine.desired_cache import DesiredCache
 from engine.model import DesiredState, ObservedState, Plan
 from engine.observed import observe as observe_agents
 from engine.observed import write_observed
-from engine.owner import check_owner_name, plant_owner
+from engine.owner import OwnerError, check_owner_name, plant_owner
 from engine.plan import destroy_plan, plan as make_plan
 from engine.reason import reason
 from kg.load import PlantGraph, load_plant
@@ -98,7 +98,13 @@ def run_pipeline(
         result = Pipeline(plant, report, timings=timings)
         if not report.conforms:
             return result
-        desired = replace(derive_desired(plant, result, reason_engine), owner=plant_owner(plant))
+        try:
+            own: str | None = plant_owner(plant)
+        except OwnerError:
+            if owner is None:
+                raise
+            own, cache = None, None  # the caller names the owner; never cache an unknown one
+        desired = replace(derive_desired(plant, result, reason_engine), owner=own)
         result.desired = desired
         if cache is not None and key is not None:
             cache.put(key, desired, report)
