@@ -103,9 +103,10 @@ def _fingerprint(payload: dict[str, Any]) -> str:
 class Registry:
     """Known vehicles, last connection states, factsheet requests in flight."""
 
-    def __init__(self, describe: Describe, *, ask_every: float = 5.0) -> None:
+    def __init__(self, describe: Describe, *, ask_every: float = 5.0, max_unknown: int = 10_000) -> None:
         self.describe = describe
         self.ask_every = ask_every
+        self.max_unknown = max_unknown  # unknown vehicles remembered at most (a flood of made-up serials)
         self.known: dict[VehicleKey, Known] = {}
         self.connection: dict[VehicleKey, str] = {}
         self.asked: dict[VehicleKey, float] = {}
@@ -127,6 +128,15 @@ class Registry:
         if key in self.described:
             self.refused[key] = self.described[key]
 
+    def _forget_oldest_unknown(self) -> None:
+        for old in list(self.connection):
+            if old not in self.known:
+                del self.connection[old]
+                self.asked.pop(old, None)
+                self.refused.pop(old, None)
+                self.described.pop(old, None)
+                return
+
     def handle(self, event: Event, now: float) -> list[Effect]:
         if isinstance(event, ConnectionSeen):
             return self._connection(event, now)
@@ -138,8 +148,10 @@ class Registry:
 
     def _connection(self, event: ConnectionSeen, now: float) -> list[Effect]:
         key, state = event.key, event.state
-        before = self.connection.get(key)
-        self.connection[key] = state
+        before = self.connection.pop(key, None)
+        self.connection[key] = state  # (re)inserted last: the oldest unknown ones are forgotten first
+        if len(self.connection) > len(self.known) + self.max_unknown:
+            self._forget_oldest_unknown()
         known = self.known.get(key)
         if known is not None:
             if known.connection_state == state:

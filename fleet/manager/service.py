@@ -165,7 +165,7 @@ class FleetManager:
         key = event.key
         first_sign = isinstance(event, DescriptionSeen) or (
             isinstance(event, ConnectionSeen) and event.state == "ONLINE")
-        if first_sign and key not in self.records and key not in self.joining:
+        if first_sign and key not in self.records and key not in self.joining and len(self.joining) < 10_000:
             self.joining[key] = item.at
         for effect in self.registry.handle(event, item.at):
             if isinstance(effect, AskFactsheet):
@@ -177,7 +177,7 @@ class FleetManager:
                 self._set_connection(effect)
             elif isinstance(effect, Refuse):
                 self._refuse(effect)
-            elif isinstance(effect, Track):
+            elif isinstance(effect, Track) and key in self.records:  # unknown ones: not kept
                 self.states[key] = effect.state
                 self._dirty = True
             elif isinstance(effect, Note):

@@ -119,3 +119,14 @@ def test_description_of_another_serial_than_the_topic_is_refused() -> None:
     payload: dict[str, Any] = d.paper_description("agv-8")
     with pytest.raises(DescriptionRefused, match="is not the topic's 'agv-7'"):
         describe(PAPER, payload)
+
+
+def test_a_flood_of_made_up_serials_is_remembered_only_up_to_a_bound() -> None:
+    r = Registry(describe, max_unknown=100)
+    r.handle(online(), 0.0)
+    r.handle(DescriptionSeen(KEY, d.factsheet()), 0.1)
+    asked = [e for i in range(1000)
+             for e in r.handle(online(VehicleKey(Interface.VDA5050, "evil", f"s-{i}")), 1.0 + i * 1e-3)]
+    assert len(asked) == 1000  # each made-up vehicle is asked once ...
+    assert len(r.connection) == 101 and len(r.asked) <= 101  # ... but only the newest 100 are remembered
+    assert KEY in r.known and KEY in r.connection  # a discovered vehicle is never forgotten
