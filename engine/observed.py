@@ -6,7 +6,7 @@
 - :func:`write_observed` replaces the named graph ``GRAPH_OBSERVED`` of the plant's store with
   the observation, in the terms of ``ontology/plantkg-observed.ttl`` (``pk:status``,
   ``pk:observedPort``, ``pk:pid``, ``pk:startedAt``, ``pk:restarts``, ``pk:configHash``,
-  ``pk:topicPresent`` ...) on the plant's broker individuals, so SPARQL can join desired and
+  ``pk:topicPresent``, ``pk:observedOwner`` (the plant that owns it, absent: nobody) ...) on the plant's broker individuals, so SPARQL can join desired and
   observed state. A broker of the plant that no agent runs is ``pk:Absent``; one whose agent did
   not answer is ``pk:Unknown``.
 """
@@ -128,6 +128,8 @@ def observed_quads(
         add(node, "observedPort", _lit(broker.spec.port, "integer"))
         add(node, "observedKind", ox.Literal(broker.spec.kind))
         add(node, "restarts", _lit(broker.restarts, "integer"))
+        if broker.owner is not None:
+            add(node, "observedOwner", ox.Literal(broker.owner))
         if broker.pid is not None:
             add(node, "pid", _lit(broker.pid, "integer"))
         if broker.started_at is not None:
@@ -149,6 +151,8 @@ def observed_quads(
         add(node, "bridgeRemote", ox.Literal(bridge.spec.remote.id))
         add(node, "bridgeMechanism", ox.Literal(bridge.spec.mechanism.value))
         add(node, "bridgeStatus", ox.Literal(bridge.status.value))
+        if bridge.owner is not None:
+            add(node, "observedOwner", ox.Literal(bridge.owner))
         for prop, value in (("forwarded", bridge.forwarded), ("retried", bridge.retried),
                             ("refused", bridge.refused)):
             if value is not None:
