@@ -123,6 +123,17 @@ def floor_run(port: int, logs: Path, repeats: int) -> list[float]:
     return [done[k] - seen[k] for k in done]
 
 
+def write_map(path: Path, vehicles: int) -> Path:
+    """A hall with a parking spot per vehicle (the default map has 50), 2 m apart in rows of 50."""
+    rows = (vehicles + 49) // 50
+    stations = [{"name": f"park-{i + 1}", "x": 2.0 + 2.0 * (i % 50), "y": 2.0 + 2.0 * (i // 50)}
+                for i in range(vehicles)]
+    stations.append({"name": "charger-1", "x": 1.0, "y": 1.0, "charger": True})
+    path.write_text(json.dumps({"mapId": "bench-hall", "width": 104.0, "height": 4.0 + 2.0 * rows,
+                                "stations": stations}))
+    return path
+
+
 def join_run(work: Path, count: int, state_interval: float, settle: float) -> dict[str, Any]:
     """One fleet size on a fresh plant: the manager, then ``count`` vehicles at once."""
     work.mkdir(parents=True, exist_ok=True)
@@ -144,7 +155,8 @@ def join_run(work: Path, count: int, state_interval: float, settle: float) -> di
             started = time.monotonic()
             sim = process.spawn([sys.executable, "-m", "fleet.sim", "--broker", f"{MQTT_HOST}:{mqtt_port(ports)}",
                                  "--count", str(count), "--manufacturer", "bench", "--serial-prefix", "join",
-                                 "--rate", "1", "--state-interval", str(state_interval)],
+                                 "--rate", "1", "--state-interval", str(state_interval),
+                                 "--map", str(write_map(work / "map.json", count))],
                                 log_dir=logs, name="sim", cwd=ROOT)
 
             def ready() -> list[dict[str, Any]] | None:
