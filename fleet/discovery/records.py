@@ -122,7 +122,9 @@ class DataDir:
         return new
 
     def remove(self, record: VehicleRecord) -> None:
-        for path in (self.turtle_path(record), self.vehicles / f"{record.stem}.json"):
+        """The record first: a crash in between leaves a Turtle file nobody claims (written over
+        when the vehicle is discovered again), never a record whose file is gone."""
+        for path in (self.vehicles / f"{record.stem}.json", self.turtle_path(record)):
             path.unlink(missing_ok=True)
         files.fsync_dir(self.discovered) if self.discovered.is_dir() else None
 

@@ -304,6 +304,9 @@ class FleetManager:
     def _reload(self, initial: bool = False) -> None:
         with self.data.lock():
             records = self.data.records()
+            for record in records:  # a file lost (kill -9 between the two writes): render it again
+                if not self.data.turtle_path(record).exists():
+                    self.data.save(record)
             self._fingerprint = self._dir_fingerprint()
         before = set(self.records)
         self.records = {key_of(r): r for r in records}
