@@ -36,6 +36,36 @@ class Reasoned:
     seconds: float
 
 
+CATALOG_NS = "{urn:oasis:names:tc:entity:xmlns:xml:catalog}"
+
+
+def catalog_mapping(folder: Path) -> dict[str, Path]:
+    """Ontology IRI -> file, as Protégé resolves owl:imports from ``folder/catalog-v001.xml``."""
+    import xml.etree.ElementTree as ET  # noqa: PLC0415 - only the catalog users need it
+
+    catalog = folder / "catalog-v001.xml"
+    entries = ET.parse(catalog).getroot().findall(f"{CATALOG_NS}uri")
+    return {str(e.get("name")): (folder / str(e.get("uri"))).resolve() for e in entries}
+
+
+def imports_in_order(path: Path, done: set[str] | None = None) -> list[tuple[str, Path]]:
+    """The ontologies ``path`` imports, transitively, resolved through the catalog next to each
+    file, dependencies first (what owlready2 must hold before it parses ``path`` offline)."""
+    from rdflib.namespace import OWL  # noqa: PLC0415
+
+    done = set() if done is None else done
+    out: list[tuple[str, Path]] = []
+    mapping = catalog_mapping(path.parent)
+    for iri in sorted(str(o) for o in Graph().parse(path, format="turtle").objects(None, OWL.imports)):
+        if iri in done:
+            continue
+        done.add(iri)
+        target = mapping[iri]
+        out += imports_in_order(target, done)
+        out.append((iri, target))
+    return out
+
+
 def _to_ntriples(turtle: str | Path, dst: Path) -> Path:
     graph = Graph()
     if isinstance(turtle, Path):
@@ -56,6 +86,11 @@ def hermit(tmp_path: Path, request: pytest.FixtureRequest) -> Callable[..., Reas
         tbox = _to_ntriples(ONTOLOGY_TTL, tmp_path / "plantkg.nt")
         with tbox.open("rb") as fh:
             world.get_ontology(ONTOLOGY_IRI).load(fileobj=fh, format="ntriples")
+        if isinstance(plant, Path):  # its other imports (the fleet module), offline through the catalog
+            for n, (iri, path) in enumerate(imports_in_order(plant, {ONTOLOGY_IRI})):
+                module = _to_ntriples(path, tmp_path / f"import-{n}.nt")
+                with module.open("rb") as fh:
+                    world.get_ontology(iri).load(fileobj=fh, format="ntriples")
         if plant is not None:
             abox = _to_ntriples(plant, tmp_path / "plant.nt")
             iri = plant_iri or (EXAMPLES_BASE + Path(plant).stem if isinstance(plant, Path) else None)
