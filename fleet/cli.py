@@ -6,6 +6,7 @@
 | ``plantkg fleet manager PLANT... --data-dir DIR`` | run the fleet manager (as ``python -m fleet.manager``) |
 | ``plantkg fleet simulate ...`` | run simulated vehicles (the options of ``python -m fleet.sim``) |
 | ``plantkg fleet vehicles`` | the discovered vehicles of the data directory (and the refused ones) |
+| ``plantkg fleet status`` | what the running manager last wrote: states, last reconcile, refusals |
 | ``plantkg fleet pin VEHICLE [--unpin]`` | keep a vehicle as it is even if it sends another factsheet |
 | ``plantkg fleet rename VEHICLE NAME`` | set its ``pk:name`` |
 | ``plantkg fleet remove VEHICLE`` | forget it (its file and record); it is discovered again when it comes back online |
@@ -42,7 +43,10 @@ def manager_command(args: tuple[str, ...]) -> int:
     """Run the fleet manager (options of python -m fleet.manager; --help lists them)."""
     from fleet.manager.__main__ import main
 
-    return main(list(args))
+    try:
+        return main(list(args))
+    except SystemExit as exc:  # argparse's --help and usage errors
+        return int(exc.code or 0)
 
 
 @fleet_group.command("simulate", context_settings={"ignore_unknown_options": True, "help_option_names": []})
@@ -89,6 +93,34 @@ def vehicles_command(data_dir: Path, fmt: str) -> int:
                    f"{r['name']!s:<20}{flag}  skills: {', '.join(r['skills'])}")
     for r in refused:
         click.echo(f"refused {r['vehicle']}: {r['reason']}")
+    return 0
+
+
+@fleet_group.command("status")
+@data_dir_option
+def status_command(data_dir: Path) -> int:
+    """What the running manager last wrote (status.json): vehicles and their last state, the
+    last reconcile, refusals."""
+    try:
+        status = json.loads((data_dir / "status.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise PlantKGError(f"{data_dir / 'status.json'}: cannot be read ({exc})",
+                           hint="start the fleet manager with this --data-dir") from None
+    manager = status.get("manager", {})
+    click.echo(f"manager pid {manager.get('pid')}, API {manager.get('api')}, MQTT {manager.get('mqtt')} "
+               f"({'connected' if manager.get('connected') else 'not connected'}), updated {status.get('updated')}")
+    last = status.get("lastReconcile") or {}
+    click.echo(f"last reconcile {last.get('at', '-')}: {last.get('summary', 'none yet')}")
+    for v in status.get("vehicles", []):
+        state = v.get("state") or {}
+        ready = f"{v['readySeconds']:.3f} s" if v.get("readySeconds") is not None else "-"
+        click.echo(f"  {v['vehicle']:<32} {v['connectionState']:<16} ready {ready:<9} "
+                   f"order {state.get('orderId') or '-'} last node {state.get('lastNodeId') or '-'} "
+                   f"battery {state.get('batteryCharge', '-')}")
+    for r in status.get("refused", []):
+        click.echo(f"  refused {r['vehicle']}: {r['reason'][:200]}")
+    for m in status.get("refusedMessages", [])[-5:]:
+        click.echo(f"  refused message on {m['topic']}: {m['reason'][:200]}")
     return 0
 
 

@@ -79,3 +79,26 @@ def test_mistakes_get_a_message_and_exit_2(data: DataDir, capsys: pytest.Capture
 def test_a_missing_data_directory_is_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     code, _, err = run(capsys, "fleet", "vehicles", "--data-dir", str(tmp_path / "none"))
     assert code == 2 and "no such data directory" in err
+
+
+def test_status_shows_what_the_manager_wrote(data: DataDir, capsys: pytest.CaptureFixture[str]) -> None:
+    status = {"updated": "2026-11-24T20:00:00.000Z",
+              "manager": {"pid": 7, "api": "http://127.0.0.1:1", "mqtt": "127.0.0.2:1883", "connected": True},
+              "lastReconcile": {"at": "2026-11-24T20:00:00.000Z", "summary": "10 change(s) applied in 0.20 s"},
+              "vehicles": [{"vehicle": "acme/agv-1", "connectionState": "ONLINE", "readySeconds": 0.4,
+                            "state": {"orderId": "o-1", "lastNodeId": "n2", "batteryCharge": 81.5}}],
+              "refused": [{"vehicle": "evil--x", "reason": "speedMax: -2 is not > 0"}],
+              "refusedMessages": [{"topic": "uagv/v2/evil/y/factsheet", "reason": "10000002 bytes"}]}
+    (data.root / "status.json").write_text(json.dumps(status))
+    code, out, _ = run(capsys, "fleet", "status", "--data-dir", str(data.root))
+    assert code == 0
+    for words in ("connected", "10 change(s) applied", "acme/agv-1", "0.400 s", "last node n2", "battery 81.5",
+                  "refused evil--x: speedMax", "refused message on uagv/v2/evil/y/factsheet"):
+        assert words in out, (words, out)
+
+
+def test_manager_and_simulate_options_are_checked(capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = run(capsys, "fleet", "manager", "plant.ttl")
+    assert code == 2 and "--data-dir" in err
+    code, _, err = run(capsys, "fleet", "simulate", "--count", "zero")
+    assert code == 2 and "--count 'zero'" in err
