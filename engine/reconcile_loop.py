@@ -10,8 +10,9 @@ than ``plantkg apply`` run by a person: :class:`ReconcileLoop` watches plant fil
   manager after writing a discovered vehicle). Pokes within ``debounce`` seconds make one run;
 - every ``interval`` seconds observes the agents again and applies the plan of the last valid
   plant, so a broker or bridge deleted or broken behind plantkg's back comes back;
-- never runs two applies at once (one worker thread, and ``apply_lock`` shared with whoever else
-  applies, e.g. the dashboard's Apply button);
+- never runs two applies at once (one run at a time, each holding ``apply_lock`` from its
+  observation to its apply's check; share the lock with whoever else applies, e.g. the
+  dashboard's Apply button);
 - never applies an invalid plant: the last valid one stays in force (what runs keeps running) and
   :attr:`~ReconcileLoop.status` says why the files are not applied;
 - touches only its own plant's things: every plan and every agent call names the owner (the
@@ -224,7 +225,8 @@ class ReconcileLoop:
         with self._run_lock:
             started = self._clock()
             try:
-                run = self._run(trigger, started)
+                with self.apply_lock:  # observe, plan and apply with no other apply in between
+                    run = self._run(trigger, started)
             except Exception as exc:  # noqa: BLE001 - the loop must outlive a bug; it is reported
                 log.exception("reconcile run failed")
                 run = LoopRun(trigger, started, self._clock(), self._digest,
@@ -297,8 +299,7 @@ class ReconcileLoop:
                            error="the plan cannot be applied: " + "; ".join(why))
         if plan.empty:
             return LoopRun(**done, finished_at=self._clock(), converged=True)
-        with self.apply_lock:
-            result = self._apply(plan, desired, self.directory, prune=self.prune)
+        result = self._apply(plan, desired, self.directory, prune=self.prune)
         problems = [f"{o.change.address}: {o.error}" for o in result.failed]
         problems += [f"{u.address}: {u.detail}" for u in result.unexpected]
         return LoopRun(**done, finished_at=self._clock(), applied=True, converged=result.ok,

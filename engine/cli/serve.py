@@ -9,7 +9,7 @@ import click
 
 from engine.agent.server import parse_listen
 from engine.cli.common import file_argument
-from engine.cli.reconcile import agents_option
+from engine.cli.reconcile import agents_option, owner_option
 
 DEFAULT_PORT = 8080
 
@@ -19,7 +19,11 @@ DEFAULT_PORT = 8080
 @click.option("--listen", default=f"127.0.0.1:{DEFAULT_PORT}", show_default=True, metavar="ADDRESS[:PORT]",
               help="Address to serve on (loopback unless --allow-remote).")
 @agents_option
-@click.option("--auto-apply", is_flag=True, help="Apply the plan after every change of the files.")
+@click.option("--auto-apply", is_flag=True,
+              help="Apply the plan after every change of the files (or of the *.ttl in a FILE that "
+                   "is a folder), and put back what drifts, every --observe-interval (touches only "
+                   "what the plant owns).")
+@owner_option
 @click.option("--token-file", type=click.Path(dir_okay=False, path_type=Path),
               help="Login token file; created with a random token if missing.  "
                    "[default: $XDG_STATE_HOME/plantkg/web-token]")
@@ -32,12 +36,14 @@ DEFAULT_PORT = 8080
               help="Rows (or triples) a SPARQL answer may hold.")
 @click.option("-v", "--verbose", is_flag=True, help="Log every request.")
 def serve_command(files: tuple[str, ...], listen: str, agents_file: Path | None, auto_apply: bool,
-                  token_file: Path | None, allow_remote: bool, observe_interval: float,
+                  owner: str | None, token_file: Path | None, allow_remote: bool, observe_interval: float,
                   query_timeout: float, max_results: int, verbose: bool) -> int:
     """Serve a dashboard, a SPARQL endpoint and a JSON API for the plant in FILE(s).
 
-    The files are re-read when they change (validate, then plan); the agents are asked what runs
-    every few seconds. Nothing is applied unless a logged-in person presses Apply, or --auto-apply.
+    The files are re-read when they change (validate, then plan); a FILE may be a folder (every
+    *.ttl inside, e.g. discovered vehicles). The agents are asked what runs every few seconds.
+    Nothing is applied unless a logged-in person presses Apply, or --auto-apply (a reconcile loop:
+    see docs/operating.md).
 
     \b
     Example:
@@ -52,4 +58,4 @@ def serve_command(files: tuple[str, ...], listen: str, agents_file: Path | None,
     address = parse_listen(listen, allow_remote=allow_remote)
     return run_server(list(files), address, agents_file=agents_file, token_file=token_file,
                       auto_apply=auto_apply, limits=Limits(timeout_s=query_timeout, max_rows=max_results),
-                      observe_interval=observe_interval)
+                      observe_interval=observe_interval, owner=owner)

@@ -8,6 +8,14 @@ Apply runs in a thread of its own, only on request (or after each re-read with `
 and only the plan the person saw: the caller names the plan's fingerprint and a different current
 plan is refused. A file that cannot be loaded leaves the last good plant shown, with the error,
 and nothing can be applied until it is fixed.
+
+Paths may be folders (every ``*.ttl`` inside, engine.reconcile_loop.plant_files): a file added to a
+watched folder is a change. With ``auto_apply``, :meth:`PlantState.start` also runs a
+:class:`~engine.reconcile_loop.ReconcileLoop` on the same paths: it applies what the plant
+requires after a change and, every ``observe_interval``, puts back what drifted (a broker deleted
+behind plantkg's back); its last run is in the snapshot (``reconcile``). Every apply, the loop's or
+a person's, holds one lock, so two never run at once; all of them touch only the plant's own
+things (its owner, or ``owner``).
 """
 
 from __future__ import annotations
@@ -33,6 +41,7 @@ from engine.model import DesiredState, ObservedState, Plan
 from engine.observed import observe, write_observed
 from engine.pipeline import run_pipeline
 from engine.plan import plan as make_plan
+from engine.reconcile_loop import LoopRun, ReconcileLoop, plant_files
 from engine.render_plan import plan_json
 from engine.web import views
 from engine.web.rwlock import ReadWriteLock
@@ -82,6 +91,7 @@ class Snapshot:
     agent_urls: tuple[tuple[str, str], ...] = ()
     context: ContextView | None = None
     apply: ApplyJob = field(default_factory=ApplyJob)
+    reconcile: LoopRun | None = None       # the reconcile loop's last run (auto-apply)
 
     @cached_property
     def status(self) -> dict[str, Any]:
@@ -101,6 +111,11 @@ class Snapshot:
             "apply": {"state": self.apply.state, "fingerprint": self.apply.fingerprint,
                       "started_at": self.apply.started_at, "finished_at": self.apply.finished_at,
                       "progress": list(self.apply.progress), "summary": list(self.apply.summary)},
+            "reconcile": None if self.reconcile is None else {
+                "trigger": self.reconcile.trigger, "started_at": self.reconcile.started_at,
+                "finished_at": self.reconcile.finished_at, "summary": dict(self.reconcile.summary),
+                "applied": self.reconcile.applied, "converged": self.reconcile.converged,
+                "foreign": self.reconcile.foreign, "error": self.reconcile.error},
         }
 
 
@@ -131,8 +146,10 @@ class PlantState:
     def __init__(self, files: list[str], agents_file: Path | None = None, *, auto_apply: bool = False,
                  observe_interval: float = 5.0, poll_interval: float = 0.5,
                  directory_loader: Callable[[Path | None], AgentDirectory] = AgentDirectory.load,
-                 observe_fn: Callable[[AgentDirectory, Iterable[str]], ObservedState] = observe) -> None:
-        self.files = tuple(str(Path(f)) for f in files)
+                 observe_fn: Callable[[AgentDirectory, Iterable[str]], ObservedState] = observe,
+                 owner: str | None = None) -> None:
+        self.paths = tuple(str(Path(f)) for f in files)
+        self.owner = owner
         self.agents_file = agents_file
         self.auto_apply = auto_apply
         self.observe_interval = observe_interval
@@ -143,6 +160,8 @@ class PlantState:
         self._snap = Snapshot(files=self.files)
         self._publish_lock = threading.Lock()
         self._work_lock = threading.Lock()     # one reload or refresh at a time
+        self._apply_lock = threading.Lock()    # one apply at a time: a person's or the loop's
+        self._loop: ReconcileLoop | None = None
         self._signature: tuple[Any, ...] | None = None
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
@@ -150,6 +169,16 @@ class PlantState:
     @property
     def snapshot(self) -> Snapshot:
         return self._snap
+
+    @property
+    def files(self) -> tuple[str, ...]:
+        """The plant files now: the files given, and every ``*.ttl`` in the folders given."""
+        return tuple(str(p) for p in plant_files(self.paths))
+
+    @property
+    def loop(self) -> ReconcileLoop | None:
+        """The reconcile loop (auto-apply, once started)."""
+        return self._loop
 
     def _publish(self, **changes: Any) -> Snapshot:
         with self._publish_lock:
@@ -161,9 +190,10 @@ class PlantState:
     def reload(self) -> Snapshot:
         """Re-read the files (and then the agents); auto-apply afterwards if asked to."""
         with self._work_lock:
-            self._signature = _signature(self.files)
+            files = self.files
+            self._signature = _signature(files)
             try:
-                result = run_pipeline(self.files, None, observe=False)
+                result = run_pipeline(files, None, observe=False, owner=self.owner)
             except PlantKGError as exc:
                 return self._publish(error=f"the files cannot be loaded: {exc}", plan=None, fingerprint=None)
             plant = result.plant
@@ -173,7 +203,7 @@ class PlantState:
             observed = self._observe(plant, result.desired) if result.desired is not None else {
                 "observed": None, "plan": None, "fingerprint": None, "error": None}
             snap = self._publish(plant=plant, report=result.report, desired=result.desired,
-                                 loaded_at=time.time(), resources=resources, **observed)
+                                 loaded_at=time.time(), resources=resources, files=files, **observed)
         if self.auto_apply and snap.plan is not None and not snap.plan.empty and snap.plan.applicable:
             try:
                 self.start_apply(snap.fingerprint, by="auto-apply")
@@ -209,6 +239,8 @@ class PlantState:
         """One look of the watcher: re-read changed files, or re-observe when it is time."""
         if _signature(self.files) != self._signature:
             self.reload()
+            if self._loop is not None:
+                self._loop.poke()
             return
         last = self._snap.observed_at
         if last is None or time.time() - last >= self.observe_interval:
@@ -244,7 +276,8 @@ class PlantState:
 
         try:
             directory = self._load_directory(self.agents_file)
-            result = apply(plan, desired, directory, on_event=on_event)
+            with self._apply_lock:
+                result = apply(plan, desired, directory, on_event=on_event)
             summary = tuple(click.unstyle(line) for line in result_lines(result))
             state = "done" if result.ok else "failed"
         except PlantKGError as exc:
@@ -259,11 +292,29 @@ class PlantState:
     # ------------------------------------------------------------------------------ watcher
 
     def start(self) -> None:
-        """Load once now, then watch in a thread until :meth:`close`."""
+        """Load once now, then watch in a thread until :meth:`close`; with auto-apply, start the
+        reconcile loop too."""
         self.reload()
         thread = threading.Thread(target=self._watch, name="plantkg-web-watch", daemon=True)
         self._threads.append(thread)
         thread.start()
+        if self.auto_apply:
+            self._start_loop()
+
+    def _start_loop(self) -> None:
+        try:
+            directory = self._load_directory(self.agents_file)
+        except PlantKGError as exc:
+            self._publish(error=f"auto-apply cannot start: {exc}")
+            return
+        self._loop = ReconcileLoop(self.paths, directory, owner=self.owner,
+                                   interval=self.observe_interval, apply_lock=self._apply_lock,
+                                   on_run=self._loop_ran).start()
+
+    def _loop_ran(self, run: LoopRun) -> None:
+        self._publish(reconcile=run)
+        if run.applied:
+            self.refresh()
 
     def _watch(self) -> None:
         while not self._stop.wait(self.poll_interval):
@@ -273,7 +324,9 @@ class PlantState:
                 self._publish(error=f"internal error while refreshing: {exc!r}")
 
     def close(self, timeout: float = 60.0) -> None:
-        """Stop the watcher and wait for a running apply to finish."""
+        """Stop the watcher and the reconcile loop, and wait for a running apply to finish."""
         self._stop.set()
+        if self._loop is not None:
+            self._loop.stop(timeout)
         for thread in self._threads:
             thread.join(timeout)

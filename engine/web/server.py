@@ -67,13 +67,15 @@ def start_server(listen: ListenAddress, state: PlantState, token: str, limits: L
 
 
 def run_server(files: list[str], listen: ListenAddress, *, agents_file: Path | None, token_file: Path | None,
-               auto_apply: bool, limits: Limits, observe_interval: float, out: IO[str] = sys.stderr) -> int:
+               auto_apply: bool, limits: Limits, observe_interval: float, out: IO[str] = sys.stderr,
+               owner: str | None = None) -> int:
     """The ``plantkg serve`` command: start, print where things are, serve until a signal."""
     AgentDirectory.load(agents_file)  # a wrong agents file is a start-up error, not a page
     token_path = (token_file or default_token_file()).expanduser().resolve()
     token_path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
     token, created = load_or_create_token(token_path)
-    state = PlantState(files, agents_file, auto_apply=auto_apply, observe_interval=observe_interval)
+    state = PlantState(files, agents_file, auto_apply=auto_apply, observe_interval=observe_interval,
+                       owner=owner)
     running = start_server(listen, state, token, limits)
 
     def ready() -> None:
@@ -82,7 +84,7 @@ def run_server(files: list[str], listen: ListenAddress, *, agents_file: Path | N
         print(f"  plant:  {', '.join(files)}" + (f" (error: {snap.error})" if snap.error else ""), file=out)
         print(f"  token:  {token_path}" + (" (new)" if created else "") + "  (log in with it to apply)", file=out)
         print(f"  SPARQL: {running.address.url}/sparql", file=out)
-        print(f"  apply:  {'automatic after each change of the files' if auto_apply else 'on request'}", file=out)
+        print(f"  apply:  {'automatic after each change of the files, drift put back' if auto_apply else 'on request'}", file=out)
         out.flush()
 
     got = wait_for_signal(on_ready=ready)

@@ -182,7 +182,7 @@ def plan_summary(plan: Plan | None, fingerprint: str | None) -> dict[str, Any] |
     return {"fingerprint": fingerprint, "applicable": data["applicable"], "empty": data["empty"],
             "summary": data["summary"], "line": summary_line(plan),
             "pending": [c.address for c in plan.pending], "unreachable": data["unreachable"],
-            "refusals": data["refusals"]}
+            "refusals": data["refusals"], "foreign": data["foreign"]}
 
 
 def context_summary(context: ContextView | None) -> dict[str, Any] | None:
