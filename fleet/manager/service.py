@@ -131,7 +131,10 @@ class FleetManager:
                         self.force = True
                 if self._dirty and now >= next_status:
                     next_status = now + self.config.status_interval
-                    self._publish_status()
+                    try:
+                        self._publish_status()
+                    except OSError as exc:  # e.g. a full disk: say so, keep managing the fleet
+                        log.error("cannot write %s: %s", self.data.root / "status.json", exc)
         finally:
             self.link.stop()
             if self._work is not None:
@@ -145,7 +148,10 @@ class FleetManager:
         except queue.Empty:
             return
         for _ in range(1000):
-            self._receive(item)
+            try:
+                self._receive(item)
+            except Exception:  # a bug or a full disk must not stop the manager: log, go on
+                log.exception("handling a message on %r failed", item.topic[:200])
             try:
                 item = self.link.inbox.get_nowait()
             except queue.Empty:
@@ -158,6 +164,8 @@ class FleetManager:
         except RefusedMessage as exc:
             self.refused_messages.append({"at": now_iso(), "topic": item.topic[:200], "reason": exc.reason[:500]})
             self._dirty = True
+            if len(self._log_gate) > 10_000:
+                self._log_gate.clear()
             if time.monotonic() - self._log_gate.get(item.topic, -1e9) > 5.0:  # a flood logs once per 5 s
                 self._log_gate[item.topic] = time.monotonic()
                 log.warning("%s", exc.message)
