@@ -52,6 +52,8 @@ REFUSED_BY_HERMIT = {
     "sameas-two-individuals": "inconsistent",          # pks:PlantElement-sameAs
     "property-value-date-datatype": "error",           # pks:Property-valueLiteral (HermiT)
     "property-value-integer-too-big": "error",         # pks:Property-valueLiteral (owlready2)
+    "fleet-resource-domain": "inconsistent",           # pks:FleetResource-domain (shapes/plantkg-fleet.ttl)
+    "fleet-properties-twice": "inconsistent",          # pks:FleetResource-* maxCount (functional)
 }
 
 _TYPE = ox.NamedNode(str(RDF.type))
