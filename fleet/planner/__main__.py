@@ -1,0 +1,114 @@
+"""``python -m fleet.planner``: run the task planner.
+
+    python -m fleet.planner --plant PLANT.ttl --lotlan jobs.tl --data-dir DIR \\
+        --manager-data-dir MANAGER_DIR [--ngsi-url http://127.0.0.3:1026 --ngsi-token-file F] \\
+        [--map map.json] [--mqtt HOST:PORT] [--min-battery 20] [--start]
+
+The fleet manager is found through its data directory (``manager.json``, ``manager.token``; its
+``discovered/*.ttl`` join the plant graph the assignment query runs on). The MQTT broker is the
+one the plant's fleet-manager resource sends to (``--mqtt`` overrides it). ``--start`` starts one
+job of the program's start tasks when the journal has no job yet. The API binds to 127.0.0.1; its
+address and token are in ``DIR/planner.json`` and ``DIR/planner.token``. SIGTERM/SIGINT stop it
+(exit 0); an unusable argument, plant, map or LoTLan file exits 2 with the reason, nothing started.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import sys
+from pathlib import Path
+
+import fleet.lotlan
+from fleet.lotlan.errors import LotlanError
+from fleet.manager.client import ManagerClient
+from fleet.manager.plant import binding_and_address
+from fleet.planner.api import ApiServer
+from fleet.planner.dispatch import VdaSender
+from fleet.planner.journal import Journal
+from fleet.planner.ngsi import TaskPublisher
+from fleet.planner.plantview import PlantView
+from fleet.planner.service import Planner, PlannerConfig
+from fleet.planner.vehicles import Fleet, StateListener
+from fleet.sim import map as site_map
+from kg.errors import PlantKGError
+
+log = logging.getLogger("fleet.planner")
+
+
+def _address(text: str) -> tuple[str, int]:
+    host, sep, port = text.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected HOST:PORT with a port from 1 to 65535")
+    return host.strip("[]"), int(port)
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m fleet.planner", description="The plantkg task planner.")
+    p.add_argument("--plant", nargs="+", type=Path, required=True, metavar="PLANT.ttl")
+    p.add_argument("--lotlan", type=Path, required=True, help="the LoTLan file of the jobs")
+    p.add_argument("--data-dir", type=Path, required=True, help="journal.jsonl, planner.json, planner.token")
+    p.add_argument("--manager-data-dir", type=Path, required=True, help="the fleet manager's --data-dir")
+    p.add_argument("--ngsi-url", default=None, help="context broker (NGSI-v2) for the Task entities")
+    p.add_argument("--ngsi-token-file", type=Path, default=None, help="its write token (first line)")
+    p.add_argument("--map", default="default", help="map JSON with the stations, or 'default'")
+    p.add_argument("--mqtt", type=_address, default=None, help="HOST:PORT instead of the plant's broker")
+    p.add_argument("--min-battery", type=float, default=20.0, help="percent a vehicle needs to be assigned")
+    p.add_argument("--start", action="store_true", help="start one job when the journal has none")
+    p.add_argument("--api-host", default="127.0.0.1")
+    p.add_argument("--api-port", type=int, default=0)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    args = parser().parse_args(argv)
+    journal = None
+    try:
+        plant_files = tuple(p.resolve() for p in args.plant)
+        site = site_map.default_map() if args.map == "default" else site_map.load(Path(args.map))
+        program = fleet.lotlan.load(args.lotlan)
+        mqtt = args.mqtt or binding_and_address(list(plant_files))[1]
+        manager = ManagerClient.for_data_dir(args.manager_data_dir.resolve())
+        token = None
+        if args.ngsi_token_file is not None:
+            token = args.ngsi_token_file.read_text(encoding="utf-8").splitlines()[0].strip()
+        plant = PlantView(plant_files, args.manager_data_dir.resolve() / "discovered")
+        plant.current()
+        journal = Journal(args.data_dir.resolve())
+        states = StateListener(*mqtt)
+        publisher = TaskPublisher(args.ngsi_url, token) if args.ngsi_url else None
+        planner = Planner(PlannerConfig(site, min_battery=args.min_battery), program, journal,
+                          Fleet(manager, states), plant, VdaSender(manager, site.map_id), publisher)
+        api = ApiServer(planner, args.data_dir.resolve(), args.api_host, args.api_port)
+    except (PlantKGError, LotlanError, OSError, IndexError) as exc:
+        if journal is not None:
+            journal.close()
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    signal.signal(signal.SIGTERM, lambda *_: planner.stop())
+    signal.signal(signal.SIGINT, lambda *_: planner.stop())
+    states.start()
+    if publisher is not None:
+        publisher.start()
+    api.start(os.getpid())
+    if args.start and not planner.jobs:
+        log.info("started job %s", planner.start_job(None))
+    log.info("task planner: LoTLan %s, MQTT %s:%d, manager %s, API %s, data %s", args.lotlan, *mqtt, manager.url,
+             api.url, args.data_dir)
+    try:
+        planner.run()
+    finally:
+        api.stop()
+        states.stop()
+        if publisher is not None:
+            publisher.stop()
+        journal.close()
+    log.info("stopped")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

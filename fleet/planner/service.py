@@ -1,0 +1,285 @@
+"""The planner's loop: journal -> tasks; vehicles -> transitions; SPARQL -> assignments; orders out.
+
+One lock guards the planner's state; the loop (every ``tick`` s, or at once when a vehicle state
+arrives) and the HTTP API (start a job, fire an event, withdraw a task) take it. Every change is
+journaled (fsync'd) before it is acted upon; so after kill -9 the planner restarts from
+``journal.jsonl``: tasks in their last state, sub-tasks already DONE stay done, a sub-task that
+was SENT is re-sent with the same orderId unless the vehicle's state already shows it (a vehicle
+ignores an order it has), follow-up tasks (Repeat, OnDone) are created if they are missing (ids
+are deterministic: ``<job>-<task>-<run>``, so nothing is created twice).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from fleet.discovery.records import now_iso
+from fleet.lotlan import cycles
+from fleet.lotlan.model import Program
+from fleet.planner import build, machine
+from fleet.planner.assign import Need, choose
+from fleet.planner.errors import PlannerError
+from fleet.planner.journal import Journal
+from fleet.planner.machine import Now, Rules, SendOrder
+from fleet.planner.model import Task
+from fleet.planner.ngsi import TaskPublisher
+from fleet.planner.plantview import PlantView
+from fleet.planner.states import LegState, TaskState
+from fleet.planner.vehicles import Fleet, Vehicle
+from fleet.sim.map import SiteMap
+
+log = logging.getLogger("fleet.planner")
+HOLDING = (TaskState.ASSIGNED, TaskState.BEING_PROCESSED)
+EVENT_TYPES: dict[str, tuple[type, ...]] = {"boolean": (bool,), "integer": (int,), "float": (int, float),
+                                             "number": (int, float), "string": (str,)}
+
+
+class RequestError(PlannerError):
+    """A request the planner refuses: ``status`` is the HTTP status, the message names the field."""
+
+    def __init__(self, status: int, message: str) -> None:
+        super().__init__(message)
+        self.status = status
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    site: SiteMap
+    min_battery: float = 20.0
+    tick: float = 0.1
+    refresh: float = 0.3
+    resend: float = 3.0
+
+
+def rules_of(program: Program) -> dict[str, Rules]:
+    return {t.name: Rules(t.triggered_by, t.finished_by, tuple((u.step.triggered_by, u.step.finished_by)
+                                                                for u in (t.pickup, t.delivery)))
+            for t in program.tasks}
+
+
+class Planner:
+    def __init__(self, config: PlannerConfig, program: Program, journal: Journal, fleet: Fleet, plant: PlantView,
+                 send: Callable[[SendOrder, Vehicle], None], publisher: TaskPublisher | None = None) -> None:
+        build.check_program(program, config.site)
+        self.config, self.program, self.journal = config, program, journal
+        self.fleet, self.plant, self.send, self.publisher = fleet, plant, send, publisher
+        self.rules = rules_of(program)
+        self.lock = threading.RLock()
+        replayed = journal.state
+        self.tasks: dict[str, Task] = dict(replayed.tasks)
+        self.events: list[dict[str, Any]] = list(replayed.events)
+        self.jobs: dict[str, list[str]] = dict(replayed.jobs)
+        self.last_sent: dict[str, float] = {}
+        self.assign_seconds: deque[float] = deque(maxlen=10_000)
+        self._unfit: set[str] = set()  # tasks no vehicle fits (logged once)
+        self._stop = threading.Event()
+        if self.tasks:
+            log.info("resuming %d task(s) of %d job(s) from %s", len(self.tasks), len(self.jobs), journal.path)
+        for task in self.tasks.values():
+            if task.lotlan_task not in self.rules:
+                raise PlannerError(f"the journal has task {task.id} of LoTLan task {task.lotlan_task!r}, which "
+                                   "the LoTLan file no longer has", hint="start with the same LoTLan file, or "
+                                   "another --data-dir")
+
+    # ------------------------------------------------------------------ state
+    def _record(self, task: Task, note: str) -> None:
+        self.journal.task(task, note)
+        self.tasks[task.id] = task
+        log.info("task %s: %s [%s%s]", task.id, note, task.state.value, f" {task.vehicle}" if task.vehicle else "")
+        if self.publisher is not None:
+            self.publisher.publish(task)
+
+    def _events_after(self, number: int) -> dict[str, Any]:
+        return {e["event"]: e["value"] for e in self.events if e["number"] > number}
+
+    def done(self) -> dict[str, frozenset[str]]:
+        out: dict[str, set[str]] = {}
+        for t in self.tasks.values():
+            if t.state is TaskState.FINISHED and t.run >= t.repeat:
+                out.setdefault(t.job, set()).add(t.lotlan_task)
+        return {job: frozenset(names) for job, names in out.items()}
+
+    def _now(self, vehicles: dict[str, Vehicle]) -> Now:
+        return Now(len(self.events), self._events_after, self.done(), {k: v.view() for k, v in vehicles.items()},
+                   now_iso())
+
+    def _create(self, job: str, name: str, run: int) -> None:
+        task_id = f"{job}-{name}-{run}"
+        if task_id not in self.tasks:
+            task = build.build_task(task_id, job, self.program.task(name), run, self.config.site,
+                                    armed=len(self.events), at=now_iso())
+            self._record(task, "created")
+
+    def _follow_ups(self) -> None:
+        for job, names in self.jobs.items():
+            for name in names:
+                self._create(job, name, 1)
+        for task in list(self.tasks.values()):
+            if task.state is not TaskState.FINISHED:
+                continue
+            if task.run < task.repeat:
+                self._create(task.job, task.lotlan_task, task.run + 1)
+            else:
+                for name, _ in cycles.follow_ups(self.program.task(task.lotlan_task)):
+                    self._create(task.job, name, 1)
+
+    # ------------------------------------------------------------------ the loop
+    def stop(self) -> None:
+        self._stop.set()
+
+    def run(self) -> None:
+        next_refresh = 0.0
+        with self.lock:
+            if self.publisher is not None:
+                for task in self.tasks.values():
+                    self.publisher.publish(task)
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if now >= next_refresh:
+                self.fleet.refresh()
+                next_refresh = now + self.config.refresh
+            with self.lock:
+                self.tick()
+            self.fleet.states.changed.wait(self.config.tick)
+            self.fleet.states.changed.clear()
+
+    def tick(self) -> None:
+        self._follow_ups()
+        vehicles = self.fleet.vehicles()
+        if self.fleet.reachable:
+            self._lost(vehicles)
+        self._advance_all(vehicles)
+        self._assign(vehicles)
+        self._resend(vehicles)
+
+    def _lost(self, vehicles: dict[str, Vehicle]) -> None:
+        for task in list(self.tasks.values()):
+            if task.state not in HOLDING:
+                continue
+            vehicle = vehicles.get(task.vehicle)
+            if vehicle is None or not vehicle.online:
+                why = "is no longer known" if vehicle is None else f"is {vehicle.connection_state}"
+                self._record(machine.vehicle_lost(task, f"vehicle {task.vehicle} {why}; re-assigning", now_iso()),
+                             f"vehicle {task.vehicle} {why}: back to ACTIVE")
+
+    def _advance(self, task: Task, vehicles: dict[str, Vehicle]) -> None:
+        steps, sends = machine.advance(task, self.rules[task.lotlan_task], self._now(vehicles))
+        for moved, note in steps:
+            self._record(moved, note)
+        for order in sends:  # after the journal has them (write-ahead)
+            self._send(order, vehicles)
+
+    def _advance_all(self, vehicles: dict[str, Vehicle]) -> None:
+        for task_id in list(self.tasks):
+            if not self.tasks[task_id].state.final:
+                self._advance(self.tasks[task_id], vehicles)
+
+    def _assign(self, vehicles: dict[str, Vehicle]) -> None:
+        waiting = [t for t in self.tasks.values() if t.state is TaskState.ACTIVE]
+        if not waiting or not self.fleet.reachable:
+            return
+        store = self.plant.current()
+        for task in waiting:
+            held = {t.vehicle for t in self.tasks.values() if t.state in HOLDING}
+            leg = task.current
+            if leg is None:
+                continue
+            need = Need("pick", "drop", leg.x, leg.y, payload=0.0, min_battery=self.config.min_battery)
+            live = [v.live(idle=v.key not in held) for v in vehicles.values()]
+            choice = choose(store, live, need)
+            self.assign_seconds.append(choice.seconds)
+            if choice.vehicle is None:
+                if task.id not in self._unfit:
+                    self._unfit.add(task.id)
+                    log.info("task %s waits: %s", task.id, choice.explain())
+                continue
+            self._unfit.discard(task.id)
+            self._record(machine.assign(task, choice.vehicle, choice.explain(), now_iso()),
+                         f"ACTIVE -> ASSIGNED to {choice.vehicle} in {choice.seconds * 1000:.1f} ms; {choice.explain()}")
+            self._advance(self.tasks[task.id], vehicles)
+
+    def _send(self, order: SendOrder, vehicles: dict[str, Vehicle]) -> None:
+        vehicle = vehicles.get(order.vehicle)
+        self.last_sent[order.order_id] = time.monotonic()
+        if vehicle is None or vehicle.position() is None:
+            log.warning("order %s: vehicle %s has no known position yet; will resend", order.order_id, order.vehicle)
+            return
+        try:
+            self.send(order, vehicle)
+        except PlannerError as exc:
+            log.warning("order %s to %s not sent (%s); will resend", order.order_id, order.vehicle, exc)
+
+    def _resend(self, vehicles: dict[str, Vehicle]) -> None:
+        now = time.monotonic()
+        for task in self.tasks.values():
+            leg = task.current
+            if task.state is not TaskState.BEING_PROCESSED or leg is None or leg.state is not LegState.SENT:
+                continue
+            vehicle = vehicles.get(task.vehicle)
+            if vehicle is not None and vehicle.view().order_id == leg.order_id:
+                continue
+            if now - self.last_sent.get(leg.order_id, float("-inf")) >= self.config.resend:
+                log.info("order %s: %s does not show it; sending it (again)", leg.order_id, task.vehicle)
+                self._send(SendOrder(task.id, leg.index, task.vehicle, leg.order_id, leg.station, leg.x, leg.y,
+                                     leg.actions), vehicles)
+
+    # ------------------------------------------------------------------ API
+    def start_job(self, names: list[str] | None) -> dict[str, Any]:
+        known = [t.name for t in self.program.tasks]
+        names = names if names else [t.name for t in self.program.start_tasks()]
+        for name in names:
+            if name not in known:
+                raise RequestError(400, f"tasks: {name!r} is no Task of {self.program.file} "
+                                        f"(its tasks: {', '.join(known)})")
+        with self.lock:
+            job = f"j{len(self.jobs) + 1}"
+            self.journal.append("job", job=job, tasks=names, at=now_iso())
+            self.jobs[job] = list(names)
+            self._follow_ups()
+            return {"job": job, "tasks": [f"{job}-{n}-1" for n in names]}
+
+    def fire(self, name: Any, value: Any) -> dict[str, Any]:
+        if not isinstance(name, str) or not name:
+            raise RequestError(400, f"event: expected the name of an Event, got {name!r}"[:300])
+        event = next((e for e in self.program.events if name in (e.name, e.physical_name)), None)
+        if event is None:
+            raise RequestError(404, f"event: {name!r} is no Event of {self.program.file} "
+                                    f"({', '.join(e.name for e in self.program.events) or 'it has none'})")
+        allowed = EVENT_TYPES.get(event.type.lower())
+        if allowed and (not isinstance(value, allowed) or (bool not in allowed and isinstance(value, bool))):
+            raise RequestError(400, f"value: Event {event.name} is of type {event.type}, got {value!r}"[:300])
+        with self.lock:
+            number = len(self.events) + 1
+            record = {"number": number, "event": event.name, "value": value, "at": now_iso()}
+            self.journal.append("event", **record)
+            self.events.append(record)
+            log.info("event %s = %r (number %d)", event.name, value, number)
+            return record
+
+    def withdraw(self, task_id: str) -> dict[str, Any]:
+        with self.lock:
+            task = self.tasks.get(task_id)
+            if task is None:
+                raise RequestError(404, f"no task {task_id!r}")
+            if task.state.final:
+                raise RequestError(409, f"task {task_id} is {task.state.value} already")
+            self._record(machine.withdraw(task, "withdrawn by an operator", now_iso()), "withdrawn")
+            return self.tasks[task_id].to_json()
+
+    def snapshot(self) -> dict[str, Any]:
+        with self.lock:
+            return {"tasks": [t.to_json() for t in self.tasks.values()], "jobs": dict(self.jobs),
+                    "events": len(self.events)}
+
+    def task_json(self, task_id: str) -> dict[str, Any]:
+        with self.lock:
+            task = self.tasks.get(task_id)
+            if task is None:
+                raise RequestError(404, f"no task {task_id!r}")
+            return task.to_json()
