@@ -55,6 +55,7 @@ class PlannerConfig:
     tick: float = 0.1
     refresh: float = 0.3
     resend: float = 3.0
+    settle: float = 5.0  # s after start to hear every online vehicle's position before assigning
 
 
 def rules_of(program: Program) -> dict[str, Rules]:
@@ -79,6 +80,7 @@ class Planner:
         self.assign_seconds: deque[float] = deque(maxlen=10_000)
         self._unfit: set[str] = set()  # tasks no vehicle fits (logged once)
         self._stop = threading.Event()
+        self.started = time.monotonic()
         if self.tasks:
             log.info("resuming %d task(s) of %d job(s) from %s", len(self.tasks), len(self.jobs), journal.path)
         for task in self.tasks.values():
@@ -184,6 +186,9 @@ class Planner:
         waiting = [t for t in self.tasks.values() if t.state is TaskState.ACTIVE]
         if not waiting or not self.fleet.reachable:
             return
+        unheard = sorted(k for k, v in vehicles.items() if v.online and v.position() is None)
+        if unheard and time.monotonic() - self.started < self.config.settle:
+            return  # nearest first needs every position: wait (a little) for their states
         store = self.plant.current()
         for task in waiting:
             held = {t.vehicle for t in self.tasks.values() if t.state in HOLDING}

@@ -1,0 +1,352 @@
+"""The task planner end to end, real processes: agents, Mosquitto, the context broker, the fleet
+manager (``python -m fleet.manager``), simulated VDA 5050 AGVs (``python -m fleet.sim``) joining
+by plug and play, and the planner (``python -m fleet.planner``).
+
+- Two transport orders of one LoTLan job on two AGVs: both finish, each sub-task after the one
+  before it (pick, the operator's "Loaded", then drop), the Task entities on the context broker
+  read FINISHED; the planner is killed (kill -9) mid-run and restarted: every task completes once
+  (each sub-task's order was sent under one orderId, no leg done twice).
+- A vehicle killed (kill -9) mid-task: the task goes to the other vehicle; the sub-task the first
+  one finished stays finished (its pick is not sent again).
+
+The assignment latency the planner logged is printed (no timing asserts).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import sys
+import urllib.request
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from engine import process
+from engine.cli import main
+from tests.integration.agents import AgentFleet, plant_copy, start_agents
+
+pytestmark = pytest.mark.integration
+
+ROOT = Path(__file__).resolve().parents[2]
+MQTT_HOST, CB_HOST = "127.0.0.2", "127.0.0.3"
+
+STATIONS = [{"name": "load-1", "x": 2.0, "y": 6.0}, {"name": "unload-1", "x": 10.0, "y": 6.0},
+            {"name": "load-2", "x": 2.0, "y": 2.0}, {"name": "unload-2", "x": 10.0, "y": 2.0}]
+PARK = [{"name": "park-1", "x": 4.0, "y": 5.0}, {"name": "park-2", "x": 4.0, "y": 3.0}]
+
+JOBS = """\
+Location loadStation
+    name = "load-1"
+    type = "pallet"
+End
+
+Location unloadStation
+    name = "unload-1"
+    type = "pallet"
+End
+
+Location otherLoad
+    name = "load-2"
+    type = "pallet"
+End
+
+Location otherUnload
+    name = "unload-2"
+    type = "pallet"
+End
+
+Event loaded
+    name = "Loaded"
+    type = "Boolean"
+End
+
+TransportOrderStep atLoad
+    Location loadStation
+    FinishedBy loaded == True
+End
+
+TransportOrderStep atUnload
+    Location unloadStation
+End
+
+TransportOrderStep atOtherLoad
+    Location otherLoad
+End
+
+TransportOrderStep atOtherUnload
+    Location otherUnload
+End
+
+Task first
+    Transport
+    From atLoad
+    To atUnload
+End
+
+Task second
+    Transport
+    From atOtherLoad
+    To atOtherUnload
+End
+"""
+
+
+@dataclass
+class Rig:
+    tmp: Path
+    plant: Path
+    data: Path
+    agents: AgentFleet
+    manager: process.Child
+    mqtt_port: int
+    cb_port: int
+
+    def status(self) -> dict[str, Any]:
+        try:
+            return json.loads((self.data / "status.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return {}
+
+    @property
+    def cb_token_file(self) -> Path:
+        return self.agents.agents[CB_HOST].state_dir / "token"
+
+    def files(self) -> list[str]:
+        return [str(self.plant), *map(str, sorted((self.data / "discovered").glob("*.ttl")))]
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
+    tmp = tmp_path_factory.mktemp("planner")
+    plant, ports = plant_copy("agv-fleet.ttl", tmp)
+    agents = start_agents([MQTT_HOST, CB_HOST], tmp / "agents")
+    data = tmp / "fleet-data"
+    manager = None
+    try:
+        assert main(["apply", str(plant), "--agents", str(agents.agents_file), "--yes"]) == 0
+        manager = process.spawn([sys.executable, "-m", "fleet.manager", plant, "--data-dir", data, "--agents",
+                                 agents.agents_file, "--resync", "5"], log_dir=tmp / "logs", name="fleet-manager",
+                                cwd=ROOT)
+        r = Rig(tmp, plant, data, agents, manager, ports["fleet-mqtt"], ports["fleet-context"])
+
+        def started() -> bool:
+            s = r.status()
+            return bool(s.get("manager", {}).get("connected") and (s.get("lastReconcile") or {}).get("ok"))
+        process.wait_until(started, 60.0, 0.05, what="the manager connected and reconciled", child=manager)
+        yield r
+        assert process.stop(manager, grace=15.0) == 0, manager.log_tail()
+        assert main(["destroy", *r.files(), "--agents", str(agents.agents_file), "--yes"]) == 0
+    finally:
+        if manager is not None and manager.running():
+            process.stop(manager, grace=5.0)
+        agents.stop()
+
+
+def write_map(path: Path, parking: list[dict[str, float]]) -> Path:
+    path.write_text(json.dumps({"mapId": "hall-t", "width": 12, "height": 8, "stations": STATIONS + parking}),
+                    encoding="utf-8")
+    return path
+
+
+def spawn_sim(rig: Rig, prefix: str, map_file: Path, count: int, name: str) -> process.Child:
+    return process.spawn([sys.executable, "-m", "fleet.sim", "--broker", f"{MQTT_HOST}:{rig.mqtt_port}",
+                          "--count", str(count), "--manufacturer", "plan", "--serial-prefix", prefix,
+                          "--map", map_file, "--vmax", "2", "--amax", "1", "--state-interval", "1"],
+                         log_dir=rig.tmp / "logs", name=name, cwd=ROOT)
+
+
+def wait_ready(rig: Rig, serials: list[str], sim: process.Child) -> None:
+    def ready() -> bool:
+        rows = {v["serial"]: v for v in rig.status().get("vehicles", [])}
+        return all(s in rows and rows[s]["readySeconds"] is not None and rows[s]["connectionState"] == "ONLINE"
+                   for s in serials)
+    process.wait_until(ready, 60.0, 0.05, what=f"{serials} applied and ONLINE", child=sim)
+
+
+class Planner:
+    def __init__(self, rig: Rig, data: Path, lotlan: Path, map_file: Path, name: str) -> None:
+        self.rig, self.data, self.lotlan, self.map_file, self.name = rig, data, lotlan, map_file, name
+        self.runs = 0
+        self.child: process.Child | None = None
+
+    def start(self) -> process.Child:
+        self.runs += 1
+        self.child = process.spawn(
+            [sys.executable, "-m", "fleet.planner", "--plant", self.rig.plant, "--lotlan", self.lotlan,
+             "--data-dir", self.data, "--manager-data-dir", self.rig.data, "--map", self.map_file,
+             "--ngsi-url", f"http://{CB_HOST}:{self.rig.cb_port}", "--ngsi-token-file", self.rig.cb_token_file],
+            log_dir=self.rig.tmp / "logs", name=f"{self.name}-{self.runs}", cwd=ROOT)
+        process.wait_until(lambda: self._where().get("pid") == self.child.pid, 30.0, 0.05,
+                           what="the planner's API", child=self.child)
+        return self.child
+
+    def _where(self) -> dict[str, Any]:
+        try:
+            return json.loads((self.data / "planner.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return {}
+
+    def call(self, method: str, path: str, body: Any = None) -> tuple[int, Any]:
+        token = (self.data / "planner.token").read_text(encoding="utf-8").strip()
+        request = urllib.request.Request(self._where()["url"] + path, method=method,
+                                         data=None if body is None else json.dumps(body).encode(),
+                                         headers={"Authorization": f"Bearer {token}",
+                                                  "Content-Type": "application/json"})
+        try:
+            with urllib.request.urlopen(request, timeout=10) as reply:
+                return reply.status, json.loads(reply.read())
+        except urllib.error.HTTPError as exc:
+            return exc.code, json.loads(exc.read())
+
+    def tasks(self) -> dict[str, dict[str, Any]]:
+        return {t["id"]: t for t in self.call("GET", "/v1/tasks")[1]["tasks"]}
+
+    def wait(self, predicate: Any, deadline: float, what: str) -> Any:
+        return process.wait_until(predicate, deadline, 0.05, what=what, child=self.child)
+
+    def kill9(self) -> None:
+        assert self.child is not None
+        os.killpg(self.child.pid, signal.SIGKILL)
+        self.child.popen.wait(timeout=10)
+
+    def stop(self) -> None:
+        if self.child is not None and self.child.running():
+            assert process.stop(self.child, grace=10.0) == 0, self.child.log_tail()
+
+    def journal(self) -> list[dict[str, Any]]:
+        return [json.loads(line) for line in (self.data / "journal.jsonl").read_text().splitlines()]
+
+    def logs(self) -> str:
+        return "".join(p.read_text(errors="replace") for p in sorted((self.rig.tmp / "logs").glob(f"{self.name}-*")))
+
+
+def entities(rig: Rig) -> dict[str, dict[str, Any]]:
+    url = f"http://{CB_HOST}:{rig.cb_port}/v2/entities?type=Task&options=keyValues&limit=100"
+    with urllib.request.urlopen(url, timeout=10) as reply:
+        return {e["id"]: e for e in json.loads(reply.read())}
+
+
+def notes(journal: list[dict[str, Any]], task_id: str) -> list[str]:
+    return [r["note"] for r in journal if r["kind"] == "task" and r["task"]["id"] == task_id]
+
+
+def latencies(log: str) -> list[float]:
+    return [float(m) for m in re.findall(r"ASSIGNED to \S+ in ([0-9.]+) ms", log)]
+
+
+def leg_order_ok(task_notes: list[str]) -> bool:
+    """Sub-task 0 sent, then done, then sub-task 1 sent, then done, then FINISHED: in this order."""
+    marks = ["sub-task 0 READY -> SENT", "sub-task 0 ", "sub-task 1 READY -> SENT", "sub-task 1 ", "-> FINISHED"]
+    at = -1
+    for mark in marks:
+        hits = [i for i, n in enumerate(task_notes) if n.startswith(mark) and i > at
+                and (mark.endswith("SENT") or "DONE" in n or mark == "-> FINISHED")]
+        if not hits:
+            return False
+        at = hits[0]
+    return True
+
+
+def test_two_transports_on_two_agvs_survive_a_planner_kill_9(rig: Rig, capsys: pytest.CaptureFixture[str]) -> None:
+    map_file = write_map(rig.tmp / "map-a.json", PARK)
+    lotlan = rig.tmp / "jobs.tl"
+    lotlan.write_text(JOBS, encoding="utf-8")
+    sim = spawn_sim(rig, "pl-", map_file, 2, "sim-two")
+    planner = Planner(rig, rig.tmp / "planner-1", lotlan, map_file, "planner-a")
+    try:
+        wait_ready(rig, ["pl-0001", "pl-0002"], sim)
+        planner.start()
+        status, job = planner.call("POST", "/v1/jobs", {})
+        assert status == 201 and job == {"job": "j1", "tasks": ["j1-first-1", "j1-second-1"]}, job
+        # bad input: clear 4xx naming the field, never a 500
+        assert planner.call("POST", "/v1/events", {"event": "nope", "value": True})[0] == 404
+        status, body = planner.call("POST", "/v1/events", {"event": "loaded", "value": "yes"})
+        assert status == 400 and "value" in body["description"]
+        assert planner.call("POST", "/v1/jobs", {"tasks": ["ghost"]})[0] == 400
+        # mid-run: first waits for the operator at load-1 (its pick done); kill -9 the planner there
+        planner.wait(lambda: planner.tasks()["j1-first-1"]["legs"][0]["state"] == "ACTED", 60.0,
+                     "first's pick done, waiting for Loaded")
+        planner.kill9()
+        planner.start()
+        assert "resuming 2 task(s) of 1 job(s)" in planner.logs()
+        status, event = planner.call("POST", "/v1/events", {"event": "Loaded", "value": True})
+        assert status == 201 and event["event"] == "loaded"
+        tasks = planner.wait(lambda: (t := planner.tasks()) and all(x["state"] == "FINISHED" for x in t.values()) and t,
+                             90.0, "both tasks FINISHED")
+        assert set(tasks) == {"j1-first-1", "j1-second-1"}
+        vehicles = {t["vehicle"] for t in tasks.values()}
+        legs = {tid: [(g["station"], g["state"], g["vehicle"], g["orderId"]) for g in t["legs"]] for tid, t in tasks.items()}
+        assert [(s, st) for s, st, _, _ in legs["j1-first-1"]] == [("load-1", "DONE"), ("unload-1", "DONE")]
+        assert [(s, st) for s, st, _, _ in legs["j1-second-1"]] == [("load-2", "DONE"), ("unload-2", "DONE")]
+        used = {g[2] for t in legs.values() for g in t}
+        assert used == {"plan/pl-0001", "plan/pl-0002"}, legs  # one vehicle per transport, both used
+        assert all(len({g[2] for g in t}) == 1 for t in legs.values()), legs  # the same vehicle carries it
+        journal = planner.journal()
+        for tid in tasks:
+            task_notes = notes(journal, tid)
+            assert leg_order_ok(task_notes), task_notes
+            assert task_notes.count("-> FINISHED") == 1
+            sent = [n for n in task_notes if "READY -> SENT" in n]
+            assert len(sent) == 2, task_notes  # each sub-task sent once: nothing done twice
+        assert all(g[3].endswith("-1") for t in legs.values() for g in t)  # first attempt of every leg
+        # the vehicles did what the planner asked: their last orders are the drops, all FINISHED
+        rows = {f"plan/{v['serial']}": v for v in rig.status()["vehicles"] if v["serial"].startswith("pl-")}
+        for tid, t in legs.items():
+            state = rows[t[1][2]]["state"]
+            assert state["orderId"] == t[1][3] and state["lastNodeId"] == t[1][0]
+            assert {a["actionStatus"] for a in state["actionStates"]} == {"FINISHED"}
+        # the Task entities on the context broker (plain HTTP, as any NGSI client)
+        seen = process.wait_until(
+            lambda: (e := entities(rig)) and all(e.get(f"urn:ngsi-ld:Task:{t}", {}).get("state") == "FINISHED"
+                                                 for t in tasks) and e, 20.0, 0.1, what="Task entities FINISHED")
+        first = seen["urn:ngsi-ld:Task:j1-first-1"]
+        assert first["type"] == "Task" and first["vehicle"] in vehicles and first["step"] == "all sub-tasks done"
+        took = latencies(planner.logs())
+        with capsys.disabled():
+            print(f"\nplanner: 2 transports on 2 AGVs, planner killed -9 and resumed; assignment latency "
+                  f"(assign.rq incl. live graph) {', '.join(f'{t:.1f}' for t in took)} ms")
+        assert len(took) == 2
+    finally:
+        planner.stop()
+        assert process.stop(sim, grace=15.0) == 0, sim.log_tail()
+
+
+def test_a_vehicle_killed_mid_task_hands_its_task_over_and_finished_work_is_not_redone(
+        rig: Rig, capsys: pytest.CaptureFixture[str]) -> None:
+    near = write_map(rig.tmp / "map-near.json", PARK)  # its vehicle starts on park-1, next to load-1
+    far = write_map(rig.tmp / "map-far.json", PARK[::-1])  # its vehicle starts on park-2
+    lotlan = rig.tmp / "one.tl"
+    lotlan.write_text(JOBS.split("Task second")[0], encoding="utf-8")
+    sim_a = spawn_sim(rig, "ka-", near, 1, "sim-a")
+    sim_b = spawn_sim(rig, "kb-", far, 1, "sim-b")
+    planner = Planner(rig, rig.tmp / "planner-2", lotlan, near, "planner-b")
+    try:
+        wait_ready(rig, ["ka-0001"], sim_a)
+        wait_ready(rig, ["kb-0001"], sim_b)
+        planner.start()
+        assert planner.call("POST", "/v1/jobs", {"tasks": ["first"]})[0] == 201
+        task = planner.wait(lambda: (t := planner.tasks()["j1-first-1"])["legs"][0]["state"] == "ACTED" and t,
+                            60.0, "the pick done by the nearest vehicle")
+        assert task["vehicle"] == "plan/ka-0001"
+        os.killpg(sim_a.pid, signal.SIGKILL)  # its last will: CONNECTIONBROKEN
+        sim_a.popen.wait(timeout=10)
+        task = planner.wait(lambda: (t := planner.tasks()["j1-first-1"])["vehicle"] == "plan/kb-0001" and t,
+                            30.0, "the task re-assigned to kb-0001")
+        assert task["legs"][0]["state"] == "ACTED" and task["legs"][0]["vehicle"] == "plan/ka-0001"
+        assert planner.call("POST", "/v1/events", {"event": "loaded", "value": True})[0] == 201
+        task = planner.wait(lambda: (t := planner.tasks()["j1-first-1"])["state"] == "FINISHED" and t, 60.0, "FINISHED")
+        assert [(g["vehicle"], g["state"], g["orderId"]) for g in task["legs"]] == [
+            ("plan/ka-0001", "DONE", "j1-first-1-0-1"), ("plan/kb-0001", "DONE", "j1-first-1-1-1")]
+        task_notes = notes(planner.journal(), "j1-first-1")
+        assert sum("sub-task 0 READY -> SENT" in n for n in task_notes) == 1, task_notes  # the pick is not redone
+        assert any("vehicle plan/ka-0001 is CONNECTIONBROKEN" in n for n in task_notes), task_notes
+    finally:
+        planner.stop()
+        process.stop(sim_a, grace=5.0)
+        assert process.stop(sim_b, grace=15.0) == 0, sim_b.log_tail()
