@@ -5,7 +5,8 @@
         [--map map.json] [--mqtt HOST:PORT] [--min-battery 20] [--start]
 
 The fleet manager is found through its data directory (``manager.json``, ``manager.token``; its
-``discovered/*.ttl`` join the plant graph the assignment query runs on). The MQTT broker is the
+``discovered/*.ttl`` join the plant graph the assignment query runs on), or given as
+``--manager-url URL --manager-token-file F [--discovered DIR]``. The MQTT broker is the
 one the plant's fleet-manager resource sends to (``--mqtt`` overrides it). ``--start`` starts one
 job of the program's start tasks when the journal has no job yet. The API binds to 127.0.0.1; its
 address and token are in ``DIR/planner.json`` and ``DIR/planner.token``. SIGTERM/SIGINT stop it
@@ -25,8 +26,10 @@ import fleet.lotlan
 from fleet.lotlan.errors import LotlanError
 from fleet.manager.client import ManagerClient
 from fleet.manager.plant import binding_and_address
+from fleet.planner import build
 from fleet.planner.api import ApiServer
 from fleet.planner.dispatch import VdaSender
+from fleet.planner.errors import PlannerError
 from fleet.planner.journal import Journal
 from fleet.planner.ngsi import TaskPublisher
 from fleet.planner.plantview import PlantView
@@ -50,7 +53,11 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--plant", nargs="+", type=Path, required=True, metavar="PLANT.ttl")
     p.add_argument("--lotlan", type=Path, required=True, help="the LoTLan file of the jobs")
     p.add_argument("--data-dir", type=Path, required=True, help="journal.jsonl, planner.json, planner.token")
-    p.add_argument("--manager-data-dir", type=Path, required=True, help="the fleet manager's --data-dir")
+    manager = p.add_mutually_exclusive_group(required=True)
+    manager.add_argument("--manager-data-dir", type=Path, help="the fleet manager's --data-dir")
+    manager.add_argument("--manager-url", help="the fleet manager's API (with --manager-token-file)")
+    p.add_argument("--manager-token-file", type=Path, help="the manager's token (with --manager-url)")
+    p.add_argument("--discovered", type=Path, help="the manager's discovered/ folder (with --manager-url)")
     p.add_argument("--ngsi-url", default=None, help="context broker (NGSI-v2) for the Task entities")
     p.add_argument("--ngsi-token-file", type=Path, default=None, help="its write token (first line)")
     p.add_argument("--map", default="default", help="map JSON with the stations, or 'default'")
@@ -70,12 +77,21 @@ def main(argv: list[str] | None = None) -> int:
         plant_files = tuple(p.resolve() for p in args.plant)
         site = site_map.default_map() if args.map == "default" else site_map.load(Path(args.map))
         program = fleet.lotlan.load(args.lotlan)
+        build.check_program(program, site)  # before anything is touched: a bad file starts nothing
         mqtt = args.mqtt or binding_and_address(list(plant_files))[1]
-        manager = ManagerClient.for_data_dir(args.manager_data_dir.resolve())
+        if args.manager_data_dir is not None:
+            manager = ManagerClient.for_data_dir(args.manager_data_dir.resolve())
+            discovered: Path | None = args.manager_data_dir.resolve() / "discovered"
+        elif args.manager_token_file is None:
+            raise PlannerError("--manager-url needs --manager-token-file (the manager's <data-dir>/manager.token)")
+        else:
+            manager = ManagerClient(args.manager_url.rstrip("/"),
+                                    args.manager_token_file.read_text(encoding="utf-8").strip())
+            discovered = args.discovered
         token = None
         if args.ngsi_token_file is not None:
             token = args.ngsi_token_file.read_text(encoding="utf-8").splitlines()[0].strip()
-        plant = PlantView(plant_files, args.manager_data_dir.resolve() / "discovered")
+        plant = PlantView(plant_files, discovered)
         plant.current()
         journal = Journal(args.data_dir.resolve())
         states = StateListener(*mqtt)
