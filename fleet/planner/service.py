@@ -56,6 +56,7 @@ class PlannerConfig:
     refresh: float = 0.3
     resend: float = 3.0
     settle: float = 5.0  # s after start to hear every online vehicle's position before assigning
+    missing: float = 10.0  # s a held vehicle may be absent from the manager's list before it is lost
 
 
 def rules_of(program: Program) -> dict[str, Rules]:
@@ -81,6 +82,7 @@ class Planner:
         self._unfit: set[str] = set()  # tasks no vehicle fits (logged once)
         self._stop = threading.Event()
         self.started = time.monotonic()
+        self._missing_since: dict[str, float] = {}
         if self.tasks:
             log.info("resuming %d task(s) of %d job(s) from %s", len(self.tasks), len(self.jobs), journal.path)
         for task in self.tasks.values():
@@ -161,10 +163,19 @@ class Planner:
         self._resend(vehicles)
 
     def _lost(self, vehicles: dict[str, Vehicle]) -> None:
+        """A held vehicle that reports OFFLINE / CONNECTIONBROKEN is lost at once; one missing from
+        the manager's list only after ``missing`` s (a manager that has just restarted lists
+        nobody for a moment; a person may have removed the vehicle)."""
+        now = time.monotonic()
+        for key in list(self._missing_since):
+            if key in vehicles:
+                del self._missing_since[key]
         for task in list(self.tasks.values()):
             if task.state not in HOLDING:
                 continue
             vehicle = vehicles.get(task.vehicle)
+            if vehicle is None and now - self._missing_since.setdefault(task.vehicle, now) < self.config.missing:
+                continue
             if vehicle is None or not vehicle.online:
                 why = "is no longer known" if vehicle is None else f"is {vehicle.connection_state}"
                 self._record(machine.vehicle_lost(task, f"vehicle {task.vehicle} {why}; re-assigning", now_iso()),

@@ -197,3 +197,23 @@ def test_withdraw_is_final(tmp_path: Path, plant: PlantView) -> None:
         planner.withdraw("j1-first-1")
     assert caught.value.status == 409
     planner.journal.close()
+
+
+def test_a_vehicle_missing_from_the_list_for_a_moment_keeps_its_task(tmp_path: Path, plant: PlantView) -> None:
+    given, sent = GivenFleet(), []
+    given.put("a-2", 3.0, 6.0)
+    planner = planner_on(tmp_path, given, plant, sent)
+    planner.start_job(["first"])
+    planner.tick()
+    kept = given.v.pop("t/a-2")  # a manager that has just restarted lists nobody yet
+    planner.tick()
+    assert planner.tasks["j1-first-1"].vehicle == "t/a-2"
+    given.v["t/a-2"] = kept
+    planner.tick()
+    planner.config = PlannerConfig(SITE, settle=0.0, missing=0.0)
+    given.v.pop("t/a-2")  # gone for good (a person removed it)
+    planner.tick()
+    planner.tick()
+    assert planner.tasks["j1-first-1"].state is TaskState.ACTIVE
+    assert "vehicle t/a-2 is no longer known" in planner.tasks["j1-first-1"].reason
+    planner.journal.close()
