@@ -13,7 +13,11 @@ Layers, bottom to top (each module one job):
   against :mod:`states`;
 - :mod:`assign` + ``assign.rq`` — which vehicle takes a task: a SPARQL query over the plant graph
   and the live vehicle states (nearest fitting idle vehicle first, rows logged);
+- :mod:`plantview` — the plant graph (plant files + the manager's discovered vehicles), reloaded
+  when a discovered file changes;
 - :mod:`journal` — the write-ahead log (JSON lines, fsync'd per transition) and its replay;
+- :mod:`vehicles` — the manager's vehicle list (HTTP) joined with their VDA 5050 states (MQTT);
+- :mod:`dispatch` — a sub-task as a VDA 5050 order sent through the manager's API;
 - :mod:`ngsi` — tasks as NGSI-v2 entities (type ``Task``) on the context broker, over HTTP;
 - :mod:`service`, :mod:`api`, ``__main__`` — the process: ``python -m fleet.planner``.
 
