@@ -21,6 +21,20 @@ from fleet.planner.model import Task
 
 log = logging.getLogger("fleet.planner")
 ENTITY_TYPE = "Task"
+#: NGSI-v2 refuses ``< > " ' = ; ( )`` in any string of a value (Orion's "General syntax
+#: restrictions"); the texts of a Task entity have them replaced (brackets for parentheses, ...).
+NGSI_SAFE = str.maketrans({"'": "`", '"': "`", "(": "[", ")": "]", "<": "lt ", ">": "gt ", "=": ":", ";": ","})
+
+
+def safe(value: Any) -> Any:
+    """``value`` with every string in it free of the characters NGSI-v2 refuses."""
+    if isinstance(value, str):
+        return value.replace(" = ", " is ").translate(NGSI_SAFE)
+    if isinstance(value, list):
+        return [safe(v) for v in value]
+    if isinstance(value, dict):
+        return {k: safe(v) for k, v in value.items()}
+    return value
 
 
 def entity_id(task_id: str) -> str:
@@ -30,11 +44,11 @@ def entity_id(task_id: str) -> str:
 def entity(task: Task) -> dict[str, Any]:
     """The task as a normalized NGSI-v2 entity."""
     leg = task.current
-    step = (f"{leg.index}: {leg.station} ({', '.join(leg.actions)}) {leg.state.value}"
+    step = (f"{leg.index}: {leg.station} [{', '.join(leg.actions)}] {leg.state.value}"
             if leg is not None else "all sub-tasks done")
 
     def text(value: str) -> dict[str, Any]:
-        return {"type": "Text", "value": value}
+        return {"type": "Text", "value": safe(value)}
 
     return {
         "id": entity_id(task.id), "type": ENTITY_TYPE,
@@ -42,9 +56,9 @@ def entity(task: Task) -> dict[str, Any]:
         "stepIndex": {"type": "Integer", "value": leg.index if leg is not None else len(task.legs)},
         "job": text(task.job), "lotlanTask": text(task.lotlan_task),
         "run": {"type": "Integer", "value": task.run}, "reason": text(task.reason[:500]),
-        "legs": {"type": "StructuredValue", "value": [
+        "legs": {"type": "StructuredValue", "value": safe([
             {"index": g.index, "station": g.station, "actions": list(g.actions), "state": g.state.value,
-             "vehicle": g.vehicle, "orderId": g.order_id} for g in task.legs]},
+             "vehicle": g.vehicle, "orderId": g.order_id} for g in task.legs])},
         "dateModified": {"type": "DateTime", "value": task.updated or task.created},
     }
 

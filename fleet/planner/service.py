@@ -83,6 +83,7 @@ class Planner:
         self._stop = threading.Event()
         self.started = time.monotonic()
         self._missing_since: dict[str, float] = {}
+        self._unplaced: set[str] = set()  # orders waiting for their vehicle's position (logged once)
         if self.tasks:
             log.info("resuming %d task(s) of %d job(s) from %s", len(self.tasks), len(self.jobs), journal.path)
         for task in self.tasks.values():
@@ -223,8 +224,12 @@ class Planner:
     def _send(self, order: SendOrder, vehicles: dict[str, Vehicle]) -> None:
         vehicle = vehicles.get(order.vehicle)
         self.last_sent[order.order_id] = time.monotonic()
-        if vehicle is None or vehicle.position() is None:
-            log.warning("order %s: vehicle %s has no known position yet; will resend", order.order_id, order.vehicle)
+        if vehicle is None or vehicle.position() is None:  # e.g. just restarted: its state comes soon
+            self.last_sent[order.order_id] -= self.config.resend - 0.25  # try again in 0.25 s
+            if order.order_id not in self._unplaced:
+                self._unplaced.add(order.order_id)
+                log.info("order %s: no position of %s heard yet; sending it once there is", order.order_id,
+                         order.vehicle)
             return
         try:
             self.send(order, vehicle)

@@ -272,6 +272,11 @@ def test_two_transports_on_two_agvs_survive_a_planner_kill_9(rig: Rig, capsys: p
         # mid-run: first waits for the operator at load-1 (its pick done); kill -9 the planner there
         planner.wait(lambda: planner.tasks()["j1-first-1"]["legs"][0]["state"] == "ACTED", 60.0,
                      "first's pick done, waiting for Loaded")
+        # the HMI's view while the vehicle waits for the operator: the Task entity on the context broker
+        waiting = process.wait_until(lambda: entities(rig).get("urn:ngsi-ld:Task:j1-first-1", {}).get("step") ==
+                                     "0: load-1 [pick] ACTED" and entities(rig)["urn:ngsi-ld:Task:j1-first-1"],
+                                     20.0, 0.1, what="the Task entity waiting at load-1")
+        assert waiting["state"] == "BEING_PROCESSED" and waiting["vehicle"] == "plan/pl-0001"
         planner.kill9()
         planner.start()
         assert "resuming 2 task(s) of 1 job(s)" in planner.logs()
@@ -307,6 +312,7 @@ def test_two_transports_on_two_agvs_survive_a_planner_kill_9(rig: Rig, capsys: p
                                                  for t in tasks) and e, 20.0, 0.1, what="Task entities FINISHED")
         first = seen["urn:ngsi-ld:Task:j1-first-1"]
         assert first["type"] == "Task" and first["vehicle"] in vehicles and first["step"] == "all sub-tasks done"
+        assert "context broker refused" not in planner.logs()  # every Task entity write was accepted
         took = latencies(planner.logs())
         with capsys.disabled():
             print(f"\nplanner: 2 transports on 2 AGVs, planner killed -9 and resumed; assignment latency "
@@ -346,6 +352,7 @@ def test_a_vehicle_killed_mid_task_hands_its_task_over_and_finished_work_is_not_
         task_notes = notes(planner.journal(), "j1-first-1")
         assert sum("sub-task 0 READY -> SENT" in n for n in task_notes) == 1, task_notes  # the pick is not redone
         assert any("vehicle plan/ka-0001 is CONNECTIONBROKEN" in n for n in task_notes), task_notes
+        assert "context broker refused" not in planner.logs()
     finally:
         planner.stop()
         process.stop(sim_a, grace=5.0)

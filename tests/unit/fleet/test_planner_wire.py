@@ -41,6 +41,24 @@ def test_a_task_as_an_ngsi_entity() -> None:
     entity = ngsi.entity(task)
     assert entity["id"] == "urn:ngsi-ld:Task:j1-first-1" and entity["type"] == "Task"
     assert entity["state"] == {"type": "Text", "value": "RAW"}
-    assert entity["step"]["value"] == "0: load-1 (pick) READY" and entity["stepIndex"]["value"] == 0
+    assert entity["step"]["value"] == "0: load-1 [pick] READY" and entity["stepIndex"]["value"] == 0
     assert [leg["station"] for leg in entity["legs"]["value"]] == ["load-1", "unload-1"]
     assert entity["dateModified"]["value"] == "2026-11-24T20:00:00.000Z"
+
+
+def strings(value: object) -> list[str]:
+    if isinstance(value, str):
+        return [value]
+    if isinstance(value, dict):
+        return [s for v in value.values() for s in strings(v)]
+    if isinstance(value, list):
+        return [s for v in value for s in strings(v)]
+    return []
+
+
+def test_no_string_of_a_task_entity_has_a_character_ngsi_refuses() -> None:
+    task = build.build_task("j1-first-1", "j1", fleet.lotlan.parse(JOBS, "jobs.tl").task("first"), 1, SITE)
+    task = replace(task, reason="assign.rq rows (best first): a = b; 'x' <y> \"z\"", vehicle="m/agv-1")
+    values = strings({k: v for k, v in ngsi.entity(task).items() if k not in ("id", "type")})
+    assert values and not [v for v in values if set(v) & set("<>\"'=;()")], values
+    assert ngsi.entity(task)["reason"]["value"] == "assign.rq rows [best first]: a is b, `x` lt ygt  `z`"
