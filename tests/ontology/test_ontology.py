@@ -79,6 +79,8 @@ DATA_PROPERTIES = {  # name: (domain or None for all classes, range or None for 
     "entityId": ("Topic", ns.XSD.string, True),
     "entityType": ("Topic", ns.XSD.string, True),
 }
+#: Annotation properties of a plant's own owl:Ontology header (docs/operating.md).
+ANNOTATION_PROPERTIES = {"plantName"}
 SKOS_ALT_LABEL = URIRef("http://www.w3.org/2004/02/skos/core#altLabel")
 DCTERMS_LICENSE = URIRef("http://purl.org/dc/terms/license")
 PAPER_NAMES = {
@@ -178,11 +180,14 @@ def test_terms_of_the_conventions_are_declared_with_their_kind(tbox: Graph) -> N
         assert (pk(name), ns.RDF.type, ns.OWL.ObjectProperty) in tbox, name
     for name in DATA_PROPERTIES:
         assert (pk(name), ns.RDF.type, ns.OWL.DatatypeProperty) in tbox, name
+    for name in ANNOTATION_PROPERTIES:
+        assert (pk(name), ns.RDF.type, ns.OWL.AnnotationProperty) in tbox, name
 
 
 def test_no_term_beyond_the_conventions(tbox: Graph) -> None:
     declared = {s for s in tbox.subjects() if isinstance(s, URIRef) and str(s).startswith(str(PK))}
-    expected = {pk(n) for n in CLASSES | set(DEFINED_CLASSES) | set(OBJECT_PROPERTIES) | set(DATA_PROPERTIES)}
+    expected = {pk(n) for n in CLASSES | set(DEFINED_CLASSES) | set(OBJECT_PROPERTIES) | set(DATA_PROPERTIES)
+                | ANNOTATION_PROPERTIES}
     assert declared == expected
 
 

@@ -347,6 +347,9 @@ def _plant(case: Case) -> str:
 
 W = "Warning"
 
+#: A plant's own owl:Ontology header with pk:plantName {} (the owner name).
+PLANT_HEADER = "\nex:plant a <http://www.w3.org/2002/07/owl#Ontology> ;\n    pk:plantName {} .\n"
+
 CASES: list[Case] = [
     Case("valid", "none: every shape holds"),
     # --- every individual: id, name, description, control characters ---
@@ -1129,6 +1132,18 @@ ex:kafka1 pk:bridgesTo ex:kafka2 .""",
          add=CB.replace("pk:hasTopic ex:command .", "pk:hasTopic ex:command , ex:ab , ex:ab2 .")
              + '\nex:ab a pk:Topic ;\n    pk:id "t-ab" ;\n    pk:name "a/b" ;\n    pk:entityId "urn:x" ;\n    pk:entityType "A" .'
              + '\nex:ab2 a pk:Topic ;\n    pk:id "t-ab2" ;\n    pk:name "a:b" ;\n    pk:entityId "urn:x" ;\n    pk:entityType "A" .'),
+    # The plant's owner name on its own ontology header (docs/operating.md).
+    Case("plant-name-valid", "the plant declares its owner name (no result)",
+         add=PLANT_HEADER.format('"line-3"')),
+    Case("plant-name-twice", "two owner names",
+         add=PLANT_HEADER.format('"line-3" , "line-4"'),
+         expected=[R("ex:plant", "plantName", None, "Plant-plantName", "MaxCount")]),
+    Case("plant-name-not-string", "an owner name that is a number",
+         add=PLANT_HEADER.format("3"),
+         expected=[R("ex:plant", "plantName", "3", "Plant-plantName", "Datatype")]),
+    Case("plant-name-with-space", "an owner name with a space",
+         add=PLANT_HEADER.format('"line 3"'),
+         expected=[R("ex:plant", "plantName", "line 3", "Plant-plantName", "Pattern")]),
 ]
 
 
