@@ -20,6 +20,7 @@ import logging
 import os
 import signal
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import fleet.lotlan
@@ -39,6 +40,7 @@ from fleet.sim import map as site_map
 from kg.errors import PlantKGError
 
 log = logging.getLogger("fleet.planner")
+MANAGER_TIMEOUT = 2.0  # s: the planner's loop calls the manager; a hung manager stalls it at most this long
 
 
 def _address(text: str) -> tuple[str, int]:
@@ -80,13 +82,13 @@ def main(argv: list[str] | None = None) -> int:
         build.check_program(program, site)  # before anything is touched: a bad file starts nothing
         mqtt = args.mqtt or binding_and_address(list(plant_files))[1]
         if args.manager_data_dir is not None:
-            manager = ManagerClient.for_data_dir(args.manager_data_dir.resolve())
+            manager = replace(ManagerClient.for_data_dir(args.manager_data_dir.resolve()), timeout=MANAGER_TIMEOUT)
             discovered: Path | None = args.manager_data_dir.resolve() / "discovered"
         elif args.manager_token_file is None:
             raise PlannerError("--manager-url needs --manager-token-file (the manager's <data-dir>/manager.token)")
         else:
             manager = ManagerClient(args.manager_url.rstrip("/"),
-                                    args.manager_token_file.read_text(encoding="utf-8").strip())
+                                    args.manager_token_file.read_text(encoding="utf-8").strip(), MANAGER_TIMEOUT)
             discovered = args.discovered
         token = None
         if args.ngsi_token_file is not None:

@@ -204,6 +204,8 @@ class Planner:
         store = self.plant.current()
         for task in waiting:
             held = {t.vehicle for t in self.tasks.values() if t.state in HOLDING}
+            if not any(v.online and k not in held for k, v in vehicles.items()):
+                return  # nobody free: no query to run
             leg = task.current
             if leg is None:
                 continue
