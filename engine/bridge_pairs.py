@@ -1,7 +1,7 @@
 """From directed bridge facts to one :class:`~engine.model.BridgeSpec` per pair of brokers (pure).
 
 The ontology says ``requiresBridge(a, c)`` per direction (asserted ``pk:bridgesTo`` or derived by
-rule R1), forwarding the topics both brokers carry. What runs is one bridge per *pair*, because
+rule R1), forwarding the topics derive found for that direction. What runs is one bridge per *pair*, because
 both directions of a pair must share one connection or messages loop: two Mosquitto bridges
 A -> C and C -> A on the same topic would hand each message back and forth forever, while one
 ``connection`` with ``topic t both`` is loop-free (Mosquitto does not echo a bridge's own
@@ -60,7 +60,7 @@ class BridgeNotSupportedError(EngineError):
 
 @dataclass(frozen=True)
 class DirectedBridge:
-    """``requiresBridge(source, target)`` with the topic names both carry."""
+    """``requiresBridge(source, target)`` with the topic names it forwards that way."""
 
     source: str
     target: str

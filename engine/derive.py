@@ -16,7 +16,8 @@ run), only what the ontology concluded:
   ``pk:ContextBroker`` a topic is an entity, and its defaults are applied here so plans show the
   real entity: type "Thing", id ``urn:ngsi-ld:<type>:<topic name with / replaced by :>``;
 - a :class:`BridgeSpec` for every pair of brokers joined by ``pk:requiresBridge`` (either way),
-  forwarding the topics both brokers must carry, its mechanism chosen from the brokers' inferred
+  forwarding the topics both brokers must carry (a bridge only R1 derives: the topics that made
+  it fire, from publisher to subscriber — query ``SHARED``), its mechanism chosen from the brokers' inferred
   classes (:mod:`engine.bridge_pairs`), ``asserted`` when the plant states ``pk:bridgesTo``.
 
 No value is spliced into a query: the only constants are vocabulary IRIs, serialised by Oxigraph.
@@ -82,11 +83,18 @@ SELECT ?a ?c ?asserted WHERE {
     BIND (EXISTS { ?a pk:bridgesTo ?c } AS ?asserted)
 }"""
 
+# The topics a bridge forwards from ?a to ?c: an asserted bridge (pk:bridgesTo) forwards every
+# topic both ends carry; a bridge only rule R1 derives forwards the topics that made R1 fire — a
+# resource publishes ?t on ?a and one subscribes to it on ?c. Without that second condition, a pair
+# bridged both ways (a publisher each side) forwarded every shared topic both ways, so a context
+# broker echoed each VDA 5050 state it received back onto the vehicle's state topic.
 SHARED = """
 SELECT DISTINCT ?a ?c ?t ?qos ?key WHERE {
     ?a pk:requiresBridge ?c .
     ?a pk:mustCarry ?t .
     ?c pk:mustCarry ?t .
+    FILTER (EXISTS { ?a pk:bridgesTo ?c }
+            || EXISTS { ?p pk:sendsTo ?a ; pk:publishes ?t . ?s pk:sendsTo ?c ; pk:subscribes ?t . })
     OPTIONAL { ?t pk:qos ?qos } OPTIONAL { ?t pk:kafkaKey ?key }
 }"""
 

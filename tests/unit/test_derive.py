@@ -192,11 +192,21 @@ def test_a_context_broker_topic_is_an_entity_with_defaults_applied(tmp_path: Pat
     [bridge] = state.bridges
     assert (bridge.local.id, bridge.remote.id, bridge.mechanism, bridge.asserted) == (
         "mq", "cb", BridgeMechanism.NGSI, False)
-    # R1 requires the bridge both ways (status out, order in), and a bridge forwards every topic
-    # both brokers carry: both topics flow both ways (the worker skips what it wrote itself)
+    # R1 requires the bridge both ways (status out, order in); a derived bridge forwards only the
+    # topics that made R1 fire, each in its own direction: nothing is echoed back to where it came from
     assert bridge.routes == (
-        BridgeRoute("agv/1/order", BridgeDirection.BOTH, 1, "mqtt-topic", "urn:ngsi-ld:Order:agv1", "Order"),
-        BridgeRoute("agv/1/status", BridgeDirection.BOTH, 0, "mqtt-topic", "urn:ngsi-ld:Thing:agv:1:status", "Thing"))
+        BridgeRoute("agv/1/order", BridgeDirection.IN, 1, "mqtt-topic", "urn:ngsi-ld:Order:agv1", "Order"),
+        BridgeRoute("agv/1/status", BridgeDirection.OUT, 0, "mqtt-topic", "urn:ngsi-ld:Thing:agv:1:status", "Thing"))
+
+
+def test_an_asserted_bridge_forwards_every_topic_both_brokers_carry(tmp_path: Path) -> None:
+    """pk:bridgesTo keeps the paper's meaning: the bridge is "bound by topic_sub", every shared topic."""
+    body = NGSI_PLANT.replace('pk:port 1883 .', 'pk:port 1883 ; pk:bridgesTo :cb .', 1)
+    assert body != NGSI_PLANT
+    [bridge] = derive(reasoned(tmp_path, body)).bridges
+    assert bridge.asserted
+    assert {r.topic: r.direction for r in bridge.routes} == {
+        "agv/1/order": BridgeDirection.BOTH, "agv/1/status": BridgeDirection.OUT}
 
 
 def test_hermit_derives_the_same_ngsi_state(tmp_path: Path) -> None:

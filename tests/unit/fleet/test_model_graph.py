@@ -83,8 +83,9 @@ def check_fleet_state(desired: DesiredState, vehicles: list[Vehicle], mqtt_id: s
     assert bridge.mechanism is BridgeMechanism.NGSI
     assert (bridge.local.id, bridge.remote.id) == (mqtt_id, context_id)
     assert {r.topic: (r.entity_id, r.entity_type) for r in bridge.routes} == context
-    for route in bridge.routes:  # the vehicle's channels reach the entity; commands come back
-        assert route.direction in (BridgeDirection.OUT, BridgeDirection.BOTH), route
+    for route in bridge.routes:  # the vehicle's channels reach the entity; commands come back, and only they
+        command = route.topic.rsplit("/", 1)[1] in PAPER_COMMANDS
+        assert route.direction is (BridgeDirection.IN if command else BridgeDirection.OUT), route
         assert route.qos == mqtt[route.topic][0]
     assert {b.id: b.kind for b in desired.brokers} == {mqtt_id: "mosquitto", context_id: "ngsi-v2"}
 
