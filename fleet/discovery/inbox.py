@@ -84,6 +84,21 @@ class ActionStatus:
 
 
 @dataclass(frozen=True)
+class AgvPosition:
+    """The state's ``agvPosition`` (VDA 5050 2.1: x, y in m, theta in rad, on map ``map_id``)."""
+
+    x: float
+    y: float
+    theta: float
+    map_id: str
+    initialized: bool
+
+    def to_json(self) -> dict[str, Any]:
+        return {"x": self.x, "y": self.y, "theta": self.theta, "mapId": self.map_id,
+                "positionInitialized": self.initialized}
+
+
+@dataclass(frozen=True)
 class VehicleState:
     """What the fleet manager keeps of a vehicle's last ``state``."""
 
@@ -97,6 +112,7 @@ class VehicleState:
     action_states: tuple[ActionStatus, ...]
     errors: tuple[str, ...]
     timestamp: str
+    position: AgvPosition | None = None  # None: the state had no agvPosition
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -106,6 +122,7 @@ class VehicleState:
             "actionStates": [{"actionId": a.action_id, "actionType": a.action_type,
                               "actionStatus": a.status} for a in self.action_states],
             "errors": list(self.errors), "timestamp": self.timestamp,
+            "agvPosition": self.position.to_json() if self.position is not None else None,
         }
 
 
@@ -171,7 +188,16 @@ def _state(message: dict[str, Any]) -> VehicleState:
                             for a in message["actionStates"]),
         errors=tuple(f"{e['errorType']}: {e.get('errorDescription', '')}" for e in message["errors"]),
         timestamp=message["timestamp"],
+        position=_position(message.get("agvPosition")),
     )
+
+
+def _position(pos: Any) -> AgvPosition | None:
+    """The schema has checked the fields' types (x, y, theta, mapId, positionInitialized required)."""
+    if not isinstance(pos, dict):
+        return None
+    return AgvPosition(float(pos["x"]), float(pos["y"]), float(pos["theta"]), str(pos["mapId"]),
+                       bool(pos["positionInitialized"]))
 
 
 def _paper(topic: str, agv_id: str, channel: str, payload: bytes, retained: bool) -> Event:

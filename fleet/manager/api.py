@@ -10,7 +10,12 @@ running manager. Errors are JSON ``{"error", "description"}`` with a 4xx status 
 | GET | ``/v1/vehicles`` | every vehicle: record, connection state, last state |
 | GET | ``/v1/vehicles/<serial>`` | one vehicle (404 if unknown) |
 | POST | ``/v1/orders`` | ``{"serial", "manufacturer"?, "orderId"?, "nodes": [{"nodeId", "x", "y", "mapId", "actions": [..]}]}`` → 201 ``{"orderId", "topic"}``; 409 if the vehicle is not ONLINE |
+| POST | ``/v1/instantActions`` | ``{"serial", "manufacturer"?, "actionType", "actionParameters"?}`` → 201 ``{"actionId", "actionType", "vehicle", "topic"}``; ``actionType`` a VDA 5050 2.1 instant action (fleet/manager/instant.py); 409 if the vehicle is not ONLINE |
 | POST | ``/v1/reconcile`` | reconcile now → 202 |
+
+Until the manager has read its vehicle records after a (re)start, the vehicle resources answer
+503 ``{"error": "NotReady", ...}``: a client waits and asks again (an empty list would read as
+"every vehicle is gone").
 
 A request body is at most 1 MB; a slow client holds one thread of its own, not the manager.
 """
@@ -41,6 +46,7 @@ class ApiError(Exception):
 class Manager(Protocol):
     def vehicles(self) -> list[dict[str, Any]]: ...
     def send_order(self, body: Any) -> dict[str, Any]: ...
+    def send_instant_action(self, body: Any) -> dict[str, Any]: ...
     def request_reconcile(self) -> None: ...
 
 
@@ -110,6 +116,8 @@ def _handler(manager: Manager, token: str) -> type[BaseHTTPRequestHandler]:
                     self._send(200, found[0])
                 elif method == "POST" and path == "/v1/orders":
                     self._send(201, manager.send_order(self._body()))
+                elif method == "POST" and path == "/v1/instantActions":
+                    self._send(201, manager.send_instant_action(self._body()))
                 elif method == "POST" and path == "/v1/reconcile":
                     manager.request_reconcile()
                     self._send(202, {"reconcile": "requested"})

@@ -5,7 +5,8 @@
     client.vehicle("agv-42")["state"]["lastNodeId"]
 
 Errors: :class:`ManagerUnreachableError` (no manager runs, or it does not answer) and
-:class:`ManagerRefusedError` (the API said no: status and description).
+:class:`ManagerRefusedError` (the API said no: status and description; 503 ``NotReady``: the
+manager has just started and is reading its records, ask again).
 """
 
 from __future__ import annotations
@@ -83,6 +84,15 @@ class ManagerClient:
         if order_id:
             body["orderId"] = order_id
         return self.call("POST", "/v1/orders", body)
+
+    def instant_action(self, serial: str, action_type: str, *, manufacturer: str | None = None,
+                       parameters: dict[str, Any] | None = None) -> dict[str, Any]:
+        body: dict[str, Any] = {"serial": serial, "actionType": action_type}
+        if manufacturer:
+            body["manufacturer"] = manufacturer
+        if parameters:
+            body["actionParameters"] = [{"key": k, "value": v} for k, v in parameters.items()]
+        return self.call("POST", "/v1/instantActions", body)
 
     def reconcile(self) -> None:
         self.call("POST", "/v1/reconcile", {})

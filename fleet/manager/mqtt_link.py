@@ -25,9 +25,9 @@ from paho.mqtt import client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
 from fleet.discovery.inbox import SUBSCRIPTIONS
-from fleet.vda5050 import topics
+from fleet.vda5050 import schemas, topics
 from fleet.vda5050.headers import HeaderCounter
-from fleet.vda5050.messages import Action, BlockingType, InstantActions
+from fleet.vda5050.messages import Action, ActionParameter, BlockingType, InstantActions
 
 log = logging.getLogger("fleet.manager")
 
@@ -97,11 +97,14 @@ class MqttLink:
             self._seq += 1
             return f"{prefix}-{os.getpid()}-{int(time.time())}-{self._seq}"
 
-    def instant_action(self, manufacturer: str, serial: str, action_type: str) -> str:
-        """Send one instant action (``factsheetRequest``, ``stateRequest``, ...); returns its id."""
+    def instant_action(self, manufacturer: str, serial: str, action_type: str,
+                       parameters: tuple[ActionParameter, ...] = ()) -> str:
+        """Send one instant action (``factsheetRequest``, ``stateRequest``, ...); returns its id.
+        The message is checked against the official schema first (raises SchemaError)."""
         action_id = self.next_id(action_type)
-        message = InstantActions((Action(action_type, action_id, BlockingType.NONE),))
+        message = InstantActions((Action(action_type, action_id, BlockingType.NONE, parameters),))
         wire = message.to_json(self.header(manufacturer, serial, "instantActions"))
+        schemas.check("instantActions", wire)
         self.publish(topics.topic(manufacturer, serial, "instantActions"), wire, "instantActions")
         return action_id
 

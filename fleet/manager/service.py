@@ -28,13 +28,13 @@ from fleet.discovery.inbox import ConnectionSeen, DescriptionSeen, Interface, Ve
 from fleet.discovery.records import DataDir, VehicleRecord, now_iso
 from fleet.discovery.registry import (AskFactsheet, DescriptionRefused, Join, Known, Note, Refuse, Registry,
                                       SetConnection, Track)
-from fleet.manager import apply_step, status
+from fleet.manager import apply_step, instant, status
 from fleet.manager.api import ApiError
 from fleet.manager.mqtt_link import MqttLink, Received
 from fleet.manager.orders import NodeSpec, OrderError, build_order, order_json
 from fleet.manager.reconciler import ReconcileReport, Reconciler, Step
 from fleet.vda5050 import topics
-from fleet.vda5050.errors import TopicError
+from fleet.vda5050.errors import SchemaError, TopicError
 
 log = logging.getLogger("fleet.manager")
 
@@ -105,6 +105,7 @@ class FleetManager:
         self._fingerprint: tuple[Any, ...] = ()
         self._log_gate: dict[str, float] = {}
         self._dirty = True
+        self.loaded = False  # records read from the data directory (the API answers 503 until then)
 
     # ------------------------------------------------------------------ lifecycle
     def stop(self) -> None:
@@ -112,6 +113,8 @@ class FleetManager:
 
     def run(self) -> None:
         self._reload(initial=True)
+        self._publish_status()
+        self.loaded = True  # the API answers from here on (503 NotReady before)
         self.link.start()
         next_poll = next_status = 0.0
         next_resync = time.monotonic() + self.config.resync
@@ -341,15 +344,20 @@ class FleetManager:
         })
         self._dirty = False
 
+    def _require_loaded(self) -> None:
+        if not self.loaded:
+            raise ApiError(503, "NotReady", "the fleet manager is loading its vehicle records (it has just "
+                                            "started); ask again in a moment")
+
     def vehicles(self) -> list[dict[str, Any]]:
+        self._require_loaded()
         return list(self.snapshot)
 
-    def request_reconcile(self) -> None:
-        self.force = True
-
-    def send_order(self, body: Any) -> dict[str, Any]:
+    def _vehicle_row(self, body: Any, what: str) -> dict[str, Any]:
+        """The one ONLINE VDA 5050 vehicle a request names by serial (and manufacturer)."""
+        self._require_loaded()
         if not isinstance(body, dict):
-            raise ApiError(400, "BadRequest", "the body is a JSON object {serial, nodes, ...}")
+            raise ApiError(400, "BadRequest", f"the body is a JSON object {{serial, ...}}, got {type(body).__name__}")
         serial, manufacturer = body.get("serial"), body.get("manufacturer")
         if not isinstance(serial, str) or not serial:
             raise ApiError(400, "BadRequest", f"serial: expected a non-empty string, got {serial!r}"[:300])
@@ -361,9 +369,32 @@ class FleetManager:
             raise ApiError(409, "Conflict", f"serial {serial!r} names {len(rows)} vehicles: give manufacturer")
         row = rows[0]
         if row["interface"] != Interface.VDA5050.value:
-            raise ApiError(409, "Conflict", f"{row['vehicle']} speaks {row['interface']}, not VDA 5050 orders")
+            raise ApiError(409, "Conflict", f"{row['vehicle']} speaks {row['interface']}, not VDA 5050 {what}")
         if row["connectionState"] != "ONLINE":
             raise ApiError(409, "Conflict", f"{row['vehicle']} is unavailable ({row['connectionState']})")
+        return row
+
+    def send_instant_action(self, body: Any) -> dict[str, Any]:
+        try:
+            request = instant.parse(body)
+        except instant.InstantActionError as exc:
+            raise ApiError(400, "BadRequest", exc.message) from None
+        row = self._vehicle_row(body, "instant actions")
+        try:
+            action_id = self.link.instant_action(row["topicManufacturer"], request.serial, request.action_type,
+                                                 request.parameters)
+        except SchemaError as exc:
+            raise ApiError(400, "BadRequest", f"actionParameters: {exc.message}") from None
+        log.info("instant action %s (%s) sent to %s", request.action_type, action_id, row["vehicle"])
+        return {"actionId": action_id, "actionType": request.action_type, "vehicle": row["vehicle"],
+                "topic": topics.topic(row["topicManufacturer"], request.serial, "instantActions")}
+
+    def request_reconcile(self) -> None:
+        self.force = True
+
+    def send_order(self, body: Any) -> dict[str, Any]:
+        row = self._vehicle_row(body, "orders")
+        serial = row["serial"]
         nodes = body.get("nodes")
         if not isinstance(nodes, list):
             raise ApiError(400, "BadRequest", f"nodes: expected a list, got {type(nodes).__name__}")

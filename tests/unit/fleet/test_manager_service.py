@@ -42,8 +42,9 @@ class RecordingLink:
     def stop(self) -> None:
         self.connected.clear()
 
-    def instant_action(self, manufacturer: str, serial: str, action_type: str) -> str:
+    def instant_action(self, manufacturer: str, serial: str, action_type: str, parameters: tuple = ()) -> str:
         self.sent.append((manufacturer, serial, action_type))
+        self.parameters = parameters
         return action_type
 
     def header(self, manufacturer: str, serial: str, subtopic: str) -> dict[str, object]:
