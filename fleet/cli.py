@@ -11,6 +11,7 @@
 | ``plantkg fleet rename VEHICLE NAME`` | set its ``pk:name`` |
 | ``plantkg fleet remove VEHICLE`` | forget it (its file and record); it is discovered again when it comes back online |
 | ``plantkg fleet order SERIAL NODE...`` | send a VDA 5050 order through the running manager's API |
+| ``plantkg fleet hmi ...`` | serve the operators' screens (the options of ``python -m fleet.hmi``) |
 
 The data directory is ``--data-dir`` or ``$PLANTKG_FLEET_DATA``. pin/rename/remove change the data
 directory under its lock; a running manager notices within its poll interval (0.5 s) and
@@ -54,6 +55,18 @@ def manager_command(args: tuple[str, ...]) -> int:
 def simulate_command(args: tuple[str, ...]) -> int:
     """Run simulated VDA 5050 vehicles (options of python -m fleet.sim; --help lists them)."""
     from fleet.sim.cli import main
+
+    try:
+        return main(list(args))
+    except SystemExit as exc:  # argparse's --help and usage errors
+        return int(exc.code or 0)
+
+
+@fleet_group.command("hmi", context_settings={"ignore_unknown_options": True, "help_option_names": []})
+@click.argument("args", nargs=-1, type=click.UNPROCESSED)
+def hmi_command(args: tuple[str, ...]) -> int:
+    """Serve the operators' screens: stations, live map (options of python -m fleet.hmi; --help lists them)."""
+    from fleet.hmi.__main__ import main
 
     try:
         return main(list(args))
