@@ -133,6 +133,9 @@ def core_query(shape: Shape, focus: str, c: CoreConstraint) -> str:
                 f"OPTIONAL {{ {_path_triple(shape)} }} }} GROUP BY ?this HAVING (COUNT(DISTINCT ?value) < {n})")
     if c.component == "MaxCountConstraintComponent":
         n = int(c.value)  # type: ignore[arg-type]
+        if n == 1:  # two different values: an index join, ~3x faster than grouping every focus node
+            return (f"SELECT DISTINCT ?this WHERE {{ {_path_triple(shape, '?value')} {_path_triple(shape, '?_other')} "
+                    f"FILTER(!sameTerm(?value, ?_other)) {{ SELECT DISTINCT ?this WHERE {{ {focus} }} }} }}")
         return (f"SELECT ?this WHERE {{ {{ SELECT DISTINCT ?this WHERE {{ {focus} }} }} "
                 f"{_path_triple(shape)} }} GROUP BY ?this HAVING (COUNT(DISTINCT ?value) > {n})")
     if c.component == "HasValueConstraintComponent":
@@ -140,9 +143,25 @@ def core_query(shape: Shape, focus: str, c: CoreConstraint) -> str:
             return f"SELECT DISTINCT ?this WHERE {{ {focus} FILTER(!sameTerm(?this, {term(c.value)})) }}"  # type: ignore[arg-type]
         return (f"SELECT DISTINCT ?this WHERE {{ {focus} "
                 f"FILTER NOT EXISTS {{ {_path_triple(shape, term(c.value))} }} }}")  # type: ignore[arg-type]
+    return value_query(shape, focus, [c])
+
+
+#: Components whose violations are single value nodes, each tested on its own by a FILTER.
+_COUNTS = ("MinCountConstraintComponent", "MaxCountConstraintComponent", "HasValueConstraintComponent")
+
+
+def value_query(shape: Shape, focus: str, constraints: list[CoreConstraint]) -> str:
+    """One SELECT for all value-node constraints of ``shape``: the focus nodes and their values are
+    walked once; ``?f<i>`` is true when the value violates ``constraints[i]``.
+
+    ``COALESCE(test, false)`` makes an error count as "no violation", exactly as in a FILTER.
+    """
     values = _path_triple(shape) if shape.path else "BIND(?this AS ?value)"
-    return (f"SELECT DISTINCT ?this ?value WHERE {{ {{ SELECT DISTINCT ?this WHERE {{ {focus} }} }} "
-            f"{values} FILTER({_value_filter(c)}) }}")
+    binds = " ".join(f"BIND(COALESCE({_value_filter(c)}, false) AS ?f{i})" for i, c in enumerate(constraints))
+    flags = " ".join(f"?f{i}" for i in range(len(constraints)))
+    either = " || ".join(f"?f{i}" for i in range(len(constraints)))
+    return (f"SELECT DISTINCT ?this ?value {flags} WHERE {{ {{ SELECT DISTINCT ?this WHERE {{ {focus} }} }} "
+            f"{values} {binds} FILTER({either}) }}")
 
 
 _STRING_OR_IRI = re.compile(r'"""(?:[^"\\]|\\.|"(?!""))*"""|\'\'\'(?:[^\'\\]|\\.|\'(?!\'\'))*\'\'\'|"(?:[^"\\\n]|\\.)*"|\'(?:[^\'\\\n]|\\.)*\'|<[^<>"{}|^`\\\s]*>|#[^\n]*')
@@ -211,16 +230,31 @@ def _get(row: ox.QuerySolution, name: str):  # noqa: ANN202 - Oxigraph term or N
         return None
 
 
+def _fallback(c: CoreConstraint) -> str:
+    return f"{c.component.removesuffix('ConstraintComponent')} constraint violated"
+
+
+def _present(store: ox.Store, predicate: Node) -> bool:
+    """Whether any graph of ``store`` uses ``predicate`` (if not, a path over it has no values)."""
+    return any(True for _ in store.quads_for_pattern(None, ox.NamedNode(str(predicate)), None, None))
+
+
 def run_shape(store: ox.Store, shape: Shape, focus: str) -> Iterator[Violation]:
     """Every violation of ``shape``'s constraints for the focus nodes matched by ``focus``."""
+    used = shape.path is None or _present(store, shape.path.predicate)
+    per_value = [c for c in shape.core if c.component not in _COUNTS]
+    if per_value and used:
+        for row in store.query(value_query(shape, focus, per_value), use_default_graph_as_union=True):
+            for i, c in enumerate(per_value):
+                if row[f"f{i}"].value == "true":
+                    yield Violation(shape, c.component, None, row["this"], _path_text(shape), row["value"],
+                                    _message(shape.messages, _fallback(c), None))
     for c in shape.core:
-        query = core_query(shape, focus, c)
-        fallback = f"{c.component.removesuffix('ConstraintComponent')} constraint violated"
-        for row in store.query(query, use_default_graph_as_union=True):
-            value = _get(row, "value") if c.component not in (
-                "MinCountConstraintComponent", "MaxCountConstraintComponent", "HasValueConstraintComponent") else None
-            yield Violation(shape, c.component, None, row["this"], _path_text(shape), value,
-                            _message(shape.messages, fallback, None))
+        if c.component not in _COUNTS or (c.component == "MaxCountConstraintComponent" and not used):
+            continue  # no value at all: nothing can exceed a maximum
+        for row in store.query(core_query(shape, focus, c), use_default_graph_as_union=True):
+            yield Violation(shape, c.component, None, row["this"], _path_text(shape), None,
+                            _message(shape.messages, _fallback(c), None))
     for s in shape.sparql:
         query = sparql_query(shape, focus, s)
         for row in store.query(query, use_default_graph_as_union=True):
