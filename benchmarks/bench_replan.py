@@ -7,7 +7,8 @@ to the desired one, so both plans are empty, and the agents' HTTP round trip (on
 paid either way) is not included, nor is building the observed state (it stands for the agents'
 answers, part of observing; ``observed_build_s`` in the JSON). Each measurement runs in a fresh process.
 
-Each cold run also reports its stages (load, validate, reason, derive, plan against an empty
+Each cold run also reports its stages' CPU time (``time.process_time``, which the other processes
+of a shared machine do not inflate as they do wall time) and the process's peak RSS. It also reports its stages (load, validate, reason, derive, plan against an empty
 observed state, i.e. everything to create) so the study doubles as the plant-size scaling study:
 ``replan.png`` plots every stage against the number of resources on log-log axes, and the fitted
 slope says how it grows (1 = linear, 2 = quadratic).
@@ -28,12 +29,24 @@ from benchmarks import plots
 from benchmarks.common import RESULTS, command_line, loglog_slope, machine, run_child, write_results
 
 _CHILD = r"""
-import json, sys, time
+import json, resource, sys, time
 t0 = time.perf_counter()
 from engine.desired_cache import DesiredCache
 from engine.model import BridgeStatus, BrokerStatus, ObservedBridge, ObservedBroker, ObservedState, ObservedTopic
+from engine import pipeline
 from engine.pipeline import run_pipeline
 from engine.plan import plan
+cpu = {}
+def cpu_timed(stage, fn):
+    def wrapper(*args, **kwargs):
+        start = time.process_time()
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            cpu[stage] = cpu.get(stage, 0.0) + time.process_time() - start
+    return wrapper
+for stage, name in (("load", "load_plant"), ("validate", "validate"), ("reason", "reason"), ("derive", "derive")):
+    setattr(pipeline, name, cpu_timed(stage, getattr(pipeline, name)))
 t1 = time.perf_counter()
 result = run_pipeline([sys.argv[1]], None, observe=False, cache=DesiredCache(__import__("pathlib").Path(sys.argv[2])))
 d = result.desired
@@ -46,12 +59,16 @@ observed = ObservedState(tuple(
 t_obs = time.perf_counter()
 p = plan(d, observed)
 t2 = time.perf_counter()
+c2 = time.process_time()
 fresh = plan(d, ObservedState(()))
+cpu["plan (all new)"] = time.process_time() - c2
 t3 = time.perf_counter()
 observed_s = t_obs - t_pipe
 print(json.dumps({"import": t1 - t0, "replan": t2 - t1 - observed_s, "observed_build": observed_s,
                   "hit": result.plant is None, "pending": len(p.pending),
-                  "stages": {**result.timings, "plan (all new)": t3 - t2}, "changes": len(fresh.changes)}))
+                  "stages": {**result.timings, "plan (all new)": t3 - t2}, "cpu": cpu,
+                  "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                  "changes": len(fresh.changes)}))
 """
 STAGES = ("load", "validate", "reason", "derive", "plan (all new)")
 
@@ -75,8 +92,11 @@ def measure(sizes: list[int], repeat: int) -> dict[str, object]:
             stages = {k: statistics.median(r["stages"][k] for r in cold) for k in STAGES}
             stages["validate+reason+derive+plan"] = sum(stages[k] for k in STAGES if k != "load")
             stages["re-plan, no change"] = w
+            cpu = {k: statistics.median(r["cpu"][k] for r in cold) for k in STAGES}
+            cpu["validate+reason+derive+plan"] = sum(cpu[k] for k in STAGES if k != "load")
             rows.append({"resources": n, "cold_s": c, "warm_s": w, "ratio": w / c, "stages_s": stages,
                          "observed_build_s": statistics.median(r["observed_build"] for r in warm),
+                         "cpu_s": cpu, "peak_rss_mib": statistics.median(r["peak_rss_mib"] for r in cold),
                          "changes": cold[0]["changes"]})
             print(json.dumps(rows[-1]), flush=True)
     slopes = {k: loglog_slope([r["resources"] for r in rows], [r["stages_s"][k] for r in rows])
@@ -100,6 +120,13 @@ def to_markdown(data: dict[str, object]) -> str:
         slopes = data["slopes"]
         lines.append("| **slope** | " + " | ".join("–" if slopes[k] is None else f"**{slopes[k]:.2f}**"  # type: ignore[index]
                                                   for k in names) + " |")
+    if data["rows"] and "cpu_s" in data["rows"][0]:  # type: ignore[index]
+        names = list(data["rows"][0]["cpu_s"])  # type: ignore[index]
+        lines += ["", "## CPU time of each stage (median s, time.process_time) and peak RSS of the process", "",
+                  "| resources | " + " | ".join(names) + " | peak RSS MiB |", "|---" * (len(names) + 2) + "|"]
+        for r in data["rows"]:  # type: ignore[union-attr]
+            lines.append(f"| {r['resources']} | " + " | ".join(f"{r['cpu_s'][k]:.3f}" for k in names)
+                         + f" | {r['peak_rss_mib']:.0f} |")
     return "\n".join(lines) + "\n"
 
 
