@@ -2,12 +2,13 @@
 
     python -m fleet.planner --plant PLANT.ttl --lotlan jobs.tl --data-dir DIR \\
         --manager-data-dir MANAGER_DIR [--ngsi-url http://127.0.0.3:1026 --ngsi-token-file F] \\
-        [--map map.json] [--mqtt HOST:PORT] [--min-battery 20] [--start]
+        [--map map.json] [--min-battery 20] [--start]
 
 The fleet manager is found through its data directory (``manager.json``, ``manager.token``; its
 ``discovered/*.ttl`` join the plant graph the assignment query runs on), or given as
-``--manager-url URL --manager-token-file F [--discovered DIR]``. The MQTT broker is the
-one the plant's fleet-manager resource sends to (``--mqtt`` overrides it). ``--start`` starts one
+``--manager-url URL --manager-token-file F [--discovered DIR]``. Vehicles and their VDA 5050
+states (position, progress) come from the manager's API; paper-channel vehicles are reached
+through the context broker (``--ngsi-url``; without it they are not assigned). ``--start`` starts one
 job of the program's start tasks when the journal has no job yet. The API binds to 127.0.0.1; its
 address and token are in ``DIR/planner.json`` and ``DIR/planner.token``. SIGTERM/SIGINT stop it
 (exit 0); an unusable argument, plant, map or LoTLan file exits 2 with the reason, nothing started.
@@ -26,28 +27,21 @@ from pathlib import Path
 import fleet.lotlan
 from fleet.lotlan.errors import LotlanError
 from fleet.manager.client import ManagerClient
-from fleet.manager.plant import binding_and_address
 from fleet.planner import build
 from fleet.planner.api import ApiServer
-from fleet.planner.dispatch import VdaSender
+from fleet.planner.dispatch import Dispatcher, VdaSender
 from fleet.planner.errors import PlannerError
 from fleet.planner.journal import Journal
 from fleet.planner.ngsi import TaskPublisher
 from fleet.planner.plantview import PlantView
 from fleet.planner.service import Planner, PlannerConfig
-from fleet.planner.vehicles import Fleet, StateListener
+from fleet.planner.paper import NgsiClient, PaperSender
+from fleet.planner.vehicles import Fleet, ManagerHandle
 from fleet.sim import map as site_map
 from kg.errors import PlantKGError
 
 log = logging.getLogger("fleet.planner")
 MANAGER_TIMEOUT = 2.0  # s: the planner's loop calls the manager; a hung manager stalls it at most this long
-
-
-def _address(text: str) -> tuple[str, int]:
-    host, sep, port = text.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 1 <= int(port) <= 65535:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected HOST:PORT with a port from 1 to 65535")
-    return host.strip("[]"), int(port)
 
 
 def parser() -> argparse.ArgumentParser:
@@ -63,7 +57,6 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--ngsi-url", default=None, help="context broker (NGSI-v2) for the Task entities")
     p.add_argument("--ngsi-token-file", type=Path, default=None, help="its write token (first line)")
     p.add_argument("--map", default="default", help="map JSON with the stations, or 'default'")
-    p.add_argument("--mqtt", type=_address, default=None, help="HOST:PORT instead of the plant's broker")
     p.add_argument("--min-battery", type=float, default=20.0, help="percent a vehicle needs to be assigned")
     p.add_argument("--start", action="store_true", help="start one job when the journal has none")
     p.add_argument("--api-host", default="127.0.0.1")
@@ -80,15 +73,17 @@ def main(argv: list[str] | None = None) -> int:
         site = site_map.default_map() if args.map == "default" else site_map.load(Path(args.map))
         program = fleet.lotlan.load(args.lotlan)
         build.check_program(program, site)  # before anything is touched: a bad file starts nothing
-        mqtt = args.mqtt or binding_and_address(list(plant_files))[1]
         if args.manager_data_dir is not None:
-            manager = replace(ManagerClient.for_data_dir(args.manager_data_dir.resolve()), timeout=MANAGER_TIMEOUT)
-            discovered: Path | None = args.manager_data_dir.resolve() / "discovered"
+            manager_dir = args.manager_data_dir.resolve()
+            manager = ManagerHandle(replace(ManagerClient.for_data_dir(manager_dir), timeout=MANAGER_TIMEOUT),
+                                    lambda: replace(ManagerClient.for_data_dir(manager_dir), timeout=MANAGER_TIMEOUT))
+            discovered: Path | None = manager_dir / "discovered"
         elif args.manager_token_file is None:
             raise PlannerError("--manager-url needs --manager-token-file (the manager's <data-dir>/manager.token)")
         else:
-            manager = ManagerClient(args.manager_url.rstrip("/"),
-                                    args.manager_token_file.read_text(encoding="utf-8").strip(), MANAGER_TIMEOUT)
+            manager = ManagerHandle(ManagerClient(args.manager_url.rstrip("/"),
+                                                  args.manager_token_file.read_text(encoding="utf-8").strip(),
+                                                  MANAGER_TIMEOUT))
             discovered = args.discovered
         token = None
         if args.ngsi_token_file is not None:
@@ -96,10 +91,12 @@ def main(argv: list[str] | None = None) -> int:
         plant = PlantView(plant_files, discovered)
         plant.current()
         journal = Journal(args.data_dir.resolve())
-        states = StateListener(*mqtt)
         publisher = TaskPublisher(args.ngsi_url, token) if args.ngsi_url else None
-        planner = Planner(PlannerConfig(site, min_battery=args.min_battery), program, journal,
-                          Fleet(manager, states), plant, VdaSender(manager, site.map_id), publisher)
+        ngsi = NgsiClient(args.ngsi_url, token) if args.ngsi_url else None
+        dispatch = Dispatcher(VdaSender(manager, site.map_id), PaperSender(ngsi, site) if ngsi else None)
+        planner = Planner(PlannerConfig(site, min_battery=args.min_battery, paper=ngsi is not None), program,
+                          journal, Fleet(manager, ngsi.agv_status if ngsi else None), plant, dispatch, publisher,
+                          dispatch.cancel)
         api = ApiServer(planner, args.data_dir.resolve(), args.api_host, args.api_port)
     except (PlantKGError, LotlanError, OSError, IndexError) as exc:
         if journal is not None:
@@ -108,19 +105,17 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     signal.signal(signal.SIGTERM, lambda *_: planner.stop())
     signal.signal(signal.SIGINT, lambda *_: planner.stop())
-    states.start()
     if publisher is not None:
         publisher.start()
     api.start(os.getpid())
     if args.start and not planner.jobs:
         log.info("started job %s", planner.start_job(None))
-    log.info("task planner: LoTLan %s, MQTT %s:%d, manager %s, API %s, data %s", args.lotlan, *mqtt, manager.url,
-             api.url, args.data_dir)
+    log.info("task planner: LoTLan %s, manager %s, context broker %s, API %s, data %s", args.lotlan,
+             manager.client.url, args.ngsi_url or "none", api.url, args.data_dir)
     try:
         planner.run()
     finally:
         api.stop()
-        states.stop()
         if publisher is not None:
             publisher.stop()
         journal.close()

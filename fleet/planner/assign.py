@@ -56,6 +56,11 @@ class Need:
     payload: float = 0.0
     min_battery: float = 20.0
     interface: str = "vda5050"
+    also: tuple[tuple[str, str, str], ...] = ()  # more (interface, pick skill, drop skill) accepted
+
+    @property
+    def options(self) -> tuple[tuple[str, str, str], ...]:
+        return ((self.interface, self.pick_skill, self.drop_skill),) + self.also
 
 
 @dataclass(frozen=True)
@@ -100,11 +105,16 @@ def live_quads(vehicles: list[Live]) -> list[ox.Quad]:
 def need_quads(need: Need) -> list[ox.Quad]:
     node = ox.NamedNode("urn:plantkg:planner:need")
     rdf_type = ox.NamedNode("http://www.w3.org/1999/02/22-rdf-syntax-ns#type")
-    values = {"pickSkill": ox.Literal(need.pick_skill), "dropSkill": ox.Literal(need.drop_skill),
-              "payload": _dec(need.payload), "minBattery": _dec(need.min_battery), "x": _dec(need.x),
-              "y": _dec(need.y), "interface": ox.Literal(need.interface)}
-    return [ox.Quad(node, rdf_type, ox.NamedNode(PLAN + "Need"), LIVE_GRAPH)] + [
+    values = {"payload": _dec(need.payload), "minBattery": _dec(need.min_battery), "x": _dec(need.x),
+              "y": _dec(need.y)}
+    quads = [ox.Quad(node, rdf_type, ox.NamedNode(PLAN + "Need"), LIVE_GRAPH)] + [
         ox.Quad(node, ox.NamedNode(PLAN + name), value, LIVE_GRAPH) for name, value in values.items()]
+    for i, (interface, pick, drop) in enumerate(need.options):
+        option = ox.NamedNode(f"urn:plantkg:planner:need:option:{i}")
+        quads.append(ox.Quad(node, ox.NamedNode(PLAN + "accepts"), option, LIVE_GRAPH))
+        quads += [ox.Quad(option, ox.NamedNode(PLAN + name), ox.Literal(value), LIVE_GRAPH)
+                  for name, value in (("interface", interface), ("pickSkill", pick), ("dropSkill", drop))]
+    return quads
 
 
 def _plain(term: object) -> object:

@@ -9,7 +9,9 @@ vehicle's or an operator's fault). The other entry points are the decisions take
 
 Tracking a sent leg (VDA 5050): the vehicle's state names the leg's ``orderId`` and every action
 of the leg (action ids ``<orderId>-<station>-<i>``, fleet/manager/orders.py) is FINISHED -> the
-leg's actions are done; any FAILED -> the leg and the task fail.
+leg's actions are done; any FAILED -> the leg and the task fail. Paper channels (fleet/planner/
+paper.py): the leg is a task ``<orderId>``; its wait action finished (``finished_task_id``) -> done;
+an item of the leg (fleet/planner/paperids.py) in the status's errors -> failed.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from fleet.lotlan.model import Expr
-from fleet.planner import conditions
+from fleet.planner import conditions, paperids
 from fleet.planner.model import Leg, Task
 from fleet.planner.states import LegState, TaskState, check_leg, check_task
 
@@ -45,6 +47,8 @@ class VehicleView:
     order_id: str = ""
     last_node_id: str = ""
     actions: tuple[tuple[str, str], ...] = ()  # (actionId, actionStatus)
+    paper: bool = False  # a paper-channel vehicle: order_id is a paper task id (fleet/planner/paperids.py)
+    ended: bool = False  # paper channels: the task ``order_id`` has ended (its wait action finished)
 
 
 @dataclass(frozen=True)
@@ -110,7 +114,14 @@ def order_id(task: Task, leg: Leg) -> str:
 
 def leg_progress(leg: Leg, view: VehicleView | None) -> str:
     """"finished", "failed" or "" (still under way / no news) for a SENT leg."""
-    if view is None or view.order_id != leg.order_id:
+    if view is None:
+        return ""
+    if view.paper:
+        mine = paperids.item_ids(leg.order_id, len(leg.actions))  # the ids are the order's own
+        if any(status == "FAILED" and item in mine for item, status in view.actions):
+            return "failed"
+        return "finished" if view.ended and view.order_id == paperids.task_uuid(leg.order_id) else ""
+    if view.order_id != leg.order_id:
         return ""
     prefix = f"{leg.order_id}-{leg.station}-"
     mine = [status for action_id, status in view.actions if action_id.startswith(prefix)]

@@ -56,7 +56,7 @@ class PlannerConfig:
     refresh: float = 0.3
     resend: float = 3.0
     settle: float = 5.0  # s after start to hear every online vehicle's position before assigning
-    missing: float = 10.0  # s a held vehicle may be absent from the manager's list before it is lost
+    paper: bool = False  # paper-channel vehicles can be sent to (the planner has the context broker)
 
 
 def rules_of(program: Program) -> dict[str, Rules]:
@@ -67,10 +67,13 @@ def rules_of(program: Program) -> dict[str, Rules]:
 
 class Planner:
     def __init__(self, config: PlannerConfig, program: Program, journal: Journal, fleet: Fleet, plant: PlantView,
-                 send: Callable[[SendOrder, Vehicle], None], publisher: TaskPublisher | None = None) -> None:
+                 send: Callable[[SendOrder, Vehicle], None], publisher: TaskPublisher | None = None,
+                 cancel: Callable[[Vehicle], bool] | None = None) -> None:
         build.check_program(program, config.site)
         self.config, self.program, self.journal = config, program, journal
         self.fleet, self.plant, self.send, self.publisher = fleet, plant, send, publisher
+        self.cancel = cancel
+        self.cancels: dict[str, str] = {}  # vehicle key -> orderId to cancel there (not sent yet)
         self.rules = rules_of(program)
         self.lock = threading.RLock()
         replayed = journal.state
@@ -82,7 +85,6 @@ class Planner:
         self._unfit: set[str] = set()  # tasks no vehicle fits (logged once)
         self._stop = threading.Event()
         self.started = time.monotonic()
-        self._missing_since: dict[str, float] = {}
         self._unplaced: set[str] = set()  # orders waiting for their vehicle's position (logged once)
         if self.tasks:
             log.info("resuming %d task(s) of %d job(s) from %s", len(self.tasks), len(self.jobs), journal.path)
@@ -151,32 +153,26 @@ class Planner:
                 next_refresh = now + self.config.refresh
             with self.lock:
                 self.tick()
-            self.fleet.states.changed.wait(self.config.tick)
-            self.fleet.states.changed.clear()
+            self._stop.wait(self.config.tick)
 
     def tick(self) -> None:
         self._follow_ups()
         vehicles = self.fleet.vehicles()
-        if self.fleet.reachable:
+        if self.fleet.reachable:  # not while the manager is away or loading (503): nobody is lost then
             self._lost(vehicles)
+        self._send_cancels(vehicles)
         self._advance_all(vehicles)
         self._assign(vehicles)
         self._resend(vehicles)
 
     def _lost(self, vehicles: dict[str, Vehicle]) -> None:
-        """A held vehicle that reports OFFLINE / CONNECTIONBROKEN is lost at once; one missing from
-        the manager's list only after ``missing`` s (a manager that has just restarted lists
-        nobody for a moment; a person may have removed the vehicle)."""
-        now = time.monotonic()
-        for key in list(self._missing_since):
-            if key in vehicles:
-                del self._missing_since[key]
+        """A held vehicle that reports OFFLINE / CONNECTIONBROKEN, or that the manager no longer
+        lists (a person removed it), is lost. Only called with a list from a manager that has
+        loaded its records (it answers 503 NotReady before: the planner waits)."""
         for task in list(self.tasks.values()):
             if task.state not in HOLDING:
                 continue
             vehicle = vehicles.get(task.vehicle)
-            if vehicle is None and now - self._missing_since.setdefault(task.vehicle, now) < self.config.missing:
-                continue
             if vehicle is None or not vehicle.online:
                 why = "is no longer known" if vehicle is None else f"is {vehicle.connection_state}"
                 self._record(machine.vehicle_lost(task, f"vehicle {task.vehicle} {why}; re-assigning", now_iso()),
@@ -203,13 +199,14 @@ class Planner:
             return  # nearest first needs every position: wait (a little) for their states
         store = self.plant.current()
         for task in waiting:
-            held = {t.vehicle for t in self.tasks.values() if t.state in HOLDING}
+            held = {t.vehicle for t in self.tasks.values() if t.state in HOLDING} | set(self.cancels)
             if not any(v.online and k not in held for k, v in vehicles.items()):
                 return  # nobody free: no query to run
             leg = task.current
             if leg is None:
                 continue
-            need = Need("pick", "drop", leg.x, leg.y, payload=0.0, min_battery=self.config.min_battery)
+            need = Need("pick", "drop", leg.x, leg.y, payload=0.0, min_battery=self.config.min_battery,
+                        also=(("paper-channels", "load", "unload"),) if self.config.paper else ())
             live = [v.live(idle=v.key not in held) for v in vehicles.values()]
             choice = choose(store, live, need)
             self.assign_seconds.append(choice.seconds)
@@ -226,7 +223,7 @@ class Planner:
     def _send(self, order: SendOrder, vehicles: dict[str, Vehicle]) -> None:
         vehicle = vehicles.get(order.vehicle)
         self.last_sent[order.order_id] = time.monotonic()
-        if vehicle is None or vehicle.position() is None:  # e.g. just restarted: its state comes soon
+        if vehicle is None or (not vehicle.paper and vehicle.position() is None):  # its state comes soon
             self.last_sent[order.order_id] -= self.config.resend - 0.25  # try again in 0.25 s
             if order.order_id not in self._unplaced:
                 self._unplaced.add(order.order_id)
@@ -245,6 +242,10 @@ class Planner:
             if task.state is not TaskState.BEING_PROCESSED or leg is None or leg.state is not LegState.SENT:
                 continue
             vehicle = vehicles.get(task.vehicle)
+            if vehicle is not None and vehicle.paper:  # the paper sender writes what is due (or nothing)
+                self._send(SendOrder(task.id, leg.index, task.vehicle, leg.order_id, leg.station, leg.x, leg.y,
+                                     leg.actions), vehicles)
+                continue
             if vehicle is not None and vehicle.view().order_id == leg.order_id:
                 continue
             if now - self.last_sent.get(leg.order_id, float("-inf")) >= self.config.resend:
@@ -292,8 +293,28 @@ class Planner:
                 raise RequestError(404, f"no task {task_id!r}")
             if task.state.final:
                 raise RequestError(409, f"task {task_id} is {task.state.value} already")
+            leg = task.current
+            if task.state in HOLDING and leg is not None and leg.state is LegState.SENT:
+                self.cancels[task.vehicle] = leg.order_id  # before any other order can reach it
             self._record(machine.withdraw(task, "withdrawn by an operator", now_iso()), "withdrawn")
+            self._send_cancels(self.fleet.vehicles())
             return self.tasks[task_id].to_json()
+
+    def _send_cancels(self, vehicles: dict[str, Vehicle]) -> None:
+        """``cancelOrder`` to each vehicle a SENT sub-task was taken from while it is ONLINE; the
+        vehicle takes no new task until it was sent (or the vehicle is gone / not ONLINE)."""
+        for key, order_id in list(self.cancels.items()):
+            vehicle = vehicles.get(key)
+            if self.cancel is None or vehicle is None or not vehicle.online or vehicle.paper:
+                del self.cancels[key]
+                continue
+            try:
+                sent = self.cancel(vehicle)
+            except PlannerError as exc:
+                log.warning("cancelOrder for %s to %s not sent (%s); will retry", order_id, key, exc)
+                continue
+            del self.cancels[key]
+            log.info("cancelOrder %s to %s (order %s taken from it)", "sent" if sent else "not needed", key, order_id)
 
     def snapshot(self) -> dict[str, Any]:
         with self.lock:

@@ -1,54 +1,77 @@
 """What the planner knows of the vehicles now: the fleet manager's list (over its HTTP API:
-discovered vehicles, connection state, skills) joined with each vehicle's last VDA 5050 ``state``
-(over MQTT: position, battery, orderId, lastNodeId, actionStates).
+discovered vehicles, connection state, skills and, for VDA 5050 vehicles, the last ``state`` with
+``agvPosition``, battery, orderId, lastNodeId, actionStates) and, for paper-channel vehicles,
+their entity ``urn:ngsi-ld:AGV:<agv-id>`` on the context broker (the status and movement channels
+the mqtt-ngsi bridge merges into it: state, task_id, finished_task_id, errors, pose, battery).
 
-The planner subscribes to ``uagv/v2/+/+/state`` itself because the manager's vehicle rows carry no
-position (a new order must start where the vehicle stands, VDA 5050 6.6), and so it hears
-progress without polling. paho's network thread stores the latest state per vehicle under a lock;
-a state that is not JSON or names no vehicle is ignored (the manager refuses and reports those).
+The manager answers ``503 NotReady`` while it reads its records after a (re)start: the planner
+then waits (``reachable`` is False: nobody is lost, nothing is assigned) and keeps its last list.
+When the manager's address changes (a restart on another port), the client is found again through
+the manager's data directory (``rediscover``).
 """
 
 from __future__ import annotations
 
-import json
 import logging
-import os
-import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
-
-from paho.mqtt import client as mqtt
-from paho.mqtt.enums import CallbackAPIVersion
 
 from fleet.manager.client import ManagerClient, ManagerRefusedError, ManagerUnreachableError
 from fleet.planner.assign import Live
 from fleet.planner.machine import VehicleView
 
 log = logging.getLogger("fleet.planner")
-STATE_TOPIC = "uagv/v2/+/+/state"
+PAPER = "paper-channels"
+
+
+class ManagerHandle:
+    """The manager's client, found again through its data directory when it stops answering."""
+
+    def __init__(self, client: ManagerClient, rediscover: Callable[[], ManagerClient] | None = None) -> None:
+        self.client, self.rediscover = client, rediscover
+
+    def renew(self) -> None:
+        if self.rediscover is None:
+            return
+        try:
+            fresh = self.rediscover()
+        except ManagerUnreachableError:
+            return
+        if fresh.url != self.client.url:
+            log.info("the fleet manager now answers at %s", fresh.url)
+            self.client = fresh
 
 
 @dataclass(frozen=True)
 class Vehicle:
-    key: str  # topicManufacturer/serial
+    key: str  # topicManufacturer/serial ("/<agv-id>" for a paper vehicle: its topics name no manufacturer)
     serial: str
     manufacturer: str
     interface: str
     online: bool
     connection_state: str
-    state: dict[str, Any] | None  # the last VDA 5050 state heard over MQTT (else the manager's)
+    state: dict[str, Any] | None  # VDA 5050: the manager's last state; paper: the AGV entity (keyValues)
+
+    @property
+    def paper(self) -> bool:
+        return self.interface == PAPER
 
     def position(self) -> tuple[float, float] | None:
-        pos = (self.state or {}).get("agvPosition") or {}
+        s = self.state or {}
+        pos = (s.get("pose") if self.paper else s.get("agvPosition")) or {}
         x, y = pos.get("x"), pos.get("y")
         return (float(x), float(y)) if isinstance(x, (int, float)) and isinstance(y, (int, float)) else None
 
     def battery(self) -> float | None:
-        value = ((self.state or {}).get("batteryState") or {}).get("batteryCharge")
-        return float(value) if isinstance(value, (int, float)) else None
+        s = self.state or {}
+        value = s.get("battery") if self.paper else (s.get("batteryState") or {}).get("batteryCharge")
+        return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
 
     def view(self) -> VehicleView:
         s = self.state or {}
+        if self.paper:
+            return paper_view(self.key, self.online, s)
         actions = tuple((str(a.get("actionId")), str(a.get("actionStatus"))) for a in s.get("actionStates") or ()
                         if isinstance(a, dict))
         return VehicleView(self.key, self.online, str(s.get("orderId") or ""), str(s.get("lastNodeId") or ""), actions)
@@ -59,78 +82,62 @@ class Vehicle:
                     pos[0] if pos else None, pos[1] if pos else None, self.battery())
 
 
-class StateListener:
-    """The latest VDA 5050 state of every vehicle, from MQTT."""
-
-    def __init__(self, host: str, port: int) -> None:
-        self.host, self.port = host, port
-        self._states: dict[str, dict[str, Any]] = {}
-        self._lock = threading.Lock()
-        self.connected = threading.Event()
-        self.changed = threading.Event()
-        self.client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"plantkg-planner-{os.getpid()}")
-        self.client.reconnect_delay_set(0.1, 2)
-        self.client.on_connect = self._on_connect
-        self.client.on_disconnect = lambda *_: self.connected.clear()
-        self.client.on_message = self._on_message
-
-    def start(self) -> None:
-        self.client.connect_async(self.host, self.port, keepalive=15)
-        self.client.loop_start()
-
-    def stop(self) -> None:
-        self.client.disconnect()
-        self.client.loop_stop()
-
-    def _on_connect(self, client: mqtt.Client, _u: Any, _f: Any, reason: Any, _p: Any) -> None:
-        if reason.is_failure:
-            log.warning("MQTT %s:%d refused the planner: %s", self.host, self.port, reason)
-            return
-        client.subscribe(STATE_TOPIC, qos=0)
-        self.connected.set()
-
-    def _on_message(self, _c: mqtt.Client, _u: Any, message: mqtt.MQTTMessage) -> None:
-        levels = message.topic.split("/")
-        try:
-            state = json.loads(message.payload)
-        except ValueError:
-            return
-        if len(levels) != 5 or not isinstance(state, dict):
-            return
-        with self._lock:
-            self._states[f"{levels[2]}/{levels[3]}"] = state
-        self.changed.set()
-
-    def get(self, key: str) -> dict[str, Any] | None:
-        with self._lock:
-            return self._states.get(key)
+def paper_view(key: str, online: bool, status: dict[str, Any]) -> VehicleView:
+    """A paper vehicle's status as a view: the task it runs (or, when idle, the last one it ended;
+    a task ends with its wait action), ended or not, and its refused/failed items as FAILED."""
+    running, ended = str(status.get("task_id") or ""), str(status.get("finished_task_id") or "")
+    errors = status.get("errors") if isinstance(status.get("errors"), list) else []
+    failed = tuple((str(e.get("item_id")), "FAILED") for e in errors if isinstance(e, dict) and e.get("item_id"))
+    order = running or ended
+    return VehicleView(key, online, order, "", failed, paper=True, ended=bool(order) and order == ended and not running)
 
 
 class Fleet:
-    """The manager's vehicle list, refreshed on demand, joined with the MQTT states."""
+    """The manager's vehicle list, refreshed on demand; paper vehicles joined with their entity."""
 
-    def __init__(self, manager: ManagerClient, states: StateListener) -> None:
-        self.manager = manager
-        self.states = states
+    def __init__(self, manager: ManagerHandle | ManagerClient,
+                 paper_status: Callable[[str], dict[str, Any] | None] | None = None) -> None:
+        self.handle = manager if isinstance(manager, ManagerHandle) else ManagerHandle(manager)
+        self.paper_status = paper_status
         self.rows: list[dict[str, Any]] = []
+        self.paper: dict[str, dict[str, Any]] = {}
         self.reachable = False
+        self.waiting = False  # the manager said 503 NotReady
 
     def refresh(self) -> None:
         try:
-            rows = self.manager.vehicles()
-        except (ManagerUnreachableError, ManagerRefusedError) as exc:
+            rows = self.handle.client.vehicles()
+        except ManagerRefusedError as exc:
+            if exc.status == 503:
+                if not self.waiting:
+                    log.info("the fleet manager is loading its records (503); waiting")
+                self.waiting, self.reachable = True, False
+                return
+            if self.reachable:
+                log.warning("the fleet manager refused the vehicle list: %s", exc)
+            self.reachable = False
+            return
+        except ManagerUnreachableError as exc:
             if self.reachable:
                 log.warning("the fleet manager does not answer: %s", exc)
             self.reachable = False
+            self.handle.renew()
             return  # keep the last list: vehicles are not lost because the manager restarts
-        self.rows, self.reachable = [r for r in rows if isinstance(r, dict)], True
+        self.rows = [r for r in rows if isinstance(r, dict)]
+        self.reachable, self.waiting = True, False
+        if self.paper_status is not None:
+            for row in self.rows:
+                if row.get("interface") == PAPER:
+                    status = self.paper_status(str(row.get("serial")))
+                    if status is not None:
+                        self.paper[str(row.get("serial"))] = status
 
     def vehicles(self) -> dict[str, Vehicle]:
         out = {}
         for row in self.rows:
             key = f"{row.get('topicManufacturer')}/{row.get('serial')}"
-            state = self.states.get(key) or row.get("state")
-            out[key] = Vehicle(key, str(row.get("serial")), str(row.get("topicManufacturer")),
-                               str(row.get("interface")), row.get("connectionState") == "ONLINE",
-                               str(row.get("connectionState")), state)
+            interface = str(row.get("interface"))
+            state = self.paper.get(str(row.get("serial"))) if interface == PAPER else row.get("state")
+            out[key] = Vehicle(key, str(row.get("serial")), str(row.get("topicManufacturer")), interface,
+                               row.get("connectionState") == "ONLINE", str(row.get("connectionState")), state)
         return out

@@ -8,7 +8,6 @@ one it shows is not; operators' requests are checked (4xx naming the field).
 
 from __future__ import annotations
 
-import threading
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +17,7 @@ import fleet.lotlan
 from fleet.model.binding import fleet_binding
 from fleet.model.description import from_factsheet
 from fleet.model.graph import agv_turtle
+from fleet.planner.errors import PlannerError
 from fleet.planner.journal import Journal
 from fleet.planner.machine import SendOrder
 from fleet.planner.plantview import PlantView
@@ -56,16 +56,11 @@ Task third
 End""")
 
 
-class States:
-    changed = threading.Event()
-
-
 class GivenFleet:
     """The vehicles as data: what fleet.planner.vehicles.Fleet would report."""
 
     def __init__(self) -> None:
         self.reachable = True
-        self.states = States()
         self.v: dict[str, Vehicle] = {}
 
     def refresh(self) -> None:
@@ -199,21 +194,106 @@ def test_withdraw_is_final(tmp_path: Path, plant: PlantView) -> None:
     planner.journal.close()
 
 
-def test_a_vehicle_missing_from_the_list_for_a_moment_keeps_its_task(tmp_path: Path, plant: PlantView) -> None:
+def test_nothing_is_lost_while_the_manager_is_not_ready_and_a_vehicle_gone_from_its_list_is(
+        tmp_path: Path, plant: PlantView) -> None:
     given, sent = GivenFleet(), []
     given.put("a-2", 3.0, 6.0)
     planner = planner_on(tmp_path, given, plant, sent)
     planner.start_job(["first"])
     planner.tick()
-    kept = given.v.pop("t/a-2")  # a manager that has just restarted lists nobody yet
-    planner.tick()
     assert planner.tasks["j1-first-1"].vehicle == "t/a-2"
-    given.v["t/a-2"] = kept
-    planner.tick()
-    planner.config = PlannerConfig(SITE, settle=0.0, missing=0.0)
-    given.v.pop("t/a-2")  # gone for good (a person removed it)
-    planner.tick()
+    given.reachable = False  # the manager restarts: 503 NotReady (or no answer); the planner waits
+    given.v.clear()
+    for _ in range(3):
+        planner.tick()
+    assert planner.tasks["j1-first-1"].vehicle == "t/a-2"
+    given.reachable = True  # ready, and the vehicle is not in its list (a person removed it)
     planner.tick()
     assert planner.tasks["j1-first-1"].state is TaskState.ACTIVE
     assert "vehicle t/a-2 is no longer known" in planner.tasks["j1-first-1"].reason
+    planner.journal.close()
+
+
+def test_a_withdrawn_task_cancels_the_order_on_its_online_vehicle_before_it_gets_another(
+        tmp_path: Path, plant: PlantView) -> None:
+    given, sent = GivenFleet(), []
+    given.put("a-1", 3.0, 6.0)
+    cancels: list[str] = []
+    answers = [PlannerError("the fleet manager does not answer"), True]
+
+    def cancel(vehicle: Vehicle) -> bool:
+        answer = answers.pop(0)
+        if isinstance(answer, Exception):
+            raise answer
+        cancels.append(vehicle.key)
+        return answer
+
+    program = fleet.lotlan.parse(PROGRAM, "jobs.tl")
+    planner = Planner(PlannerConfig(SITE, settle=0.0), program, Journal(tmp_path), given, plant,
+                      lambda order, vehicle: sent.append(order), cancel=cancel)
+    planner.start_job(["first", "second"])
+    planner.tick()
+    held = {t.id: t.vehicle for t in planner.tasks.values() if t.vehicle}
+    assert list(held.values()) == ["t/a-1"] and len(sent) == 1
+    task_id = next(iter(held))
+    planner.withdraw(task_id)  # the first cancelOrder fails: retried; a-1 takes no task meanwhile
+    assert cancels == [] and planner.cancels == {"t/a-1": sent[0].order_id}
+    planner._assign(given.vehicles())
+    assert len(sent) == 1 and all(t.vehicle == "" for t in planner.tasks.values())
+    planner.tick()  # retried, sent; then a-1 is free for the other task
+    assert cancels == ["t/a-1"] and planner.cancels == {}
+    planner.tick()
+    assert len(sent) == 2 and sent[1].task_id != task_id
+    assert planner.tasks[task_id].state is TaskState.WITHDRAWN
+    planner.journal.close()
+
+
+def test_a_withdrawn_task_of_an_offline_vehicle_sends_no_cancel(tmp_path: Path, plant: PlantView) -> None:
+    given, sent = GivenFleet(), []
+    given.put("a-1", 3.0, 6.0)
+    cancels: list[str] = []
+    program = fleet.lotlan.parse(PROGRAM, "jobs.tl")
+    planner = Planner(PlannerConfig(SITE, settle=0.0), program, Journal(tmp_path), given, plant,
+                      lambda order, vehicle: sent.append(order), cancel=lambda v: cancels.append(v.key) or True)
+    planner.start_job(["first"])
+    planner.tick()
+    given.put("a-1", 3.0, 6.0, online=False)
+    planner.withdraw("j1-first-1")
+    assert cancels == [] and planner.cancels == {}
+    planner.journal.close()
+
+
+def test_a_paper_vehicle_is_assigned_and_its_status_drives_the_task(tmp_path: Path, plant: PlantView) -> None:
+    """cart-1 of the example plant speaks the paper's channels (skills load/unload): it gets the
+    task only when the planner can reach it (config.paper), and its status ends each sub-task."""
+    from fleet.planner import paperids
+
+    given, sent = GivenFleet(), []
+
+    def cart(status: dict[str, Any]) -> None:
+        given.v["/cart-1"] = Vehicle("/cart-1", "cart-1", "", "paper-channels", True, "ONLINE",
+                                     {"pose": {"x": 9.0, "y": 2.0, "theta": 0.0}, "battery": 90.0, **status})
+    cart({})
+    program = fleet.lotlan.parse(PROGRAM, "jobs.tl")
+    planner = Planner(PlannerConfig(SITE, settle=0.0), program, Journal(tmp_path), given, plant,
+                      lambda order, vehicle: sent.append(order))
+    planner.start_job(["second"])
+    planner.tick()
+    assert planner.tasks["j1-second-1"].state is TaskState.ACTIVE and sent == []  # no paper: not assigned
+    planner.journal.close()
+    planner = Planner(PlannerConfig(SITE, settle=0.0, paper=True), program, Journal(tmp_path), given, plant,
+                      lambda order, vehicle: sent.append(order))
+    planner.tick()
+    task = planner.tasks["j1-second-1"]
+    assert task.vehicle == "/cart-1" and sent[0].station == "load-2" and sent[0].actions == ("pick",)
+    count = len(sent)
+    planner.tick()
+    assert len(sent) == count + 1 and set(sent) == {sent[0]}  # every tick: the paper sender writes what is due
+    cart({"finished_task_id": paperids.task_uuid(sent[0].order_id)})
+    planner.tick()
+    assert planner.tasks["j1-second-1"].legs[0].state.value == "DONE"
+    assert sent[-1].station == "unload-2" and sent[-1].actions == ("drop",)
+    cart({"finished_task_id": paperids.task_uuid(sent[-1].order_id)})
+    planner.tick()
+    assert planner.tasks["j1-second-1"].state is TaskState.FINISHED
     planner.journal.close()
