@@ -10,6 +10,8 @@
 | POST | ``/api/stations/<name>/jobs`` | form ``task``: start that LoTLan task as a job (planner ``POST /v1/jobs``) |
 | POST | ``/api/stations/<name>/loaded`` | fire the FinishedBy events of the pick waiting there (``/unloaded``: the drop) |
 
+Every poll shares the planner's and the manager's answer of the last 0.25 s (``Recent``), so any
+number of screens ask each of them at most four times a second; a button reads a fresh snapshot.
 Every page and endpoint needs the login, every POST the CSRF token (fleet/hmi/auth.py). A planner
 or manager that does not answer is part of the answer (``{"planner": {"ok": false, "error"}}``,
 the page shows it), a POST that needs it answers 503; bad input 400 (404 unknown station, 409
@@ -29,7 +31,7 @@ from werkzeug.exceptions import HTTPException
 from fleet.hmi import auth, views
 from fleet.hmi.auth import json_error, login_required
 from fleet.hmi.errors import UpstreamDown, UpstreamRefused
-from fleet.hmi.upstream import ManagerLink, PlannerLink
+from fleet.hmi.upstream import ManagerLink, PlannerLink, Recent
 from fleet.lotlan.model import Program
 from fleet.sim.map import SiteMap
 
@@ -43,6 +45,7 @@ class HmiConfig:
     token: str
     secret_key: bytes = field(default_factory=lambda: secrets.token_bytes(32))
     secure_cookies: bool = False
+    share: float = 0.25  # s an answer of the planner / manager is shared by the polling screens
 
 
 pages = Blueprint("pages", __name__)
@@ -61,10 +64,14 @@ def _station_or_404(name: str) -> str:
     return name
 
 
+def _recent(name: str) -> Recent:
+    return current_app.extensions["fleet_hmi_recent"][name]  # type: ignore[no-any-return]
+
+
 def _snapshot() -> tuple[dict[str, Any], dict[str, Any]]:
     """The planner's snapshot and how it answered (never raises: a page says what is down)."""
     try:
-        return _config().planner.snapshot(), {"ok": True}
+        return _recent("planner").get(), {"ok": True}
     except (UpstreamDown, UpstreamRefused) as exc:
         return {"tasks": [], "jobs": {}}, {"ok": False, "error": exc.message}
 
@@ -97,11 +104,10 @@ def site() -> Any:
 @api.route("/fleet")
 @login_required
 def fleet_json() -> Any:
-    config = _config()
     state, vehicle = views.check_filters(request.args.get("state"), request.args.get("vehicle"))
     snapshot, planner = _snapshot()
     try:
-        rows, manager = config.manager.vehicles(), {"ok": True}
+        rows, manager = _recent("manager").get(), {"ok": True}
     except (UpstreamDown, UpstreamRefused) as exc:
         rows, manager = [], {"ok": False, "error": exc.message}
     tasks = snapshot.get("tasks") or []
@@ -134,6 +140,7 @@ def start_job(name: str) -> Any:
     _station_or_404(name)
     task = views.check_start(config.program, config.site, name, _form().get("task"))
     job = config.planner.start_job([task])
+    _recent("planner").forget()
     return job, 201
 
 
@@ -145,6 +152,7 @@ def press(name: str, button: str) -> Any:
     tasks = config.planner.snapshot().get("tasks") or []
     events = views.button_events(config.program, name, button, tasks)
     fired = [config.planner.fire(event, True) for event in events]
+    _recent("planner").forget()
     return {"button": button, "station": name, "fired": fired}, 201
 
 
@@ -183,6 +191,8 @@ def create_app(config: HmiConfig) -> Flask:
                       SESSION_COOKIE_SAMESITE="Strict", SESSION_COOKIE_SECURE=config.secure_cookies,
                       SESSION_COOKIE_NAME="plantkg_hmi", MAX_CONTENT_LENGTH=64 * 1024)
     app.extensions["fleet_hmi"] = config
+    app.extensions["fleet_hmi_recent"] = {"planner": Recent(config.planner.snapshot, config.share),
+                                          "manager": Recent(config.manager.vehicles, config.share)}
     auth.init_app(app)
     app.register_blueprint(pages)
     app.register_blueprint(api)

@@ -6,15 +6,19 @@ restart on a new port. Every call times out after ``timeout`` s: a hung planner 
 so, it never holds a request thread for long. ``UpstreamDown`` when nobody answers,
 ``UpstreamRefused`` with the status and description when the API said no.
 
-Positions come with the manager's vehicle rows: each carries the vehicle's last VDA 5050 state
+:class:`Recent` shares one answer among all the screens that poll within 0.25 s. Positions come
+with the manager's vehicle rows: each carries the vehicle's last VDA 5050 state
 with its ``agvPosition``.
 """
 
 from __future__ import annotations
 
 import json
+import threading
+import time
 import urllib.error
 import urllib.request
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -96,3 +100,32 @@ class ManagerLink:
         except ManagerRefusedError as exc:
             raise UpstreamRefused("fleet manager", exc.status, exc.description) from None
         return [r for r in rows if isinstance(r, dict)] if isinstance(rows, list) else []
+
+
+class Recent:
+    """The answer of ``fetch`` reused for ``ttl`` s, errors too: however many screens poll, the
+    planner and the manager are asked at most once per ``ttl`` (a hung one holds the pollers for
+    at most its timeout, one call at a time, never one call per screen)."""
+
+    def __init__(self, fetch: Callable[[], Any], ttl: float = 0.25, clock: Callable[[], float] = time.monotonic) -> None:
+        self.fetch, self.ttl, self.clock = fetch, ttl, clock
+        self._lock = threading.Lock()
+        self._at = float("-inf")
+        self._value: Any = None
+        self._error: Exception | None = None
+
+    def get(self) -> Any:
+        with self._lock:
+            if self.clock() - self._at >= self.ttl:
+                try:
+                    self._value, self._error = self.fetch(), None
+                except (UpstreamDown, UpstreamRefused) as exc:
+                    self._value, self._error = None, exc
+                self._at = self.clock()
+            if self._error is not None:
+                raise self._error
+            return self._value
+
+    def forget(self) -> None:
+        with self._lock:
+            self._at = float("-inf")

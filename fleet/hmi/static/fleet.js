@@ -42,7 +42,10 @@
       let m = markers[v.key];
       if (!m) {
         m = el("g", {class: "vehicle", id: "vehicle-" + v.serial, "data-key": v.key});
-        m.appendChild(el("circle", {r: 0.45}));
+        const body = el("g", {class: "heading"});
+        body.appendChild(el("circle", {r: 0.45}));
+        body.appendChild(el("line", {x1: 0, y1: 0, x2: 0.7, y2: 0}));  // its heading (theta)
+        m.appendChild(body);
         m.appendChild(el("text", {class: "label", y: -0.6}, v.serial));
         svg.appendChild(m);
         markers[v.key] = m;
@@ -54,6 +57,8 @@
         m.setAttribute("data-x", v.x.toFixed(3));
         m.setAttribute("data-y", v.y.toFixed(3));
         m.setAttribute("transform", "translate(" + v.x.toFixed(3) + " " + sy(v.y).toFixed(3) + ")");
+        // theta counts counter-clockwise with y up; SVG's y points down, so its rotation is the negative
+        m.firstChild.setAttribute("transform", "rotate(" + (-v.theta * 180 / Math.PI).toFixed(1) + ")");
       }
     }
     for (const key of Object.keys(markers)) if (!seen.has(key)) { markers[key].remove(); delete markers[key]; }

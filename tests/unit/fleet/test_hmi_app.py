@@ -17,7 +17,8 @@ from flask.testing import FlaskClient
 
 import fleet.lotlan
 from fleet.hmi.app import HmiConfig, create_app
-from fleet.hmi.upstream import ManagerLink, PlannerLink
+from fleet.hmi.errors import UpstreamDown
+from fleet.hmi.upstream import ManagerLink, PlannerLink, Recent
 from fleet.manager.api import ApiServer as ManagerApi
 from fleet.planner.api import ApiServer as PlannerApi
 from fleet.planner.journal import Journal
@@ -63,7 +64,7 @@ def make_client(tmp: Path, planner_dir: Path, manager_dir: Path) -> FlaskClient:
     lotlan = tmp / "jobs.tl"
     lotlan.write_text(JOBS, encoding="utf-8")
     config = HmiConfig(fleet.lotlan.load(lotlan), SITE, PlannerLink(data_dir=planner_dir, timeout=2.0),
-                       ManagerLink(manager_dir, timeout=2.0), TOKEN)
+                       ManagerLink(manager_dir, timeout=2.0), TOKEN, share=0.0)  # every call asks (Recent: below)
     app = create_app(config)
     app.config["TESTING"] = True
     return app.test_client()
@@ -219,3 +220,25 @@ def test_a_refusal_of_the_planner_is_passed_on_a_wrong_planner_token_is_a_502(ri
     reply = rig.client.post("/api/stations/load-1/jobs", data={"task": "first"}, headers={"X-CSRF-Token": csrf})
     assert reply.status_code == 502 and reply.json["upstream"] == "planner" and "planner.token" in reply.json["error"]
     assert rig.client.get("/api/fleet").json["planner"]["ok"] is False
+
+
+def test_recent_answers_are_shared_errors_too_and_forgotten_after_a_button() -> None:
+    now = [0.0]
+    calls: list[str] = []
+    answers: list[Any] = [{"tasks": [1]}, UpstreamDown("planner", "the planner at x does not answer"), {"tasks": [2]}]
+
+    def fetch() -> Any:
+        calls.append("call")
+        answer = answers.pop(0)
+        if isinstance(answer, Exception):
+            raise answer
+        return answer
+    recent = Recent(fetch, ttl=0.25, clock=lambda: now[0])
+    assert [recent.get() for _ in range(10)] == [{"tasks": [1]}] * 10 and len(calls) == 1
+    now[0] = 0.3
+    for _ in range(3):  # a planner that is down is asked once per ttl, not once per screen
+        with pytest.raises(UpstreamDown, match="does not answer"):
+            recent.get()
+    assert len(calls) == 2
+    recent.forget()  # a button was pressed: the next poll asks at once
+    assert recent.get() == {"tasks": [2]} and len(calls) == 3
