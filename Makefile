@@ -1,5 +1,6 @@
 # plantkg: `make test` installs what is missing (scripts/setup.sh) and runs the whole suite.
-# `make demo` runs the robot cell end to end (DEMO_ARGS, e.g. DEMO_ARGS='--duration 20').
+# `make demo` runs the robot cell end to end (DEMO_ARGS, e.g. DEMO_ARGS='--duration 20'), then the AGV
+# fleet (FLEET_DEMO_ARGS, e.g. FLEET_DEMO_ARGS='--vehicles 5 --keep 60').
 # Pass pytest options with PYTEST_ARGS, e.g. make test PYTEST_ARGS='-m "not integration"'
 # PYTEST_WORKERS=N runs the suite on N pytest-xdist workers (a file stays on one worker). Default 0
 # (one process): with two workers, two Mosquitto-bridge tests of tests/integration/test_bridges.py
@@ -12,6 +13,7 @@ VENV := .venv
 PYTEST_ARGS ?=
 PYTEST_WORKERS ?= 0
 DEMO_ARGS ?=
+FLEET_DEMO_ARGS ?=
 BENCH_ARGS ?=
 
 .PHONY: setup test lint demo bench
@@ -27,6 +29,7 @@ lint: setup
 
 demo: setup
 	$(VENV)/bin/plantkg demo $(DEMO_ARGS)
+	$(VENV)/bin/plantkg fleet demo $(FLEET_DEMO_ARGS)
 
 bench: setup
 	$(VENV)/bin/plantkg-bench $(BENCH_ARGS)

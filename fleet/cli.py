@@ -12,6 +12,7 @@
 | ``plantkg fleet remove VEHICLE`` | forget it (its file and record); it is discovered again when it comes back online |
 | ``plantkg fleet order SERIAL NODE...`` | send a VDA 5050 order through the running manager's API |
 | ``plantkg fleet hmi ...`` | serve the operators' screens (the options of ``python -m fleet.hmi``) |
+| ``plantkg fleet demo`` | the fleet end to end on this machine (``fleet/demo.py``), nothing left running |
 
 The data directory is ``--data-dir`` or ``$PLANTKG_FLEET_DATA``. pin/rename/remove change the data
 directory under its lock; a running manager notices within its poll interval (0.5 s) and
@@ -72,6 +73,22 @@ def hmi_command(args: tuple[str, ...]) -> int:
         return main(list(args))
     except SystemExit as exc:  # argparse's --help and usage errors
         return int(exc.code or 0)
+
+
+@fleet_group.command("demo")
+@click.option("--vehicles", type=click.IntRange(1, 50), default=3, show_default=True,
+              help="simulated VDA 5050 vehicles (one more speaks the paper's channels)")
+@click.option("--work-dir", type=click.Path(path_type=Path, file_okay=False), default=None,
+              help="where the plant, the agents, the data and the logs go (default: a new temporary folder)")
+@click.option("--deadline", type=click.FloatRange(10), default=300.0, show_default=True,
+              help="seconds the jobs may take")
+@click.option("--keep", type=click.FloatRange(0), default=0.0, show_default=True,
+              help="seconds to keep everything running after the jobs (to look around)")
+def demo_command(vehicles: int, work_dir: Path | None, deadline: float, keep: float) -> int:
+    """The second paper's fleet end to end: plant, plug and play, SPARQL, LoTLan jobs, Task entities."""
+    from fleet.demo import run_fleet_demo
+
+    return run_fleet_demo(vehicles=vehicles, work_dir=work_dir, deadline=deadline, keep=keep)
 
 
 def _data(data_dir: Path) -> Any:

@@ -1,0 +1,226 @@
+"""``plantkg fleet demo``: the AGV fleet of the second paper, end to end on this machine.
+
+The steps a plant would take, each with its real part:
+
+1. the fleet plant (``ontology/examples/agv-fleet.ttl``: Mosquitto for the vehicles, the NGSI-v2
+   context broker for the task planner and screens) copied onto free ports, an agent per machine,
+   ``apply``;
+2. the fleet manager starts (``python -m fleet.manager``), then simulated AGVs of two interfaces
+   connect — VDA 5050 vehicles and one speaking the paper's channels — and join **by plug and
+   play**: each is asked for its factsheet (or announces its description), becomes triples in the
+   graph, is validated, reasoned over, planned and applied; the time each took is printed;
+3. one SPARQL query over the plant and the discovered vehicles shows who can do what;
+4. the task planner (``python -m fleet.planner``) takes the LoTLan jobs (``fleet/examples/jobs.tl``),
+   assigns each transport to a vehicle by a SPARQL query, sends VDA 5050 orders and follows them;
+   when a vehicle waits at the loading station the demo presses **Loaded** for the operator (the
+   HMI shows the same button); every task change is printed;
+5. the Task entities on the context broker, as any NGSI client sees them;
+6. everything stops: planner, vehicles, manager, brokers, agents. Nothing is left running.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import tempfile
+import time
+import urllib.error
+import urllib.request
+from contextlib import ExitStack
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import click
+
+from engine import process
+from engine.cli.progress import result_lines
+from engine.local_plant import LocalPlant, copy_on_free_ports, processes_under
+from kg.load import load_plant
+from kg.query import run_query
+
+ROOT = Path(__file__).resolve().parents[1]
+PLANT = ROOT / "ontology" / "examples" / "agv-fleet.ttl"
+JOBS = Path(__file__).resolve().parent / "examples" / "jobs.tl"
+MQTT_ID, CONTEXT_ID = "fleet-mqtt", "fleet-context"
+
+WHO_CAN_DO_WHAT = """
+SELECT ?vehicle ?interface (GROUP_CONCAT(DISTINCT ?skill; separator=" ") AS ?skills) WHERE {
+    ?v pk:isType fleet:agv ; pk:id ?vehicle ; fleet:interface ?interface ; fleet:discovered true ;
+       pk:executes/pk:id ?skill .
+} GROUP BY ?vehicle ?interface ORDER BY ?vehicle"""
+
+
+@dataclass(frozen=True)
+class Api:
+    """A fleet process's loopback API, found through its ``<name>.json`` and ``<name>.token``."""
+
+    data_dir: Path
+    name: str
+
+    def where(self) -> dict[str, Any]:
+        try:
+            return json.loads((self.data_dir / f"{self.name}.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return {}
+
+    def call(self, method: str, path: str, body: Any = None) -> tuple[int, Any]:
+        token = (self.data_dir / f"{self.name}.token").read_text(encoding="utf-8").strip()
+        request = urllib.request.Request(
+            self.where()["url"] + path, method=method,
+            data=None if body is None else json.dumps(body).encode("utf-8"),
+            headers={"Authorization": f"Bearer {token}", "Content-Type": "application/json"})
+        try:
+            with urllib.request.urlopen(request, timeout=10) as reply:  # noqa: S310 - loopback URL we wrote
+                return reply.status, json.loads(reply.read())
+        except urllib.error.HTTPError as exc:
+            return exc.code, json.loads(exc.read() or b"null")
+
+
+def _spawn(stack: ExitStack, argv: list[str | Path], logs: Path, name: str) -> process.Child:
+    child = process.spawn([sys.executable, *argv], log_dir=logs, name=name, cwd=ROOT)
+    stack.callback(process.stop, child)
+    return child
+
+
+def _manager_status(data: Path) -> dict[str, Any]:
+    try:
+        return json.loads((data / "status.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+
+
+def run_fleet_demo(*, vehicles: int, work_dir: Path | None, deadline: float, keep: float) -> int:
+    """Run the demo; returns the exit code (0 when every task finished)."""
+    base = work_dir or Path(tempfile.mkdtemp(prefix="plantkg-fleet-demo-"))
+    base.mkdir(parents=True, exist_ok=True)
+    logs, manager_data, planner_data = base / "logs", base / "fleet-manager", base / "planner"
+    plant_file = base / "agv-fleet.ttl"
+    ports = copy_on_free_ports(PLANT, plant_file)
+    mqtt = f"127.0.0.2:{ports[MQTT_ID]}"
+    click.secho(f"1. the fleet plant ({PLANT.name}) on free ports: Mosquitto {mqtt}, "
+                f"context broker 127.0.0.3:{ports[CONTEXT_ID]}; agents, apply", bold=True)
+    with ExitStack() as stack:
+        plant = stack.enter_context(LocalPlant.start([plant_file], base / "plant"))
+        result = plant.apply()
+        for line in result_lines(result):
+            click.echo(f"   {line}")
+        if not result.ok:
+            click.secho("   the plant did not apply; see the agents' logs under " + str(base), fg="red")
+            return 1
+
+        click.secho(f"\n2. the fleet manager, then {vehicles} VDA 5050 vehicles and 1 on the paper's "
+                    "channels join by plug and play", bold=True)
+        manager = _spawn(stack, ["-m", "fleet.manager", plant_file, "--data-dir", manager_data,
+                                 "--agents", plant.agents.agents_file], logs, "fleet-manager")
+        process.wait_until(lambda: (_manager_status(manager_data).get("lastReconcile") or {}).get("ok"),
+                           120, 0.1, what="the fleet manager to start", child=manager)
+        _spawn(stack, ["-m", "fleet.sim", "--broker", mqtt, "--count", str(vehicles),
+                       "--manufacturer", "plantkg-sim", "--serial-prefix", "demo-"], logs, "vda5050-vehicles")
+        _spawn(stack, ["-m", "fleet.sim", "--interface", "paper", "--broker", mqtt, "--count", "1",
+                       "--serial-prefix", "paper-"], logs, "paper-vehicle")
+        expected = vehicles + 1
+
+        def joined() -> list[dict[str, Any]] | None:
+            rows = [v for v in _manager_status(manager_data).get("vehicles", [])
+                    if v.get("readySeconds") is not None and str(v.get("serial", "")).startswith(("demo-", "paper-"))]
+            return rows if len(rows) >= expected else None
+
+        rows = process.wait_until(joined, 60 + 5 * expected, 0.1, what="the vehicles to join", child=manager)
+        for row in sorted(rows, key=lambda r: r["serial"]):
+            click.echo(f"   {row['vehicle']:<28} {row['interface']:<15} ready {row['readySeconds'] * 1000:6.0f} ms "
+                       f"after ONLINE, skills: {' '.join(row.get('skills', []))}")
+
+        click.secho("\n3. plantkg query: the discovered vehicles and their skills (SPARQL over the graph)", bold=True)
+        discovered = sorted((manager_data / "discovered").glob("*.ttl"))
+        answer = run_query(load_plant([plant_file, *discovered]), WHO_CAN_DO_WHAT)
+        click.echo("   " + " | ".join(answer.variables))
+        for row in answer.rows:
+            click.echo("   " + " | ".join("" if term is None else term.value for term in row))
+
+        click.secho(f"\n4. the task planner takes {JOBS.name}; the demo presses 'Loaded' for the operator",
+                    bold=True)
+        cb_token = plant.agents.agents["127.0.0.3"].state_dir / "token"
+        planner = _spawn(stack, ["-m", "fleet.planner", "--plant", plant_file, "--lotlan", JOBS,
+                                 "--data-dir", planner_data, "--manager-data-dir", manager_data,
+                                 "--ngsi-url", f"http://127.0.0.3:{ports[CONTEXT_ID]}",
+                                 "--ngsi-token-file", cb_token], logs, "planner")
+        api = Api(planner_data, "planner")
+        process.wait_until(lambda: api.where().get("pid") == planner.pid, 60, 0.05,
+                           what="the planner's API", child=planner)
+        status, job = api.call("POST", "/v1/jobs", {})
+        if status != 201:
+            click.secho(f"   the planner refused the job: {job}", fg="red")
+            return 1
+        finished = _follow(api, planner, deadline)
+
+        click.secho("\n5. the Task entities on the context broker (GET /v2/entities?type=Task)", bold=True)
+        for entity in _task_entities(ports[CONTEXT_ID]):
+            click.echo(f"   {entity.get('id')}: {entity.get('state')} {entity.get('vehicle', '')}")
+        if keep > 0:
+            click.echo(f"\n   keeping everything running for {keep:g} s (logs under {logs})")
+            end = time.monotonic() + keep
+            process.wait_until(lambda: time.monotonic() >= end, keep + 5, 0.5, what="the end of --keep")
+        click.secho("\n6. stopping the planner, the vehicles, the manager, the brokers and the agents", bold=True)
+    ours = _ancestors()
+    left = [line for line in processes_under(base) if int(line.split(":", 1)[0]) not in ours]
+    if left:
+        click.secho("   still running: " + "; ".join(left), fg="red")
+        return 1
+    click.echo("   nothing left running")
+    return 0 if finished else 1
+
+
+def _ancestors() -> set[int]:
+    """This process and its parents (their command lines may name the work folder too)."""
+    pids, pid = set(), os.getpid()
+    while pid > 1 and pid not in pids:
+        pids.add(pid)
+        try:
+            pid = int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, ValueError, IndexError):
+            break
+    return pids
+
+
+def _follow(api: Api, planner: process.Child, deadline: float) -> bool:
+    """Print every task state change; press Loaded when a task waits for it. True when all finished."""
+    seen: dict[str, str] = {}
+    pressed: set[str] = set()
+    end = time.monotonic() + deadline
+
+    def step() -> bool:
+        status, body = api.call("GET", "/v1/tasks")
+        if status != 200:
+            return False
+        tasks = body["tasks"]
+        for task in tasks:
+            legs = " ".join(f"{leg['station']}:{leg['state']}" for leg in task["legs"])
+            line = f"{task['state']} {task['vehicle']} [{legs}]"
+            if seen.get(task["id"]) != line:
+                seen[task["id"]] = line
+                click.echo(f"   {time.strftime('%H:%M:%S')} {task['lotlanTask']:<16} {line}")
+            acted = [leg for leg in task["legs"] if leg["state"] == "ACTED"]
+            if acted and task["id"] + str(acted[0]["index"]) not in pressed:
+                pressed.add(task["id"] + str(acted[0]["index"]))
+                api.call("POST", "/v1/events", {"event": "Loaded", "value": True})
+                click.echo(f"   {time.strftime('%H:%M:%S')} operator at {acted[0]['station']}: Loaded")
+        return bool(tasks) and all(t["state"] in ("FINISHED", "FAILED", "WITHDRAWN") for t in tasks)
+
+    try:
+        process.wait_until(step, max(end - time.monotonic(), 1), 0.2, what="every task to end", child=planner)
+    except process.WaitTimeoutError as exc:
+        click.secho(f"   {exc}", fg="red")
+        return False
+    _, body = api.call("GET", "/v1/tasks")
+    return all(t["state"] == "FINISHED" for t in body["tasks"])
+
+
+def _task_entities(port: int) -> list[dict[str, Any]]:
+    url = f"http://127.0.0.3:{port}/v2/entities?type=Task&options=keyValues&limit=100"
+    try:
+        with urllib.request.urlopen(url, timeout=5) as reply:  # noqa: S310 - the plant's own broker
+            return json.loads(reply.read())
+    except (OSError, ValueError) as exc:
+        return [{"id": "(the context broker did not answer)", "state": str(exc)}]
