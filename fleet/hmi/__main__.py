@@ -4,7 +4,8 @@
         (--planner-data-dir planner-data | --planner-url URL --planner-token-file F) \\
         [--token-file F] [--host 127.0.0.1] [--port 0] [--allow-remote]
 
-The LoTLan file and the map are the planner's own (its jobs and stations). The login token
+The LoTLan file and the map are the planner's own (its jobs and stations; checked together as the
+planner checks them). The login token
 is the first line of ``--token-file`` (default: the dashboard's, ``$XDG_STATE_HOME/plantkg/
 web-token``; created 0600 when missing). Binds to loopback; another address needs
 ``--allow-remote``. Prints ``fleet HMI listening on URL`` once it serves; SIGTERM/SIGINT stop it
@@ -27,6 +28,7 @@ from fleet.hmi.auth import default_token_file, load_or_create_token
 from fleet.hmi.errors import HmiError
 from fleet.hmi.upstream import ManagerLink, PlannerLink
 from fleet.lotlan.errors import LotlanError
+from fleet.planner import build
 from fleet.sim import map as site_map
 from kg.errors import PlantKGError
 
@@ -65,6 +67,7 @@ def config_of(args: argparse.Namespace) -> HmiConfig:
         raise HmiError("--planner-url needs --planner-token-file (the planner's <data-dir>/planner.token)")
     site = site_map.default_map() if args.map == "default" else site_map.load(Path(args.map))
     program = fleet.lotlan.load(args.lotlan)
+    build.check_program(program, site)  # as the planner does: every Location a station of the map
     token_file = (args.token_file or default_token_file()).expanduser().resolve()
     token, created = load_or_create_token(token_file)
     if created:

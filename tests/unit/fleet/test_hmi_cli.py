@@ -33,6 +33,8 @@ CASES = [  # (id, extra arguments, argv keywords, expected in stderr)
     ("bad LoTLan", [], {"text": JOBS.replace("    Transport\n    From atLoad", "    Transprt\n    From atLoad")},
      "jobs.tl:50:5: unexpected 'Transprt'"),
     ("a map that is not JSON", [], {"site": "{"}, "not JSON"),
+    ("a location not on the map", [], {"site": MAP.replace('"unload-2"', '"elsewhere"')},
+     "jobs.tl:16: Location otherUnload (name 'unload-2') is no station of map 'hall-t'"),
     ("a short token", [], {"token": "short"}, "the token is 5 characters, at least 16"),
     ("a port in use", ["--port", "PORT_IN_USE"], {}, "error:"),
 ]
