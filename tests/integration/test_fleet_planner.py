@@ -8,6 +8,14 @@ by plug and play, and the planner (``python -m fleet.planner``).
   (each sub-task's order was sent under one orderId, no leg done twice).
 - A vehicle killed (kill -9) mid-task: the task goes to the other vehicle; the sub-task the first
   one finished stays finished (its pick is not sent again).
+- A task withdrawn while its vehicle drives: the planner sends ``cancelOrder`` through the
+  manager's ``POST /v1/instantActions``; the manager's state of the vehicle (with its
+  ``agvPosition``) shows the order's pick FAILED and the vehicle stopped. The manager restarted
+  (SIGTERM, a new process on another port) mid-task: the planner waits (503 NotReady / no answer),
+  finds it again through its data directory, and the task finishes on the same vehicle.
+- A paper-channel vehicle (``python -m fleet.sim --interface paper``) joined by plug and play gets
+  a LoTLan transport: motion then action items written on the context broker, progress read from
+  its AGV entity; the task and its Task entity end FINISHED.
 
 The assignment latency the planner logged is printed (no timing asserts).
 """
@@ -19,6 +27,8 @@ import os
 import re
 import signal
 import sys
+import time
+import urllib.error
 import urllib.request
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -140,6 +150,7 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
             return bool(s.get("manager", {}).get("connected") and (s.get("lastReconcile") or {}).get("ok"))
         process.wait_until(started, 60.0, 0.05, what="the manager connected and reconciled", child=manager)
         yield r
+        manager = r.manager  # a test may have restarted it
         assert process.stop(manager, grace=15.0) == 0, manager.log_tail()
         assert main(["destroy", *r.files(), "--agents", str(agents.agents_file), "--yes"]) == 0
     finally:
@@ -154,11 +165,16 @@ def write_map(path: Path, parking: list[dict[str, float]]) -> Path:
     return path
 
 
-def spawn_sim(rig: Rig, prefix: str, map_file: Path, count: int, name: str) -> process.Child:
+def spawn_sim(rig: Rig, prefix: str, map_file: Path, count: int, name: str, *extra: str,
+              vmax: str = "2") -> process.Child:
     return process.spawn([sys.executable, "-m", "fleet.sim", "--broker", f"{MQTT_HOST}:{rig.mqtt_port}",
                           "--count", str(count), "--manufacturer", "plan", "--serial-prefix", prefix,
-                          "--map", map_file, "--vmax", "2", "--amax", "1", "--state-interval", "1"],
+                          "--map", map_file, "--vmax", vmax, "--amax", "1", "--state-interval", "1", *extra],
                          log_dir=rig.tmp / "logs", name=name, cwd=ROOT)
+
+
+def manager_row(rig: Rig, serial: str) -> dict[str, Any]:
+    return next((v for v in rig.status().get("vehicles", []) if v["serial"] == serial), {})
 
 
 def wait_ready(rig: Rig, serials: list[str], sim: process.Child) -> None:
@@ -361,3 +377,98 @@ def test_a_vehicle_killed_mid_task_hands_its_task_over_and_finished_work_is_not_
         planner.stop()
         process.stop(sim_a, grace=5.0)
         assert process.stop(sim_b, grace=15.0) == 0, sim_b.log_tail()
+
+
+def test_a_paper_vehicle_joined_by_plug_and_play_carries_a_transport(
+        rig: Rig, capsys: pytest.CaptureFixture[str]) -> None:
+    map_file = write_map(rig.tmp / "map-p.json", PARK)
+    lotlan = rig.tmp / "paper.tl"
+    lotlan.write_text(JOBS.split("Task first")[0] + "Task second" + JOBS.split("Task second")[1], encoding="utf-8")
+    sim = spawn_sim(rig, "pp-", map_file, 1, "sim-paper", "--interface", "paper", "--rate", "2")
+    planner = Planner(rig, rig.tmp / "planner-4", lotlan, map_file, "planner-p")
+    try:
+        wait_ready(rig, ["pp-0001"], sim)
+        assert manager_row(rig, "pp-0001")["interface"] == "paper-channels"
+        planner.start()
+        began = time.monotonic()
+        assert planner.call("POST", "/v1/jobs", {"tasks": ["second"]})[0] == 201
+        task = planner.wait(lambda: (t := planner.tasks()["j1-second-1"])["state"] in ("FINISHED", "FAILED") and t,
+                            120.0, "the paper vehicle's transport FINISHED")
+        took = time.monotonic() - began
+        assert task["state"] == "FINISHED", task
+        assert [(g["station"], g["state"], g["vehicle"]) for g in task["legs"]] == [
+            ("load-2", "DONE", "/pp-0001"), ("unload-2", "DONE", "/pp-0001")]
+        agv = process.wait_until(lambda: (e := ngsi_get(rig, "urn:ngsi-ld:AGV:pp-0001")) and e.get("pose")
+                                 and abs(e["pose"]["x"] - 10.0) < 0.05 and abs(e["pose"]["y"] - 2.0) < 0.05 and e,
+                                 20.0, 0.1, what="the paper AGV at unload-2")
+        assert agv["refused"] == 0 and agv["state"] == "IDLE"
+        seen = process.wait_until(lambda: (e := entities(rig).get("urn:ngsi-ld:Task:j1-second-1")) and
+                                  e.get("state") == "FINISHED" and e, 20.0, 0.1, what="the Task entity FINISHED")
+        assert seen["vehicle"] == "/pp-0001"
+        logs = planner.logs()
+        assert logs.count("motion item to") >= 2 and "action item(s) written" in logs
+        assert "context broker refused" not in logs and "Traceback" not in logs
+        with capsys.disabled():
+            print(f"\nplanner: a paper-channel AGV carried one transport (2 sub-tasks, 11.6 m) in {took:.1f} s")
+    finally:
+        planner.stop()
+        assert process.stop(sim, grace=15.0) == 0, sim.log_tail()
+
+
+def test_a_withdrawn_task_is_cancelled_on_its_vehicle_and_a_manager_restart_is_waited_for(
+        rig: Rig, capsys: pytest.CaptureFixture[str]) -> None:
+    map_file = write_map(rig.tmp / "map-c.json", PARK)
+    lotlan = rig.tmp / "cancel.tl"
+    lotlan.write_text(JOBS, encoding="utf-8")
+    sim = spawn_sim(rig, "cx-", map_file, 1, "sim-cancel", vmax="0.4")
+    planner = Planner(rig, rig.tmp / "planner-3", lotlan, map_file, "planner-c")
+    try:
+        wait_ready(rig, ["cx-0001"], sim)
+        # the manager's rows carry the position the planner starts its orders from
+        position = process.wait_until(lambda: ((manager_row(rig, "cx-0001").get("state") or {}).get("agvPosition")),
+                                      20.0, 0.05, what="cx-0001's agvPosition in the manager's status", child=sim)
+        assert (position["x"], position["y"], position["mapId"]) == (4.0, 5.0, "hall-t"), position
+        planner.start()
+        assert planner.call("POST", "/v1/jobs", {"tasks": ["second"]})[0] == 201
+        task = planner.wait(lambda: (t := planner.tasks()["j1-second-1"])["legs"][0]["state"] == "SENT" and t,
+                            30.0, "second's first sub-task sent")
+        order_id = task["legs"][0]["orderId"]
+        process.wait_until(lambda: (s := manager_row(rig, "cx-0001").get("state") or {}).get("orderId") == order_id
+                           and s.get("driving"), 20.0, 0.05, what="cx-0001 driving the order", child=sim)
+        status, body = planner.call("POST", "/v1/tasks/j1-second-1/withdraw")
+        assert status == 200 and body["state"] == "WITHDRAWN", body
+
+        def cancelled() -> dict[str, Any] | None:
+            s = manager_row(rig, "cx-0001").get("state") or {}
+            kinds = {a["actionType"]: a["actionStatus"] for a in s.get("actionStates", [])}
+            return s if kinds.get("cancelOrder") == "FINISHED" and kinds.get("pick") == "FAILED" else None
+        state = process.wait_until(cancelled, 20.0, 0.05, what="the order cancelled on cx-0001", child=sim)
+        assert state["orderId"] == order_id and not state["driving"]
+        assert "cancelOrder sent to plan/cx-0001" in planner.logs()
+
+        # the manager restarts mid-task (the last test of the module: the restarted manager is
+        # this test's child, stopped here): the planner waits, finds it again, nobody is lost
+        assert planner.call("POST", "/v1/jobs", {"tasks": ["second"]})[0] == 201
+        planner.wait(lambda: planner.tasks()["j2-second-1"]["legs"][0]["state"] == "SENT", 30.0, "j2 sent")
+        assert process.stop(rig.manager, grace=15.0) == 0
+        rig.manager = process.spawn(list(rig.manager.argv), log_dir=rig.tmp / "logs", name="fleet-manager-2", cwd=ROOT)
+        task = planner.wait(lambda: (t := planner.tasks()["j2-second-1"])["state"] == "FINISHED" and t, 90.0,
+                            "j2 FINISHED after the manager's restart")
+        assert {g["vehicle"] for g in task["legs"]} == {"plan/cx-0001"}
+        task_notes = notes(planner.journal(), "j2-second-1")
+        assert not any("back to ACTIVE" in n for n in task_notes), task_notes
+        assert "the fleet manager now answers at" in planner.logs()
+        planner.stop()
+        assert process.stop(rig.manager, grace=15.0) == 0, rig.manager.log_tail()
+    finally:
+        planner.stop()
+        assert process.stop(sim, grace=15.0) == 0, sim.log_tail()
+
+
+def ngsi_get(rig: Rig, entity_id: str) -> dict[str, Any] | None:
+    try:
+        with urllib.request.urlopen(f"http://{CB_HOST}:{rig.cb_port}/v2/entities/{entity_id}?options=keyValues",
+                                    timeout=5) as reply:
+            return json.loads(reply.read())
+    except (OSError, ValueError):
+        return None
