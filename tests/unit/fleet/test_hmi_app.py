@@ -242,3 +242,22 @@ def test_recent_answers_are_shared_errors_too_and_forgotten_after_a_button() -> 
     assert len(calls) == 2
     recent.forget()  # a button was pressed: the next poll asks at once
     assert recent.get() == {"tasks": [2]} and len(calls) == 3
+
+
+def test_a_hung_planner_costs_a_poll_at_most_its_timeout(rig: Rig, tmp_path: Path) -> None:
+    import socket
+    import time
+
+    with socket.socket() as hung:  # accepts connections (backlog) and never answers
+        hung.bind(("127.0.0.1", 0))
+        hung.listen(8)
+        (tmp_path / "hung").mkdir()
+        (tmp_path / "hung" / "planner.json").write_text(f'{{"url": "http://127.0.0.1:{hung.getsockname()[1]}"}}')
+        (tmp_path / "hung" / "planner.token").write_text("x" * 20)
+        client = make_client(tmp_path, tmp_path / "hung", rig.manager_dir)
+        login(client)
+        start = time.monotonic()
+        fleet = client.get("/api/fleet")
+        took = time.monotonic() - start
+    assert fleet.status_code == 200 and fleet.json["planner"]["ok"] is False and "does not answer" in fleet.json["planner"]["error"]
+    assert fleet.json["manager"] == {"ok": True} and 1.5 < took < 4.0, took  # the 2 s timeout, not forever

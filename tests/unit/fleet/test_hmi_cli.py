@@ -1,9 +1,11 @@
 """``python -m fleet.hmi`` / ``plantkg fleet hmi``: unusable input exits 2 with the reason (nothing
-served); a started HMI serves its login page on loopback and stops on SIGTERM with exit 0."""
+served); a started HMI serves its login page on loopback (also while another client stalls mid-request) and
+stops on SIGTERM with exit 0."""
 
 from __future__ import annotations
 
 import re
+import socket
 import sys
 import urllib.request
 from pathlib import Path
@@ -43,8 +45,6 @@ CASES = [  # (id, extra arguments, argv keywords, expected in stderr)
 @pytest.mark.parametrize(("extra", "kw", "expected"), [c[1:] for c in CASES], ids=[c[0] for c in CASES])
 def test_unusable_input_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: list[str],
                                 kw: dict[str, str], expected: str) -> None:
-    import socket
-
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
@@ -75,7 +75,10 @@ def test_plantkg_fleet_hmi_serves_on_loopback_and_stops_on_sigterm(tmp_path: Pat
         url = process.wait_until(lambda: (m := re.search(r"fleet HMI listening on (http://127\.0\.0\.1:\d+)",
                                                          child.log_tail())) and m.group(1), 30.0, 0.05,
                                  what="the HMI's address", child=child)
-        with urllib.request.urlopen(url + "/login", timeout=5) as reply:
-            assert reply.status == 200 and b'name="token"' in reply.read()
+        host, port = url.removeprefix("http://").split(":")
+        with socket.create_connection((host, int(port)), timeout=5) as slow:  # half a request, then nothing
+            slow.sendall(b"GET /login HTTP/1.1\r\nHost: x\r\n")
+            with urllib.request.urlopen(url + "/login", timeout=5) as reply:  # another client is served
+                assert reply.status == 200 and b'name="token"' in reply.read()
     finally:
         assert process.stop(child, grace=10.0) == 0, child.log_tail()
