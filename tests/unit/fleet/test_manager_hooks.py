@@ -169,3 +169,20 @@ def test_bad_instant_action_requests_name_the_field(body: Any, fragment: str) ->
 def test_every_instant_action_is_accepted(action_type: str) -> None:
     request = instant.parse({"serial": "a", "actionType": action_type})
     assert request.action("id-1").to_json() == {"actionType": action_type, "actionId": "id-1", "blockingType": "NONE"}
+
+
+def test_the_mqtt_link_checks_an_instant_action_against_the_official_schema_before_sending() -> None:
+    from fleet.manager.mqtt_link import MqttLink
+    from fleet.vda5050.errors import SchemaError
+    from fleet.vda5050.messages import ActionParameter
+
+    link = MqttLink("127.0.0.1", 1)  # never connected: nothing leaves this process
+    sent: list[tuple[str, dict[str, Any]]] = []
+    link.publish = lambda topic, message, subtopic: sent.append((topic, message))  # type: ignore[method-assign]
+    with pytest.raises(SchemaError) as caught:
+        link.instant_action("acme", "v-1", "startPause", (ActionParameter("k", None),))
+    assert "actionParameters/0/value" in caught.value.message and sent == []
+    action_id = link.instant_action("acme", "v-1", "cancelOrder")
+    [(topic, message)] = sent
+    assert topic == "uagv/v2/acme/v-1/instantActions"
+    assert message["actions"] == [{"actionType": "cancelOrder", "actionId": action_id, "blockingType": "NONE"}]
