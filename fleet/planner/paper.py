@@ -43,6 +43,7 @@ log = logging.getLogger("fleet.planner")
 PAPER_ACTIONS = {"pick": "load", "drop": "unload", "wait": "wait"}
 NGSI_TYPE = {str: "Text", bool: "Boolean", int: "Number", float: "Number"}
 DEFAULT_LIMITS = ([1.0, 0.0, 1.0], [0.5, 0.0, 1.0])
+MAX_REMEMBERED = 10_000  # orderIds the sender remembers (the oldest are forgotten first)
 
 
 def motion_entity(agv_id: str) -> str:
@@ -120,8 +121,10 @@ def motion_accepted(status: dict[str, Any] | None, plan: Items) -> bool:
 class NgsiClient:
     """The few NGSI-v2 calls the planner makes, over plain HTTP with the broker's write token."""
 
-    def __init__(self, url: str, token: str | None, timeout: float = 2.0) -> None:
+    def __init__(self, url: str, token: str | None, timeout: float = 2.0, pause: float = 3.0) -> None:
         self.url, self.token, self.timeout = url.rstrip("/"), token, timeout
+        self.pause = pause  # s without reads after the broker did not answer (the loop waits on reads)
+        self._down_until = float("-inf")
 
     def _call(self, method: str, path: str, body: Any = None) -> tuple[int, bytes]:
         headers = {"Content-Type": "application/json"} if body is not None else {}
@@ -147,10 +150,16 @@ class NgsiClient:
                                f"{body[:300].decode('utf-8', 'replace')}")
 
     def read(self, entity_id: str) -> dict[str, Any] | None:
+        """The entity (keyValues), or None: absent, or the broker does not answer (then no read is
+        tried for ``pause`` s, so a dead broker costs the planner's loop one timeout, not one per tick)."""
+        if time.monotonic() < self._down_until:
+            return None
         quoted = urllib.parse.quote(entity_id, safe=":")
         try:
             status, body = self._call("GET", f"/v2/entities/{quoted}?options=keyValues")
-        except PlannerError:
+        except PlannerError as exc:
+            log.warning("%s; no status read for %.0f s", exc, self.pause)
+            self._down_until = time.monotonic() + self.pause
             return None
         if status != 200:
             return None
@@ -171,20 +180,33 @@ class PaperSender:
     def __init__(self, ngsi: NgsiClient, site: SiteMap, rewrite: float = 3.0) -> None:
         self.ngsi, self.site, self.rewrite = ngsi, site, rewrite
         self._motion_at: dict[str, float] = {}  # orderId -> when its motion was written
-        self._acted: set[str] = set()  # orderIds whose actions were written
+        self._acted: dict[str, None] = {}  # orderIds whose actions were written (insertion ordered)
+        self._retry_at: dict[str, float] = {}  # orderId -> no write before (after a failed one)
 
     def __call__(self, send: SendOrder, status: dict[str, Any] | None, agv_id: str) -> None:
         oid = send.order_id
-        if oid in self._acted:
+        if oid in self._acted or time.monotonic() < self._retry_at.get(oid, float("-inf")):
             return
+        try:
+            self._write(send, status, agv_id)
+        except PlannerError:
+            self._retry_at[oid] = time.monotonic() + self.rewrite
+            raise
+        self._retry_at.pop(oid, None)
+        for book in (self._acted, self._motion_at):
+            while len(book) > MAX_REMEMBERED:
+                del book[next(iter(book))]
+
+    def _write(self, send: SendOrder, status: dict[str, Any] | None, agv_id: str) -> None:
+        oid = send.order_id
         plan = items(send, self.site, status, time.strftime("%Y-%m-%dT%H:%M:%S.000Z", time.gmtime()))
         if (status or {}).get("finished_task_id") == plan.task_id:
-            self._acted.add(oid)
+            self._acted[oid] = None
             return
         if motion_accepted(status, plan):
             for item in plan.actions:
                 self.ngsi.write(action_entity(agv_id), item)
-            self._acted.add(oid)
+            self._acted[oid] = None
             log.info("order %s: %d action item(s) written for %s (task %s)", oid, len(plan.actions), agv_id,
                      plan.task_id)
             return

@@ -151,3 +151,48 @@ def test_the_fleet_waits_while_the_manager_is_not_ready_and_keeps_its_list() -> 
     assert (fleet.reachable, fleet.waiting) == (False, True) and list(fleet.vehicles()) == ["/cart-1"]
     fleet.refresh()
     assert (fleet.reachable, fleet.waiting, looked) == (True, False, ["cart-1", "cart-1"])
+
+
+class Ngsi:
+    """The context broker's surface as the sender uses it: writes recorded, or refused."""
+
+    def __init__(self) -> None:
+        self.written: list[tuple[str, dict[str, Any]]] = []
+        self.fail = False
+
+    def write(self, entity_id: str, item: dict[str, Any]) -> None:
+        if self.fail:
+            raise PlannerError("the context broker does not answer")
+        self.written.append((entity_id, item))
+
+
+def test_the_sender_writes_the_motion_then_the_actions_once_the_vehicle_runs_the_task() -> None:
+    from fleet.planner.paper import PaperSender
+
+    ngsi = Ngsi()
+    sender = PaperSender(ngsi, SITE, rewrite=60.0)  # type: ignore[arg-type]
+    plan = items(send(), SITE)
+    sender(send(), status(), "cart-1")
+    sender(send(), status(), "cart-1")  # not accepted yet, rewrite not due: nothing
+    assert [e for e, _ in ngsi.written] == ["urn:ngsi-ld:Thing:cart-1:motion_channel"]
+    sender(send(), status(task_id=plan.task_id), "cart-1")
+    assert [i["action"] for e, i in ngsi.written[1:]] == ["load", "wait"]
+    assert {e for e, _ in ngsi.written[1:]} == {"urn:ngsi-ld:Thing:cart-1:action_channel"}
+    sender(send(), status(task_id=plan.task_id), "cart-1")
+    assert len(ngsi.written) == 3  # written once
+
+
+def test_a_failed_write_is_retried_after_a_pause_not_on_every_tick() -> None:
+    from fleet.planner.paper import PaperSender
+
+    ngsi = Ngsi()
+    ngsi.fail = True
+    sender = PaperSender(ngsi, SITE, rewrite=60.0)  # type: ignore[arg-type]
+    with pytest.raises(PlannerError):
+        sender(send(), status(), "cart-1")
+    ngsi.fail = False
+    sender(send(), status(), "cart-1")  # within the pause: not tried
+    assert ngsi.written == []
+    sender._retry_at.clear()
+    sender(send(), status(), "cart-1")
+    assert len(ngsi.written) == 1
