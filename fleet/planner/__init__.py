@@ -16,8 +16,10 @@ Layers, bottom to top (each module one job):
 - :mod:`plantview` — the plant graph (plant files + the manager's discovered vehicles), reloaded
   when a discovered file changes;
 - :mod:`journal` — the write-ahead log (JSON lines, fsync'd per transition) and its replay;
-- :mod:`vehicles` — the manager's vehicle list (HTTP) joined with their VDA 5050 states (MQTT);
-- :mod:`dispatch` — a sub-task as a VDA 5050 order sent through the manager's API;
+- :mod:`vehicles` — the manager's vehicle list with their last VDA 5050 states (HTTP; 503 = wait),
+  paper vehicles joined with their AGV entity on the context broker;
+- :mod:`dispatch` — a sub-task as a VDA 5050 order through the manager's API, or the paper's
+  items (:mod:`paper`, ids in :mod:`paperids`) on the context broker; ``cancelOrder``;
 - :mod:`ngsi` — tasks as NGSI-v2 entities (type ``Task``) on the context broker, over HTTP;
 - :mod:`service`, :mod:`api`, ``__main__`` — the process: ``python -m fleet.planner``.
 

@@ -1,7 +1,7 @@
 """The planner's loop: journal -> tasks; vehicles -> transitions; SPARQL -> assignments; orders out.
 
-One lock guards the planner's state; the loop (every ``tick`` s, or at once when a vehicle state
-arrives) and the HTTP API (start a job, fire an event, withdraw a task) take it. Every change is
+One lock guards the planner's state; the loop (every ``tick`` s; the vehicle list is refreshed
+every ``refresh`` s) and the HTTP API (start a job, fire an event, withdraw a task) take it. Every change is
 journaled (fsync'd) before it is acted upon; so after kill -9 the planner restarts from
 ``journal.jsonl``: tasks in their last state, sub-tasks already DONE stay done, a sub-task that
 was SENT is re-sent with the same orderId unless the vehicle's state already shows it (a vehicle
