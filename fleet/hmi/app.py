@@ -9,6 +9,7 @@
 | GET | ``/api/stations/<name>`` | what the station's page shows |
 | POST | ``/api/stations/<name>/jobs`` | form ``task``: start that LoTLan task as a job (planner ``POST /v1/jobs``) |
 | POST | ``/api/stations/<name>/loaded`` | fire the FinishedBy events of the pick waiting there (``/unloaded``: the drop) |
+| POST | ``/api/tasks/<id>/withdraw`` | withdraw a task (planner ``POST /v1/tasks/<id>/withdraw``; 409 if final) |
 
 Every poll shares the planner's and the manager's answer of the last 0.25 s (``Recent``), so any
 number of screens ask each of them at most four times a second; a button reads a fresh snapshot.
@@ -154,6 +155,15 @@ def press(name: str, button: str) -> Any:
     fired = [config.planner.fire(event, True) for event in events]
     _recent("planner").forget()
     return {"button": button, "station": name, "fired": fired}, 201
+
+
+@api.route("/tasks/<task_id>/withdraw", methods=["POST"])
+@login_required
+def withdraw(task_id: str) -> Any:
+    task_id = views.check_task_id(task_id)
+    task = _config().planner.withdraw(task_id)
+    _recent("planner").forget()
+    return task, 200
 
 
 def _input_error(exc: views.InputError) -> Any:

@@ -83,6 +83,9 @@ class PlannerLink:
     def fire(self, event: str, value: Any) -> dict[str, Any]:
         return self.call("POST", "/v1/events", {"event": event, "value": value})
 
+    def withdraw(self, task_id: str) -> dict[str, Any]:
+        return self.call("POST", f"/v1/tasks/{task_id}/withdraw", {})
+
 
 @dataclass(frozen=True)
 class ManagerLink:

@@ -186,6 +186,15 @@ def button_events(program: Program, station: str, button: str, tasks: list[dict[
     return list(dict.fromkeys(e for w in waiting for e in w["events"]))
 
 
+TASK_ID = re.compile(r"[A-Za-z0-9_.-]{1,200}")
+
+
+def check_task_id(task_id: str) -> str:
+    if not TASK_ID.fullmatch(task_id):
+        raise InputError("task", f"{task_id[:80]!r} is no task id (letters, digits, _ . -, e.g. j1-transport-1)")
+    return task_id
+
+
 def check_filters(state: str | None, vehicle: str | None) -> tuple[str, str]:
     state, vehicle = (state or "").strip(), (vehicle or "").strip()
     known = [s.value for s in TaskState]

@@ -6,7 +6,8 @@ process (the rig of tests/integration/test_fleet_planner.py).
 An operator logs in, starts a job at the loading station, watches a vehicle marker move on the
 fleet page's map, presses **Loaded** when the station's page says "ready to load", goes to the
 unloading station, presses **Unloaded** when it says "ready to unload", and sees the job FINISHED
-(on the station's page and in the fleet page's order list, filtered). The planner's journal shows
+(on the station's page and in the fleet page's order list, filtered); a second job is withdrawn
+from the order list. The planner's journal shows
 the two events in that order; the time of one poll of ``/api/fleet`` is printed (no timing asserts). Then the planner stops and the fleet page says it does not answer.
 Screenshots go to the pytest tmp dir (``screenshots/``).
 """
@@ -199,12 +200,26 @@ def test_an_operator_runs_a_load_unload_job_from_the_browser(rig: Rig, browser: 
         wait_js(fleet, "!document.getElementById('filter-error').hidden", "the bad filter refused")
         assert "vehicle:" in fleet.inner_text("#filter-error")
         fleet.fill("#filter-vehicle", "")
+        fleet.select_option("#filter-state", "")
+
+        # a second job, withdrawn from the fleet page's order list (confirmed in the dialog)
+        station.select_option("#job-task", "transport")
+        station.click("#start-job")
+        wait_js(station, "document.getElementById('message').dataset.job === 'j2'", "job j2 started")
+        fleet.on("dialog", lambda dialog: dialog.accept())
+        fleet.click('#tasks button.withdraw[data-task="j2-transport-1"]')
+        wait_js(fleet, "(() => { const r = document.querySelector('#tasks tr[data-task=\"j2-transport-1\"]');"
+                       " return r && r.dataset.state === 'WITHDRAWN'; })()", "j2-transport-1 WITHDRAWN")
+        assert "task j2-transport-1 WITHDRAWN" in fleet.inner_text("#task-message")
+        assert fleet.locator('#tasks button.withdraw').count() == 0  # nothing open is left to withdraw
 
         # what the planner recorded: the operator's two events, in order, and the task FINISHED
         events = [r["event"] for r in planner.journal() if r["kind"] == "event"]
         assert events == ["loaded", "unloaded"], events
-        task = planner.tasks()["j1-transport-1"]
-        assert task["state"] == "FINISHED" and [g["state"] for g in task["legs"]] == ["DONE", "DONE"]
+        tasks = planner.tasks()
+        assert tasks["j1-transport-1"]["state"] == "FINISHED"
+        assert [g["state"] for g in tasks["j1-transport-1"]["legs"]] == ["DONE", "DONE"]
+        assert tasks["j2-transport-1"]["state"] == "WITHDRAWN"
 
         # what one poll of the fleet page costs: 20 polls 0.3 s apart, past the HMI's 0.25 s sharing of
         # the upstream answers, so each asks the planner and the manager

@@ -5,6 +5,7 @@
   const NS = "http://www.w3.org/2000/svg";
   const svg = document.getElementById("map");
   const markers = {};
+  const OPEN = ["RAW", "ACTIVE", "ASSIGNED", "BEING_PROCESSED"];
   let site = null;
   let last = null;
 
@@ -79,12 +80,25 @@
                         v.task ? v.task + " (" + v.taskState + ")" : "idle", v.step], {"data-vehicle": v.key});
       }
     });
-    HMI.fill(document.querySelector("#tasks tbody"), tbody => {
-      for (const t of data.tasks) {
-        HMI.row(tbody, [t.id, t.job, t.lotlanTask, t.state, t.vehicle, t.step, t.updated],
-                {"data-task": t.id, "data-state": t.state});
-      }
-    });
+    HMI.sync(document.querySelector("#tasks tbody"), data.tasks, t => t.id,
+             t => [t.id, t.job, t.lotlanTask, t.state, t.vehicle, t.step, t.updated],
+             t => ({"data-task": t.id, "data-state": t.state}), withdrawCell);
+  }
+
+  function withdrawCell(tr, t) {  // the last cell: a Withdraw button while the task is open
+    let cell = tr.children[7];
+    if (!cell) { cell = document.createElement("td"); tr.appendChild(cell); }
+    const button = cell.querySelector("button.withdraw");
+    if (OPEN.includes(t.state) && !button) {
+      const b = document.createElement("button");
+      b.type = "button";
+      b.className = "withdraw";
+      b.textContent = "Withdraw";
+      b.dataset.task = t.id;
+      cell.appendChild(b);
+    } else if (!OPEN.includes(t.state) && button) {
+      button.remove();
+    }
   }
 
   function url() {
@@ -94,6 +108,16 @@
   }
 
   document.getElementById("filters").addEventListener("submit", ev => ev.preventDefault());
+  // one listener on the table (its body is replaced on every poll)
+  document.getElementById("tasks").addEventListener("click", async ev => {
+    const button = ev.target.closest("button.withdraw");
+    if (!button || !window.confirm("Withdraw task " + button.dataset.task + "?")) return;
+    button.disabled = true;
+    const {status, body} = await HMI.post("/api/tasks/" + encodeURIComponent(button.dataset.task) + "/withdraw");
+    const note = document.getElementById("task-message");
+    note.textContent = status === 200 ? "task " + body.id + " " + body.state : "not withdrawn: " + (body.error || status);
+    note.className = status === 200 ? "ok" : "error";
+  });
   fetch("/api/site", {credentials: "same-origin"}).then(r => r.json()).then(s => { drawSite(s); HMI.poll(url, render); });
   window.hmiFleet = () => last;
 })();

@@ -58,5 +58,31 @@ window.HMI = (function () {
     return fresh;
   }
 
-  return {poll, post, banner, row, fill, csrf};
+  // Keyed update of a table body: a row per key is kept (a button in it stays clickable across
+  // polls), its cells' text changed only where it differs, rows put in order, gone ones removed.
+  function sync(tbody, items, keyOf, cellsOf, attrsOf, decorate) {
+    const rows = new Map([...tbody.children].map(tr => [tr.dataset.key, tr]));
+    const keep = new Set();
+    items.forEach((item, i) => {
+      const key = String(keyOf(item));
+      keep.add(key);
+      let tr = rows.get(key);
+      const cells = cellsOf(item);
+      if (!tr) {
+        tr = document.createElement("tr");
+        tr.dataset.key = key;
+        for (let c = 0; c < cells.length; c++) tr.appendChild(document.createElement("td"));
+      }
+      cells.forEach((text, c) => {
+        const value = text === null || text === undefined ? "" : String(text);
+        if (tr.children[c].textContent !== value) tr.children[c].textContent = value;
+      });
+      for (const [k, v] of Object.entries(attrsOf(item))) if (tr.getAttribute(k) !== v) tr.setAttribute(k, v);
+      if (decorate) decorate(tr, item);
+      if (tbody.children[i] !== tr) tbody.insertBefore(tr, tbody.children[i] || null);
+    });
+    for (const [key, tr] of rows) if (!keep.has(key)) tr.remove();
+  }
+
+  return {poll, post, banner, row, fill, sync, csrf};
 })();

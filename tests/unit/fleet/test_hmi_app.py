@@ -117,7 +117,8 @@ def test_a_wrong_token_does_not_log_in(rig: Rig) -> None:
 def test_every_post_needs_the_csrf_token(rig: Rig) -> None:
     csrf = login(rig.client)
     for headers in ({}, {"X-CSRF-Token": "wrong"}):
-        for path, data in (("/api/stations/load-1/jobs", {"task": "first"}), ("/api/stations/load-1/loaded", {})):
+        for path, data in (("/api/stations/load-1/jobs", {"task": "first"}), ("/api/stations/load-1/loaded", {}),
+                           ("/api/tasks/j1-first-1/withdraw", {})):
             reply = rig.client.post(path, data=data, headers=headers)
             assert reply.status_code == 403 and "CSRF" in reply.json["error"], reply.json
     assert rig.client.post("/logout").status_code == 403  # a page form too
@@ -135,6 +136,7 @@ BAD = [  # (id, method, path, data, status, field, in the error)
     ("Loaded before the vehicle is there", "POST", "/api/stations/load-1/loaded", {}, 409, "button",
      "nothing at load-1 is ready to load"),
     ("no such button", "POST", "/api/stations/load-1/dance", {}, 404, "button", "the buttons are loaded, unloaded"),
+    ("a task id with other characters", "POST", "/api/tasks/j1%21x/withdraw", {}, 400, "task", "'j1!x' is no task id"),
     ("a wrong state filter", "GET", "/api/fleet?state=DONE", None, 400, "state", "'DONE' is no task state"),
     ("a wrong vehicle filter", "GET", "/api/fleet?vehicle=a%20b", None, 400, "vehicle", "letters, digits"),
 ]
@@ -261,3 +263,16 @@ def test_a_hung_planner_costs_a_poll_at_most_its_timeout(rig: Rig, tmp_path: Pat
         took = time.monotonic() - start
     assert fleet.status_code == 200 and fleet.json["planner"]["ok"] is False and "does not answer" in fleet.json["planner"]["error"]
     assert fleet.json["manager"] == {"ok": True} and 1.5 < took < 4.0, took  # the 2 s timeout, not forever
+
+
+def test_withdraw_a_task_and_the_planners_409_passed_on(rig: Rig) -> None:
+    csrf = login(rig.client)
+    assert rig.client.post("/api/stations/load-1/jobs", data={"task": "first"}, headers={"X-CSRF-Token": csrf}).status_code == 201
+    reply = rig.client.post("/api/tasks/j1-first-1/withdraw", headers={"X-CSRF-Token": csrf})
+    assert reply.status_code == 200 and reply.json["state"] == "WITHDRAWN"
+    assert rig.planner.task_json("j1-first-1")["state"] == "WITHDRAWN"
+    again = rig.client.post("/api/tasks/j1-first-1/withdraw", headers={"X-CSRF-Token": csrf})
+    assert again.status_code == 409 and "WITHDRAWN already" in again.json["error"]
+    unknown = rig.client.post("/api/tasks/j9-x-1/withdraw", headers={"X-CSRF-Token": csrf})
+    assert unknown.status_code == 404 and "no task 'j9-x-1'" in unknown.json["error"]
+    assert rig.client.get("/api/stations/load-1").json["jobs"][0]["state"] == "WITHDRAWN"
