@@ -11,7 +11,8 @@ The steps a plant would take, each with its real part:
    graph, is validated, reasoned over, planned and applied; the time each took is printed;
 3. one SPARQL query over the plant and the discovered vehicles shows who can do what;
 4. the task planner (``python -m fleet.planner``) takes the LoTLan jobs (``fleet/examples/jobs.tl``),
-   assigns each transport to a vehicle by a SPARQL query, sends VDA 5050 orders and follows them;
+   assigns each transport to a vehicle by a SPARQL query, sends VDA 5050 orders (or the paper's
+   items) and follows them; the operator screens (``python -m fleet.hmi``) show the map live;
    when a vehicle waits at the loading station the demo presses **Loaded** for the operator (the
    HMI shows the same button); every task change is printed;
 5. the Task entities on the context broker, as any NGSI client sees them;
@@ -22,6 +23,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import sys
 import tempfile
 import time
@@ -149,6 +151,12 @@ def run_fleet_demo(*, vehicles: int, work_dir: Path | None, deadline: float, kee
         api = Api(planner_data, "planner")
         process.wait_until(lambda: api.where().get("pid") == planner.pid, 60, 0.05,
                            what="the planner's API", child=planner)
+        hmi_token = base / "hmi-token"
+        hmi = _spawn(stack, ["-m", "fleet.hmi", "--lotlan", JOBS, "--map", "default",
+                             "--manager-data-dir", manager_data, "--planner-data-dir", planner_data,
+                             "--token-file", hmi_token, "--port", "0"], logs, "hmi")
+        url = process.wait_until(lambda: _listening(hmi), 60, 0.05, what="the operator screens", child=hmi)
+        click.echo(f"   operator screens (HMI): {url}/fleet  — log in with the token in {hmi_token}")
         status, job = api.call("POST", "/v1/jobs", {})
         if status != 201:
             click.secho(f"   the planner refused the job: {job}", fg="red")
@@ -170,6 +178,12 @@ def run_fleet_demo(*, vehicles: int, work_dir: Path | None, deadline: float, kee
         return 1
     click.echo("   nothing left running")
     return 0 if finished else 1
+
+
+def _listening(child: process.Child) -> str | None:
+    """The URL the HMI printed when it started listening (it picks a free port)."""
+    found = re.search(r"listening on (http://\S+)", child.log_tail())
+    return found.group(1) if found else None
 
 
 def _ancestors() -> set[int]:
