@@ -156,7 +156,7 @@ def run_fleet_demo(*, vehicles: int, work_dir: Path | None, deadline: float, kee
                              "--manager-data-dir", manager_data, "--planner-data-dir", planner_data,
                              "--token-file", hmi_token, "--port", "0"], logs, "hmi")
         url = process.wait_until(lambda: _listening(hmi), 60, 0.05, what="the operator screens", child=hmi)
-        click.echo(f"   operator screens (HMI): {url}/fleet  — log in with the token in {hmi_token}")
+        click.echo(f"   operator screens (HMI): {url}/  — the fleet map; log in with the token in {hmi_token}")
         status, job = api.call("POST", "/v1/jobs", {})
         if status != 201:
             click.secho(f"   the planner refused the job: {job}", fg="red")

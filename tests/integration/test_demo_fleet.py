@@ -31,7 +31,7 @@ def test_fleet_demo_runs_end_to_end_and_leaves_nothing(tmp_path: Path) -> None:
     # the SPARQL answer lists the three discovered vehicles with their skills from the graph
     assert len(re.findall(r"^\s+agv-(demo|paper)-\d+ \| (vda5050|paper-channels) \| .*\bmove\b", out, re.M)) == 3, out
     assert "operator at pick-1: Loaded" in out
-    assert re.search(r"operator screens \(HMI\): http://127\.0\.0\.1:\d+/fleet", out), out
+    assert re.search(r"operator screens \(HMI\): http://127\.0\.0\.1:\d+/ ", out), out
     finished = re.findall(r"^\s+urn:ngsi-ld:Task:\S+: FINISHED \S*(demo|paper)-\d+$", out, re.M)
     assert len(finished) == 2, out  # both jobs, as the context broker has them
     assert "nothing left running" in out
