@@ -16,11 +16,13 @@ The steps are injected (``apply_step`` by default).
 
 from __future__ import annotations
 
+import hashlib
 import logging
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
+from fleet.discovery import files
 from fleet.discovery.records import DataDir
 from fleet.manager.apply_step import StepResult, Violation
 
@@ -42,19 +44,49 @@ def _reason(violations: Iterable[Violation]) -> str:
     return "the plant would be invalid with this vehicle: " + " | ".join(lines[:10]) + more
 
 
+def bundle(paths: list[Path], folder: Path) -> list[Path]:
+    """``paths`` as one Turtle file in ``folder`` (rewritten atomically when their text changed), or
+    nothing when there are none. Turtle documents concatenate into one document: the generated
+    vehicle files name every node, so no blank-node label can clash."""
+    if not paths:
+        return []
+    text = "\n".join(f"# --- {p.name}\n" + p.read_text(encoding="utf-8") for p in paths)
+    digest = hashlib.sha256(text.encode("utf-8")).hexdigest()
+    target, stamp = folder / "vehicles.ttl", folder / "vehicles.sha256"
+    try:
+        if target.is_file() and stamp.read_text(encoding="utf-8") == digest:
+            return [target]
+    except OSError:
+        pass
+    folder.mkdir(parents=True, exist_ok=True)
+    files.atomic_write(target, text)
+    files.atomic_write(stamp, digest)
+    return [target]
+
+
 class Reconciler:
     def __init__(self, plant_files: list[Path], data: DataDir, apply_step: Step, check_step: Step) -> None:
+        self._apart: list[Path] = []
         self.plant_files = [Path(f) for f in plant_files]
         self.data = data
         self.apply_step = apply_step
         self.check_step = check_step
 
-    def files(self, without: Iterable[Path] = ()) -> list[Path]:
+    def files(self, without: Iterable[Path] = (), apart: Iterable[Path] = ()) -> list[Path]:
+        """The plant's files and the vehicles' (but ``without``): the vehicles in ``apart`` (the
+        new ones, whose violations must name their own file) each in its own file, all the others
+        in one bundle — the pipeline is ~6x slower over 200 files than over one (Oxigraph's union
+        of many named graphs), and those vehicles were valid already."""
         skip = {p.resolve() for p in without}
-        return self.plant_files + [p for p in self.data.turtle_files() if p.resolve() not in skip]
+        alone = {p.resolve() for p in apart}
+        vehicles = [p for p in self.data.turtle_files() if p.resolve() not in skip]
+        kept_apart = [p for p in vehicles if p.resolve() in alone]
+        rest = [p for p in vehicles if p.resolve() not in alone]
+        return self.plant_files + bundle(rest, self.data.root / "cache") + kept_apart
 
     def run(self, new: set[str]) -> ReconcileReport:
-        result = self.apply_step(self.files())
+        self._apart = [self.data.discovered / f"{s}.ttl" for s in new]
+        result = self.apply_step(self.files(apart=self._apart))
         refused: list[tuple[str, str]] = []
         if not result.valid:
             refused = self._culprits(new, result)
@@ -64,13 +96,14 @@ class Reconciler:
                     with self.data.lock():
                         self.data.refuse(stem, reason, turtle=path)
                     log.warning("refused vehicle %s: %s", stem, reason)
-                result = self.apply_step(self.files())
+                result = self.apply_step(self.files(apart=self._apart))
         stems = tuple(sorted(new - {s for s, _ in refused}))
         return ReconcileReport(result, tuple(refused), stems if result.valid else ())
 
     def _culprits(self, new: set[str], result: StepResult) -> list[tuple[str, str]]:
         new_paths = {s: self.data.discovered / f"{s}.ttl" for s in new}
-        base = self.check_step(self.files(without=new_paths.values())) if new else result
+        apart = list(new_paths.values())
+        base = self.check_step(self.files(without=apart)) if new else result
         if not base.valid:
             log.error("the plant is invalid without the new vehicles; nothing refused, nothing applied: %s",
                       _reason(base.violations))
@@ -82,11 +115,11 @@ class Reconciler:
             if stem is not None:
                 by_stem.setdefault(stem, []).append(v)
         found = {stem: _reason(vs) for stem, vs in by_stem.items()}
-        if found and self.check_step(self.files(without=[new_paths[s] for s in found])).valid:
+        if found and self.check_step(self.files(without=[new_paths[s] for s in found], apart=apart)).valid:
             return sorted(found.items())
         found = {}
         for stem, path in sorted(new_paths.items()):  # each new vehicle alone with the plant
-            single = self.check_step(self.files(without=[p for p in new_paths.values() if p != path]))
+            single = self.check_step(self.files(without=[p for p in new_paths.values() if p != path], apart=[path]))
             if not single.valid:
                 found[stem] = _reason(single.violations)
         return sorted(found.items())

@@ -69,3 +69,30 @@ def test_a_plant_invalid_without_the_new_vehicles_refuses_none_of_them(tmp_path:
     report = rec.run({stem})
     assert not report.step.valid and report.refused == () and report.joined == ()
     assert [p.name for p in data.turtle_files()] == ["acme--a-1.ttl"]
+
+
+def test_vehicles_that_joined_before_go_to_the_pipeline_in_one_bundle(tmp_path: Path) -> None:
+    """Earlier vehicles are one file (the pipeline over hundreds of files is several times slower);
+    the new ones stay files of their own, so a violation still names the vehicle that caused it."""
+    runs: list[list[Path]] = []
+    rec, data = reconciler(tmp_path, runs)
+    old = {join(data, "acme", f"o-{i}") for i in range(3)}
+    assert rec.run(old).step.valid
+    new = join(data, "acme", "n-1")
+    report = rec.run({new})
+    assert report.step.valid and report.joined == (new,)
+    files = runs[-1]
+    bundle = tmp_path / "cache" / "vehicles.ttl"
+    assert files == [PLANT, bundle, data.discovered / f"{new}.ttl"]
+    text = bundle.read_text(encoding="utf-8")
+    assert all(f"# --- {stem}.ttl" in text for stem in old) and new not in text
+    # a vehicle's file rewritten (a person's rename does that): the bundle follows
+    before = bundle.stat().st_mtime_ns
+    path = data.discovered / f"{sorted(old)[0]}.ttl"
+    path.write_text(path.read_text(encoding="utf-8") + "# rewritten\n", encoding="utf-8")
+    assert rec.run(set()).step.valid
+    assert "# rewritten" in bundle.read_text(encoding="utf-8") and bundle.stat().st_mtime_ns != before
+    # nothing changed: the bundle is not written again
+    before = bundle.stat().st_mtime_ns
+    rec.run(set())
+    assert bundle.stat().st_mtime_ns == before
