@@ -1,7 +1,10 @@
 """A batch of joins -> one reconcile; a vehicle that makes the plant invalid is refused alone.
 
 :meth:`Reconciler.run` takes the stems (``manufacturer--serial``) of the vehicles written since
-the last run. The plant is its files plus every discovered vehicle's file. If that is invalid:
+the last run. The plant is its files plus the discovered vehicles, bundled into one file (the
+pipeline over hundreds of small files is several times slower than over one). If that is
+invalid, it is checked again with the new vehicles each in its own file, so that a violation
+names its vehicle, and:
 
 1. the plant without the new vehicles is checked (validation only, no agent asked): if that is
    invalid too, a person broke it, and nothing is refused or applied (the report says so);
@@ -66,7 +69,6 @@ def bundle(paths: list[Path], folder: Path) -> list[Path]:
 
 class Reconciler:
     def __init__(self, plant_files: list[Path], data: DataDir, apply_step: Step, check_step: Step) -> None:
-        self._apart: list[Path] = []
         self.plant_files = [Path(f) for f in plant_files]
         self.data = data
         self.apply_step = apply_step
@@ -76,7 +78,7 @@ class Reconciler:
         """The plant's files and the vehicles' (but ``without``): the vehicles in ``apart`` (the
         new ones, whose violations must name their own file) each in its own file, all the others
         in one bundle — the pipeline is ~6x slower over 200 files than over one (Oxigraph's union
-        of many named graphs), and those vehicles were valid already."""
+        of many named graphs)."""
         skip = {p.resolve() for p in without}
         alone = {p.resolve() for p in apart}
         vehicles = [p for p in self.data.turtle_files() if p.resolve() not in skip]
@@ -85,18 +87,21 @@ class Reconciler:
         return self.plant_files + bundle(rest, self.data.root / "cache") + kept_apart
 
     def run(self, new: set[str]) -> ReconcileReport:
-        self._apart = [self.data.discovered / f"{s}.ttl" for s in new]
-        result = self.apply_step(self.files(apart=self._apart))
+        # Everything in one bundle first (the common case: the batch is valid and applied). Only
+        # an invalid plant is checked again with the new vehicles apart, to name the culprits.
+        result = self.apply_step(self.files())
         refused: list[tuple[str, str]] = []
         if not result.valid:
-            refused = self._culprits(new, result)
+            apart = [self.data.discovered / f"{s}.ttl" for s in new]
+            named = self.check_step(self.files(apart=apart)) if new else result
+            refused = self._culprits(new, named if not named.valid else result)
             if refused:
                 for stem, reason in refused:
                     path = self.data.discovered / f"{stem}.ttl"
                     with self.data.lock():
                         self.data.refuse(stem, reason, turtle=path)
                     log.warning("refused vehicle %s: %s", stem, reason)
-                result = self.apply_step(self.files(apart=self._apart))
+                result = self.apply_step(self.files())
         stems = tuple(sorted(new - {s for s, _ in refused}))
         return ReconcileReport(result, tuple(refused), stems if result.valid else ())
 

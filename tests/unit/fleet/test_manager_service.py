@@ -103,7 +103,8 @@ def test_joins_within_the_window_make_one_run_and_offline_needs_none(running: An
         link.put(d.topic("factsheet", "acme", f"v-{i}"), d.factsheet("acme", f"v-{i}"))
     rows = process.wait_until(lambda: (s := status(manager).get("vehicles", [])) and len(s) == 3
                               and all(v["readySeconds"] is not None for v in s) and s, 20.0, what="three ready")
-    assert len(runs) == 2 and len(runs[1]) == 4  # the start, then one run for the batch of three
+    assert len(runs) == 2 and len(runs[1]) == 2  # the start, then one run for the batch of three
+    assert runs[1][1].read_text(encoding="utf-8").count("# --- ") == 3  # (bundled in one file)
     assert {v["vehicle"] for v in rows} == {"acme/v-1", "acme/v-2", "acme/v-3"}
     assert sorted(s for s in link.sent if s[2] == "stateRequest") == [("acme", f"v-{i}", "stateRequest") for i in (1, 2, 3)]
 
