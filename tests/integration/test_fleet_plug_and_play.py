@@ -469,6 +469,22 @@ def test_the_api_wants_the_token_and_names_what_is_wrong_in_an_order(rig: Rig) -
 
 # ----------------------------------------------------------------------- kill -9 and restart
 
+def test_a_broker_deleted_behind_the_managers_back_comes_back_by_itself(rig: Rig) -> None:
+    """Drift: the manager reconciles every --resync (5 s here) even without a join, so the context
+    broker deleted through its agent's API (as a person with curl would) is put back."""
+    client = rig.agents.client(CB_HOST)
+    [broker] = client.list_brokers()
+    client.delete_broker(broker.spec.id)
+    assert client.list_brokers() == []
+    started = time.monotonic()
+    rig.wait(lambda: [b for b in client.list_brokers() if b.status.value == "running"], 30.0,
+             "the deleted context broker to run again")
+    print(f"\ncontext broker deleted behind the manager's back: running again after "
+          f"{time.monotonic() - started:.1f} s (resync every 5 s)")
+    back = rig.wait(lambda: (rig.status().get("lastReconcile") or {}).get("changes"), 30.0, "the reconcile that put it back")
+    assert back >= 1
+
+
 def test_after_kill_9_a_new_manager_knows_every_vehicle_and_discovers_none_again(
         rig: Rig, capsys: pytest.CaptureFixture[str]) -> None:
     files_before = [p.name for p in rig.discovered()]
