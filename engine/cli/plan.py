@@ -1,8 +1,9 @@
 """``plantkg plan FILE...``: show what apply would change; nothing is changed.
 
-Exit codes: 0 the plan was made (with ``--detailed-exitcode``: and it is empty), 1 the plant has
-violations (with ``--detailed-exitcode``: changes are pending — an invalid plant is then 2),
-2 unusable input, an agent problem, or a plan that cannot be applied (refusals, unreachable agents).
+Exit codes: 0 the plan was made, 1 the plant has violations, 2 unusable input, an agent problem,
+or a plan that cannot be applied (refusals, unreachable agents). With ``--detailed-exitcode`` they
+are Terraform's: 0 the plan was made and is empty, 2 changes are pending, 1 anything else (an
+invalid plant, unusable input, an agent problem, a plan that cannot be applied).
 """
 
 from __future__ import annotations
@@ -11,12 +12,13 @@ from pathlib import Path
 
 import click
 
-from engine.cli.common import file_argument
+from engine.cli.common import fail, file_argument
 from engine.cli.reconcile import agents_option, owner_option, prepare, print_violations, prune_option
 from engine.render_plan import plan_json, render_plan
-from kg.errors import EXIT_UNUSABLE, EXIT_VIOLATIONS
+from kg.errors import EXIT_UNUSABLE, EXIT_VIOLATIONS, PlantKGError
 
-EXIT_CHANGES = 1
+EXIT_CHANGES = 2  # --detailed-exitcode, as terraform plan -detailed-exitcode
+EXIT_ERROR = 1   # --detailed-exitcode: any error
 
 
 @click.command("plan")
@@ -25,7 +27,7 @@ EXIT_CHANGES = 1
               help="text for people, json for programs")
 @agents_option
 @click.option("--detailed-exitcode", is_flag=True,
-              help="exit 1 when changes are pending, 0 when none (as terraform plan)")
+              help="exit 2 when changes are pending, 0 when none, 1 on any error (as terraform plan)")
 @owner_option
 @prune_option
 def plan_command(files: tuple[str, ...], fmt: str, agents_file: Path | None,
@@ -41,10 +43,16 @@ def plan_command(files: tuple[str, ...], fmt: str, agents_file: Path | None,
     Example:
       plantkg plan ontology/examples/robot-cell.ttl --agents agents.toml
     """
-    result, _ = prepare(files, agents_file, owner=owner, prune=prune)
+    try:
+        result, _ = prepare(files, agents_file, owner=owner, prune=prune)
+    except PlantKGError as error:
+        if not detailed_exitcode:
+            raise
+        fail(error)  # printed as always; the code is Terraform's "error", never "changes pending"
+        return EXIT_ERROR
     if not result.valid:
         print_violations(result, fmt)
-        return EXIT_UNUSABLE if detailed_exitcode else EXIT_VIOLATIONS
+        return EXIT_ERROR if detailed_exitcode else EXIT_VIOLATIONS
     plan = result.plan
     assert plan is not None
     if fmt == "json":
@@ -52,7 +60,7 @@ def plan_command(files: tuple[str, ...], fmt: str, agents_file: Path | None,
     else:
         click.echo(render_plan(plan, color=True))
     if not plan.applicable:
-        return EXIT_UNUSABLE
+        return EXIT_ERROR if detailed_exitcode else EXIT_UNUSABLE
     if detailed_exitcode and not plan.empty:
         return EXIT_CHANGES
     return 0

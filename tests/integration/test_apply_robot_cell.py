@@ -285,7 +285,7 @@ def test_port_change_replaces_the_broker(cell: Cell, capsys: pytest.CaptureFixtu
     cell.ports["mosquitto"] = new_port
     code, out, err = cell.run(capsys, "plan", cell.plant, "--agents", cell.fleet.agents_file,
                               "--detailed-exitcode")
-    assert code == 1, out + err
+    assert code == 2, out + err
     assert "-/+ broker.mosquitto must be replaced" in out
     assert f"~ port: {old_port} → {new_port}   # forces replacement" in out
     # the bridge worker follows its broker to the new port

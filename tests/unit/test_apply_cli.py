@@ -53,7 +53,7 @@ def dispatched(fleet: FakeFleet) -> list[tuple[str, str]]:
 def test_plan_shows_changes_and_detailed_exit_code(fleet: FakeFleet, capsys) -> None:  # type: ignore[no-untyped-def]
     code, out, _ = run(capsys, "plan", PLANT)
     assert code == 0 and "Plan: 6 to create, 0 to update, 0 to replace, 0 to destroy." in out
-    assert run(capsys, "plan", PLANT, "--detailed-exitcode")[0] == 1
+    assert run(capsys, "plan", PLANT, "--detailed-exitcode")[0] == 2  # changes pending, as Terraform
     code, out, _ = run(capsys, "plan", PLANT, "--format", "json")
     assert json.loads(out)["summary"]["create"] == 6
     assert dispatched(fleet) == []
@@ -191,3 +191,12 @@ def test_plain_progress_prints_a_line_per_start_and_finish() -> None:
         "topic.k.t: attempt 1 failed: 503; retrying in 0.6 s",
         "topic.k.t: Updated after 1.7s (2 attempts)",
     ]
+
+
+def test_detailed_exitcode_is_terraforms(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    """0 no changes (above), 2 changes pending (above), 1 any error — never 2 for an error."""
+    broken = tmp_path / "broken.ttl"
+    broken.write_text("this is not turtle", encoding="utf-8")
+    code, _, err = run(capsys, "plan", str(broken), "--detailed-exitcode")
+    assert code == 1 and "broken.ttl" in err
+    assert run(capsys, "plan", str(broken))[0] == 2  # without the flag: unusable input, as before
