@@ -2,14 +2,17 @@
 
     python -m fleet.planner --plant PLANT.ttl --lotlan jobs.tl --data-dir DIR \\
         --manager-data-dir MANAGER_DIR [--ngsi-url http://127.0.0.3:1026 --ngsi-token-file F] \\
-        [--map map.json] [--min-battery 20] [--start]
+        [--map map.json] [--min-battery 20] [--waiting-area [park|LOCATION]] [--no-charging] [--start]
 
 The fleet manager is found through its data directory (``manager.json``, ``manager.token``; its
 ``discovered/*.ttl`` join the plant graph the assignment query runs on), or given as
 ``--manager-url URL --manager-token-file F [--discovered DIR]``. Vehicles and their VDA 5050
 states (position, progress) come from the manager's API; paper-channel vehicles are reached
 through the context broker (``--ngsi-url``; without it they are not assigned). ``--start`` starts one
-job of the program's start tasks when the journal has no job yet. The API binds to 127.0.0.1; its
+job of the program's start tasks when the journal has no job yet. ``--waiting-area`` sends the
+vehicle of a finished job task to the waiting area: the nearest free ``park-*`` spot (``park``, the
+value when none is given) or a Location of the LoTLan file; without it vehicles stay where they
+finished. A vehicle below ``--min-battery`` goes to a charger unless ``--no-charging``. The API binds to 127.0.0.1; its
 address and token are in ``DIR/planner.json`` and ``DIR/planner.token``. SIGTERM/SIGINT stop it
 (exit 0); an unusable argument, plant, map or LoTLan file exits 2 with the reason, nothing started.
 """
@@ -58,6 +61,11 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--ngsi-token-file", type=Path, default=None, help="its write token (first line)")
     p.add_argument("--map", default="default", help="map JSON with the stations, or 'default'")
     p.add_argument("--min-battery", type=float, default=20.0, help="percent a vehicle needs to be assigned")
+    p.add_argument("--waiting-area", nargs="?", const="park", default=None, metavar="park|LOCATION",
+                   help="after a job task its vehicle goes to the nearest free park-* spot, or to this "
+                        "LoTLan Location (default: it stays where it finished)")
+    p.add_argument("--no-charging", action="store_true",
+                   help="do not send vehicles below --min-battery to a charger")
     p.add_argument("--start", action="store_true", help="start one job when the journal has none")
     p.add_argument("--api-host", default="127.0.0.1")
     p.add_argument("--api-port", type=int, default=0)
@@ -94,9 +102,10 @@ def main(argv: list[str] | None = None) -> int:
         publisher = TaskPublisher(args.ngsi_url, token) if args.ngsi_url else None
         ngsi = NgsiClient(args.ngsi_url, token) if args.ngsi_url else None
         dispatch = Dispatcher(VdaSender(manager, site.map_id), PaperSender(ngsi, site) if ngsi else None)
-        planner = Planner(PlannerConfig(site, min_battery=args.min_battery, paper=ngsi is not None), program,
-                          journal, Fleet(manager, ngsi.agv_status if ngsi else None), plant, dispatch, publisher,
-                          dispatch.cancel)
+        config = PlannerConfig(site, min_battery=args.min_battery, paper=ngsi is not None,
+                               waiting_area=args.waiting_area, charging=not args.no_charging)
+        planner = Planner(config, program, journal, Fleet(manager, ngsi.agv_status if ngsi else None), plant,
+                          dispatch, publisher, dispatch.cancel, dispatch.stop_charging)
         api = ApiServer(planner, args.data_dir.resolve(), args.api_host, args.api_port)
     except (PlantKGError, LotlanError, OSError, IndexError) as exc:
         if journal is not None:

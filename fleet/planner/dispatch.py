@@ -23,7 +23,7 @@ from fleet.planner.paper import PaperSender
 from fleet.planner.vehicles import ManagerHandle, Vehicle
 
 AT_STATION = 0.05  # m
-VDA5050_ACTIONS = {"pick": "pick", "drop": "drop", "wait": "wait"}
+VDA5050_ACTIONS = {"pick": "pick", "drop": "drop", "wait": "wait", "startCharging": "startCharging"}
 
 
 def order_nodes(send: SendOrder, position: tuple[float, float], map_id: str) -> list[NodeSpec]:
@@ -54,6 +54,13 @@ class VdaSender:
         try:
             self.handle.client.order(vehicle.serial, order_nodes(send, position, self.map_id),
                                      manufacturer=vehicle.manufacturer, order_id=send.order_id)
+        except (ManagerRefusedError, ManagerUnreachableError) as exc:
+            raise PlannerError(exc.message) from None
+
+    def stop_charging(self, vehicle: Vehicle) -> None:
+        """``stopCharging`` to ``vehicle`` (a charging vehicle does not drive): raises PlannerError."""
+        try:
+            self.handle.client.instant_action(vehicle.serial, "stopCharging", manufacturer=vehicle.manufacturer)
         except (ManagerRefusedError, ManagerUnreachableError) as exc:
             raise PlannerError(exc.message) from None
 
@@ -91,3 +98,7 @@ class Dispatcher:
 
     def cancel(self, vehicle: Vehicle) -> bool:
         return False if vehicle.paper else self.vda.cancel(vehicle)
+
+    def stop_charging(self, vehicle: Vehicle) -> None:
+        if not vehicle.paper:  # the paper adapter stops charging by itself before a new task
+            self.vda.stop_charging(vehicle)

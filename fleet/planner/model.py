@@ -7,7 +7,9 @@ planner/split.py): drive to a station, then act there (``pick`` at the pickup, `
 delivery). ``armed`` is the event sequence number from which a condition counts events: an
 operator's "Loaded" counts for the leg that waits for it only when pressed after the leg began
 waiting. ``order_id`` is what was sent for the leg (deterministic: ``<task>-<leg>-<attempt>``, so
-a resend after a restart is the same order and the vehicle ignores a duplicate).
+a resend after a restart is the same order and the vehicle ignores a duplicate). ``purpose`` is
+``job`` for a LoTLan task, ``park`` / ``charge`` for a task the planner made itself (fleet/planner/
+idle.py: back to the waiting area, to a charger); those have no LoTLan task (``lotlan_task`` "").
 """
 
 from __future__ import annotations
@@ -58,6 +60,12 @@ class Task:
     reason: str = ""  # why it is in its state (for people; never drives a decision)
     created: str = ""
     updated: str = ""
+    purpose: str = "job"  # job | park | charge
+
+    @property
+    def service(self) -> bool:
+        """A task the planner made itself (waiting area, charger): it never holds a vehicle from a job."""
+        return self.purpose != "job"
 
     @property
     def current(self) -> Leg | None:
@@ -71,10 +79,11 @@ class Task:
         return {"id": self.id, "job": self.job, "lotlanTask": self.lotlan_task, "run": self.run,
                 "repeat": self.repeat, "state": self.state.value, "vehicle": self.vehicle, "armed": self.armed,
                 "reason": self.reason, "created": self.created, "updated": self.updated,
-                "legs": [leg.to_json() for leg in self.legs]}
+                "purpose": self.purpose, "legs": [leg.to_json() for leg in self.legs]}
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> Task:
         return cls(str(d["id"]), str(d["job"]), str(d["lotlanTask"]), int(d["run"]), int(d["repeat"]),
                    tuple(Leg.from_json(leg) for leg in d["legs"]), TaskState(d["state"]), str(d["vehicle"]),
-                   int(d["armed"]), str(d["reason"]), str(d.get("created", "")), str(d.get("updated", "")))
+                   int(d["armed"]), str(d["reason"]), str(d.get("created", "")), str(d.get("updated", "")),
+                   str(d.get("purpose", "job")))

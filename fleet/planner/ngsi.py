@@ -54,7 +54,7 @@ def entity(task: Task) -> dict[str, Any]:
         "id": entity_id(task.id), "type": ENTITY_TYPE,
         "state": text(task.state.value), "vehicle": text(task.vehicle), "step": text(step),
         "stepIndex": {"type": "Integer", "value": leg.index if leg is not None else len(task.legs)},
-        "job": text(task.job), "lotlanTask": text(task.lotlan_task),
+        "job": text(task.job), "lotlanTask": text(task.lotlan_task), "purpose": text(task.purpose),
         "run": {"type": "Integer", "value": task.run}, "reason": text(task.reason[:500]),
         "legs": {"type": "StructuredValue", "value": safe([
             {"index": g.index, "station": g.station, "actions": list(g.actions), "state": g.state.value,

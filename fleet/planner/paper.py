@@ -40,7 +40,7 @@ from fleet.planner.machine import SendOrder
 from fleet.sim.map import SiteMap
 
 log = logging.getLogger("fleet.planner")
-PAPER_ACTIONS = {"pick": "load", "drop": "unload", "wait": "wait"}
+PAPER_ACTIONS = {"pick": "load", "drop": "unload", "wait": "wait", "startCharging": "charge"}
 NGSI_TYPE = {str: "Text", bool: "Boolean", int: "Number", float: "Number"}
 DEFAULT_LIMITS = ([1.0, 0.0, 1.0], [0.5, 0.0, 1.0])
 MAX_REMEMBERED = 10_000  # orderIds the sender remembers (the oldest are forgotten first)

@@ -7,6 +7,12 @@ journaled (fsync'd) before it is acted upon; so after kill -9 the planner restar
 was SENT is re-sent with the same orderId unless the vehicle's state already shows it (a vehicle
 ignores an order it has), follow-up tasks (Repeat, OnDone) are created if they are missing (ids
 are deterministic: ``<job>-<task>-<run>``, so nothing is created twice).
+
+Idle vehicles (fleet/planner/idle.py): with ``waiting_area`` set, the vehicle of a job task that
+finished gets a ``park`` task ``<task>-park`` to the waiting area (the paper's steps 10-11); a
+vehicle below ``min_battery`` that no job holds gets a ``charge`` task ``charge-<serial>-<n>`` to
+the nearest free charger (``startCharging`` there). Neither holds its vehicle: a job assigned to it
+withdraws them (``cancelOrder`` when their order was sent, ``stopCharging`` when it charges).
 """
 
 from __future__ import annotations
@@ -22,7 +28,7 @@ from typing import Any
 from fleet.discovery.records import now_iso
 from fleet.lotlan import cycles
 from fleet.lotlan.model import Program
-from fleet.planner import build, machine
+from fleet.planner import build, idle, machine
 from fleet.planner.assign import Need, choose
 from fleet.planner.errors import PlannerError
 from fleet.planner.journal import Journal
@@ -57,6 +63,8 @@ class PlannerConfig:
     resend: float = 3.0
     settle: float = 5.0  # s after start to hear every online vehicle's position before assigning
     paper: bool = False  # paper-channel vehicles can be sent to (the planner has the context broker)
+    waiting_area: str | None = None  # None: vehicles stay where they finished; "park" or a LoTLan Location
+    charging: bool = True  # a vehicle below min_battery that no job holds is sent to a charger
 
 
 def rules_of(program: Program) -> dict[str, Rules]:
@@ -68,8 +76,11 @@ def rules_of(program: Program) -> dict[str, Rules]:
 class Planner:
     def __init__(self, config: PlannerConfig, program: Program, journal: Journal, fleet: Fleet, plant: PlantView,
                  send: Callable[[SendOrder, Vehicle], None], publisher: TaskPublisher | None = None,
-                 cancel: Callable[[Vehicle], bool] | None = None) -> None:
+                 cancel: Callable[[Vehicle], bool] | None = None,
+                 stop_charging: Callable[[Vehicle], None] | None = None) -> None:
         build.check_program(program, config.site)
+        self.waiting = idle.waiting_area(config.waiting_area, program, config.site)
+        self.stop_charging = stop_charging
         self.config, self.program, self.journal = config, program, journal
         self.fleet, self.plant, self.send, self.publisher = fleet, plant, send, publisher
         self.cancel = cancel
@@ -89,7 +100,7 @@ class Planner:
         if self.tasks:
             log.info("resuming %d task(s) of %d job(s) from %s", len(self.tasks), len(self.jobs), journal.path)
         for task in self.tasks.values():
-            if task.lotlan_task not in self.rules:
+            if not task.service and task.lotlan_task not in self.rules:
                 raise PlannerError(f"the journal has task {task.id} of LoTLan task {task.lotlan_task!r}, which "
                                    "the LoTLan file no longer has", hint="start with the same LoTLan file, or "
                                    "another --data-dir")
@@ -108,7 +119,7 @@ class Planner:
     def done(self) -> dict[str, frozenset[str]]:
         out: dict[str, set[str]] = {}
         for t in self.tasks.values():
-            if t.state is TaskState.FINISHED and t.run >= t.repeat:
+            if t.state is TaskState.FINISHED and t.run >= t.repeat and not t.service:
                 out.setdefault(t.job, set()).add(t.lotlan_task)
         return {job: frozenset(names) for job, names in out.items()}
 
@@ -128,7 +139,7 @@ class Planner:
             for name in names:
                 self._create(job, name, 1)
         for task in list(self.tasks.values()):
-            if task.state is not TaskState.FINISHED:
+            if task.state is not TaskState.FINISHED or task.service:
                 continue
             if task.run < task.repeat:
                 self._create(task.job, task.lotlan_task, task.run + 1)
@@ -163,6 +174,8 @@ class Planner:
         self._send_cancels(vehicles)
         self._advance_all(vehicles)
         self._assign(vehicles)
+        if self.config.charging and self.fleet.reachable:
+            self._charge(vehicles)
         self._resend(vehicles)
 
     def _lost(self, vehicles: dict[str, Vehicle]) -> None:
@@ -175,15 +188,21 @@ class Planner:
             vehicle = vehicles.get(task.vehicle)
             if vehicle is None or not vehicle.online:
                 why = "is no longer known" if vehicle is None else f"is {vehicle.connection_state}"
+                if task.service:  # nobody else is sent to its waiting area or charger
+                    self._record(machine.withdraw(task, f"vehicle {task.vehicle} {why}", now_iso()),
+                                 f"vehicle {task.vehicle} {why}: withdrawn")
+                    continue
                 self._record(machine.vehicle_lost(task, f"vehicle {task.vehicle} {why}; re-assigning", now_iso()),
                              f"vehicle {task.vehicle} {why}: back to ACTIVE")
 
     def _advance(self, task: Task, vehicles: dict[str, Vehicle]) -> None:
-        steps, sends = machine.advance(task, self.rules[task.lotlan_task], self._now(vehicles))
+        steps, sends = machine.advance(task, self.rules.get(task.lotlan_task, Rules()), self._now(vehicles))
         for moved, note in steps:
             self._record(moved, note)
         for order in sends:  # after the journal has them (write-ahead)
             self._send(order, vehicles)
+        if steps and steps[-1][0].state is TaskState.FINISHED and not task.service:
+            self._park(steps[-1][0], vehicles)
 
     def _advance_all(self, vehicles: dict[str, Vehicle]) -> None:
         for task_id in list(self.tasks):
@@ -191,7 +210,7 @@ class Planner:
                 self._advance(self.tasks[task_id], vehicles)
 
     def _assign(self, vehicles: dict[str, Vehicle]) -> None:
-        waiting = [t for t in self.tasks.values() if t.state is TaskState.ACTIVE]
+        waiting = [t for t in self.tasks.values() if t.state is TaskState.ACTIVE and not t.service]
         if not waiting or not self.fleet.reachable:
             return
         unheard = sorted(k for k, v in vehicles.items() if v.online and v.position() is None)
@@ -199,7 +218,7 @@ class Planner:
             return  # nearest first needs every position: wait (a little) for their states
         store = self.plant.current()
         for task in waiting:
-            held = {t.vehicle for t in self.tasks.values() if t.state in HOLDING} | set(self.cancels)
+            held = {t.vehicle for t in self.tasks.values() if t.state in HOLDING and not t.service} | set(self.cancels)
             if not any(v.online and k not in held for k, v in vehicles.items()):
                 return  # nobody free: no query to run
             leg = task.current
@@ -216,9 +235,93 @@ class Planner:
                     log.info("task %s waits: %s", task.id, choice.explain())
                 continue
             self._unfit.discard(task.id)
+            self._free(choice.vehicle, vehicles, f"job task {task.id} needs it")
             self._record(machine.assign(task, choice.vehicle, choice.explain(), now_iso()),
                          f"ACTIVE -> ASSIGNED to {choice.vehicle} in {choice.seconds * 1000:.1f} ms; {choice.explain()}")
             self._advance(self.tasks[task.id], vehicles)
+
+    # ------------------------------------------------------------------ idle vehicles
+    def _service_of(self, key: str) -> Task | None:
+        return next((t for t in self.tasks.values() if t.service and t.vehicle == key and t.state in HOLDING), None)
+
+    def _busy(self, key: str) -> bool:
+        return any(t.vehicle == key and t.state in HOLDING for t in self.tasks.values())
+
+    def _targets(self, purpose: str) -> set[str]:
+        return {t.legs[0].station for t in self.tasks.values() if t.purpose == purpose and t.state in HOLDING}
+
+    def _free(self, key: str, vehicles: dict[str, Vehicle], why: str) -> None:
+        """Before a job takes ``key``: withdraw its park/charge task (cancelOrder first when its
+        order was sent) and stop its charging (a charging vehicle does not drive)."""
+        service = self._service_of(key)
+        if service is not None:
+            leg = service.current
+            if leg is not None and leg.state is LegState.SENT:
+                self.cancels[key] = leg.order_id
+            self._record(machine.withdraw(service, why, now_iso()), f"withdrawn: {why}")
+            self._send_cancels(vehicles)
+            self.cancels.pop(key, None)  # sent, or retried by the order's resend if the vehicle refuses
+        vehicle = vehicles.get(key)
+        if vehicle is not None and vehicle.charging() and self.stop_charging is not None:
+            try:
+                self.stop_charging(vehicle)
+                log.info("stopCharging sent to %s: %s", key, why)
+            except PlannerError as exc:
+                log.warning("stopCharging to %s not sent (%s)", key, exc)
+
+    def _park(self, finished: Task, vehicles: dict[str, Vehicle]) -> None:
+        """The paper's steps 10-11: the vehicle of a finished job task goes to the waiting area,
+        unless another task holds it, it is low (a charger comes first) or there is no waiting area."""
+        key = finished.vehicle
+        vehicle = vehicles.get(key)
+        task_id = f"{finished.id}-park"
+        if self.config.waiting_area is None or task_id in self.tasks or vehicle is None or self._busy(key):
+            return
+        if self.config.charging and idle.needs_charge(vehicle.battery(), vehicle.charging(), self.config.min_battery):
+            return
+        pos = vehicle.position() or (finished.legs[-1].x, finished.legs[-1].y)
+        station = idle.park_station(self.waiting, self.config.site, pos[0], pos[1], self._targets(idle.PARK))
+        if station is None:
+            log.info("no free waiting area for %s: it stays at %s", key, finished.legs[-1].station)
+            return
+        task = idle.service_task(task_id, finished.job, idle.PARK, key, station,
+                                 f"{finished.id} finished: back to the waiting area {station.name}", now_iso())
+        self._record(task, f"created: {key} to the waiting area {station.name}")
+        self._advance(task, vehicles)
+
+    def _charge(self, vehicles: dict[str, Vehicle]) -> None:
+        """A vehicle below min_battery that no job holds goes to the nearest free charger."""
+        for key, vehicle in sorted(vehicles.items()):
+            if not vehicle.online or not idle.needs_charge(vehicle.battery(), vehicle.charging(),
+                                                           self.config.min_battery):
+                continue
+            service = self._service_of(key)
+            if (service is not None and service.purpose == idle.CHARGE) or key in self.cancels:
+                continue
+            if any(t.vehicle == key and t.state in HOLDING and not t.service for t in self.tasks.values()):
+                continue  # it finishes its job first
+            pos = vehicle.position()
+            if pos is None or self._charged_there(vehicle.serial, pos):
+                continue
+            station = idle.charger(self.config.site, pos[0], pos[1], self._targets(idle.CHARGE))
+            if station is None:
+                continue
+            if service is not None:
+                self._free(key, vehicles, f"battery {vehicle.battery():.0f} % < {self.config.min_battery:g} %")
+            n = 1 + sum(1 for t in self.tasks if t.startswith(f"charge-{vehicle.serial}-"))
+            task = idle.service_task(f"charge-{vehicle.serial}-{n}", "planner", idle.CHARGE, key, station,
+                                     f"battery {vehicle.battery():.0f} % < {self.config.min_battery:g} %: "
+                                     f"to charger {station.name}", now_iso())
+            self._record(task, f"created: {key} to charger {station.name}")
+            self._advance(task, vehicles)
+
+    def _charged_there(self, serial: str, pos: tuple[float, float]) -> bool:
+        """Its last charge task finished at the charger it stands on (its state says charging soon)."""
+        mine = [t for t in self.tasks.values() if t.id.startswith(f"charge-{serial}-")]
+        last = max(mine, key=lambda t: t.created, default=None)
+        at = self.config.site.charger_at(*pos)
+        return last is not None and last.state is TaskState.FINISHED and at is not None \
+            and at.name == last.legs[0].station
 
     def _send(self, order: SendOrder, vehicles: dict[str, Vehicle]) -> None:
         vehicle = vehicles.get(order.vehicle)

@@ -68,6 +68,11 @@ class Vehicle:
         value = s.get("battery") if self.paper else (s.get("batteryState") or {}).get("batteryCharge")
         return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
 
+    def charging(self) -> bool:
+        s = self.state or {}
+        value = s.get("charging") if self.paper else (s.get("batteryState") or {}).get("charging")
+        return value is True
+
     def view(self) -> VehicleView:
         s = self.state or {}
         if self.paper:
