@@ -120,3 +120,48 @@ def scale(data: dict[str, Any], out: Path) -> Path:
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7)
     return _save(fig, out / "replan.png")
+
+
+def fleet_paths(data: dict[str, Any], path: Path) -> Path:
+    """``fleet_tasks-paths.png`` (the paper's Fig. 8): every vehicle's sampled positions as a line
+    over the map's stations (pick/drop as squares, parking as dots, chargers as triangles)."""
+    the_map = data["map"]
+    fig, ax = plt.subplots(figsize=(7, 7 * the_map["height"] / the_map["width"] + 0.6))
+    for name, track in sorted(data["paths"].items()):
+        if track:
+            ax.plot([p[1] for p in track], [p[2] for p in track], lw=0.8, alpha=0.7, label=name.split("/")[-1])
+    for s in the_map["stations"]:
+        marker = "^" if s.get("charger") else "." if s["name"].startswith("park-") else "s"
+        ax.plot(s["x"], s["y"], marker, color="black", ms=5 if marker == "s" else 4)
+        if marker == "s":
+            ax.annotate(s["name"], (s["x"], s["y"]), fontsize=6, xytext=(3, 2), textcoords="offset points")
+    ax.set_xlim(0, the_map["width"])
+    ax.set_ylim(0, the_map["height"])
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(f"paths of {data['vehicles']} AGVs, {data['orders']} orders")
+    if len(data["paths"]) <= 10:
+        ax.legend(fontsize=6, loc="upper center", ncol=5)
+    return _save(fig, path)
+
+
+def fleet_gantt(data: dict[str, Any], path: Path) -> Path:
+    """``fleet_tasks-gantt.png``: a row per vehicle, a bar per task from ASSIGNED to FINISHED — the
+    drive to the pickup and the pick in one shade, the drive to the drop and the drop in another."""
+    rows = sorted({t["vehicle"] for t in data["gantt"]})
+    fig, ax = plt.subplots(figsize=(8, 0.35 * len(rows) + 1.2))
+    for y, vehicle in enumerate(rows):
+        for t in (t for t in data["gantt"] if t["vehicle"] == vehicle):
+            end = t["finished"]
+            if end is None:
+                continue
+            middle = t["leg0_done"] if t["leg0_done"] is not None else end
+            ax.barh(y, middle - t["assigned"], left=t["assigned"], height=0.6, color="tab:blue", edgecolor="white", lw=0.3)
+            ax.barh(y, end - middle, left=middle, height=0.6, color="tab:orange", edgecolor="white", lw=0.3)
+            if len(data["gantt"]) <= 30:
+                ax.annotate(t["id"], (t["assigned"], y), fontsize=6, xytext=(1, 6), textcoords="offset points")
+    ax.set_yticks(range(len(rows)), [r.split("/")[-1] for r in rows], fontsize=7)
+    ax.set_xlabel("seconds after the job started")
+    ax.set_title("tasks per vehicle (blue: to pickup + pick, orange: to drop + drop)", fontsize=9)
+    return _save(fig, path)

@@ -1,0 +1,62 @@
+"""The task-planner benchmark: its pure parts (ideal travel time, generated map and LoTLan) and a
+tiny run (6 orders over 2 simulated AGVs) whose results say what it measured. The issue's goals are
+reported by the benchmark (met / not met), never asserted here."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+import fleet.lotlan
+from benchmarks import bench_fleet_tasks as bench
+from benchmarks import report
+from fleet.planner import build
+from fleet.sim import map as site_map
+
+
+def test_trapezoid_reaches_top_speed_or_is_a_triangle() -> None:
+    assert bench.trapezoid_seconds(10.0, 1.0, 0.5) == pytest.approx(10.0 + 2.0)   # d >= v²/a
+    assert bench.trapezoid_seconds(2.0, 1.0, 0.5) == pytest.approx(2 * math.sqrt(4.0))  # triangle
+    assert bench.trapezoid_seconds(0.0, 1.0, 0.5) == 0.0
+    with pytest.raises(ValueError, match="v_max > 0"):
+        bench.trapezoid_seconds(1.0, 0.0, 0.5)
+
+
+def test_generated_program_is_valid_lotlan_on_the_generated_map(tmp_path: Path) -> None:
+    the_map = bench.site(5)
+    orders = bench.orders(9, the_map, seed=1)
+    assert [o.pickup[0] for o in orders] == ["a", "b"] * 4 + ["a"]  # directions alternate
+    path = tmp_path / "jobs.tl"
+    path.write_text(bench.lotlan(orders))
+    program = fleet.lotlan.load(path)
+    build.check_program(program, site_map.from_json(the_map))  # every Location is a station
+    assert sorted(t.name for t in program.tasks) == [o.name for o in orders]
+    assert len(site_map.from_json(the_map).parking()) == 5
+    best = bench.ideal(orders, the_map, 3, 2.0, 1.0)
+    assert best["makespan_s"] == pytest.approx(best["order_seconds_sum"] / 3)
+    assert best["order_seconds_sum"] > 9 * (20.0 / 2.0 + 4.0)  # each order crosses the 20 m hall
+
+
+@pytest.mark.integration  # real agents, Mosquitto, context broker, fleet manager, planner, simulated AGVs
+def test_fleet_tasks_benchmark_runs_tiny(tmp_path: Path) -> None:
+    assert bench.main(["--tiny", "--out", str(tmp_path)]) == 0
+    data = json.loads((tmp_path / "fleet_tasks.json").read_text())
+    assert (data["orders"], data["vehicles"], data["finished"], data["failed"]) == (6, 2, 6, 0)
+    assert data["assign"]["n"] >= 6 and data["assign"]["p99"] > 0
+    assert data["makespan_s"] > data["ideal"]["makespan_s"] > 0  # nothing beats the ideal
+    assert data["planner_cpu_s"] > 0 and data["planner_rss_mib_peak"] > 10
+    vehicles = {t["vehicle"] for t in data["gantt"]}
+    assert len(vehicles) == 2 and set(data["paths"]) == vehicles
+    for t in data["gantt"]:
+        assert t["state"] == "FINISHED" and 0 <= t["assigned"] < t["leg0_done"] < t["finished"]
+    for track in data["paths"].values():
+        assert len(track) > 10  # sampled while driving
+        assert any(p[1] > 15 for p in track) and any(p[1] < 7 for p in track)  # it crossed the hall
+    for name in ("fleet_tasks-paths.png", "fleet_tasks-gantt.png"):
+        assert (tmp_path / name).stat().st_size > 5000
+    assert "| 6/6 | 0 |" in (tmp_path / "fleet_tasks.md").read_text()
+    verdicts = [g for g in report.goals(tmp_path) if g[0].startswith("task planner")]
+    assert len(verdicts) == 2 and all(v[3] in ("met", "**not met**") for v in verdicts)
