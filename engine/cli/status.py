@@ -5,8 +5,12 @@ then, if the plant has bridges, one row per bridge: its address, mechanism, stat
 messages forwarded and retried (Mosquitto's own bridges count nothing: "-"), last error.
 A broker no agent runs is ``absent``; one whose agent did not answer is ``unknown``; brokers the
 agents run that the plant does not name are listed after, marked ``not in plant``. The answer is
-also written into the observed graph (see docs/reconciliation.md). Read-only; exit 0 unless the
-input is unusable (2) or the plant invalid (1).
+also written into the observed graph (see docs/reconciliation.md). Read-only.
+
+Exit codes: 0 the plant has converged (every agent answered and a plan would change nothing);
+2 it has not (something to create, change or delete, or an agent that did not answer, whose
+brokers show ``unknown`` with ``?`` topics); 1 an error (an invalid plant, unusable input).
+``--format json`` gives typed values: numbers as numbers, ``null`` where a table shows ``-``.
 """
 
 from __future__ import annotations
@@ -17,11 +21,13 @@ from pathlib import Path
 
 import click
 
-from engine.cli.common import file_argument
+from engine.cli.common import fail, file_argument
 from engine.cli.progress import duration
 from engine.cli.reconcile import agents_option, prepare, print_violations
 from engine.model import BrokerStatus, DesiredState, ObservedBroker, ObservedState, to_dict
-from kg.errors import EXIT_VIOLATIONS
+from kg.errors import EXIT_VIOLATIONS, PlantKGError
+
+EXIT_CONVERGED, EXIT_ERROR, EXIT_NOT_CONVERGED = 0, 1, 2
 
 HEADERS = ("id", "kind", "host:port", "status", "pid", "uptime", "restarts", "topics")
 _COLOURS = {"running": "green", "starting": "yellow", "connecting": "yellow", "stopped": "yellow", "crashed": "red",
@@ -92,7 +98,7 @@ def _row(broker_id: str, kind: str, host: str, port: int, state: str, have: Obse
     alive = have is not None and have.status in (BrokerStatus.RUNNING, BrokerStatus.STARTING)
     uptime = duration(max(0.0, now - have.started_at)) if alive and have and have.started_at else "-"
     host_port = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
-    topics = f"{len(present & wanted)}/{len(wanted)}"
+    topics = f"{len(present & wanted)}/{len(wanted)}" if state != "unknown" else f"?/{len(wanted)}"
     if present - wanted:
         topics += f" +{len(present - wanted)}"
     return {
@@ -128,16 +134,24 @@ def status_command(files: tuple[str, ...], agents_file: Path | None, fmt: str) -
     Example:
       plantkg status ontology/examples/robot-cell.ttl --agents agents.toml
     """
-    result, _ = prepare(files, agents_file)
+    try:
+        result, _ = prepare(files, agents_file)
+    except PlantKGError as error:
+        fail(error)
+        return EXIT_ERROR
     if not result.valid:
         print_violations(result)
         return EXIT_VIOLATIONS
     assert result.desired is not None and result.observed is not None
+    converged = (not result.observed.unreachable and result.plan is not None and result.plan.empty)
+    code = EXIT_CONVERGED if converged else EXIT_NOT_CONVERGED
     if fmt == "json":
-        click.echo(json.dumps({"brokers": status_rows(result.desired, result.observed, time.time()),
-                               "bridges": bridge_rows(result.desired, result.observed),
+        click.echo(json.dumps({"converged": converged,
+                               "brokers": typed_broker_rows(result.desired, result.observed, time.time()),
+                               "bridges": [_typed_bridge(r) for r in bridge_rows(result.desired, result.observed)],
+                               "unreachable": list(result.observed.unreachable),
                                "observed": to_dict(result.observed)}, indent=2))
-        return 0
+        return code
     click.echo(render_table(status_rows(result.desired, result.observed, time.time())))
     bridges = bridge_rows(result.desired, result.observed)
     if bridges:
@@ -146,4 +160,31 @@ def status_command(files: tuple[str, ...], agents_file: Path | None, fmt: str) -
     if result.observed.unreachable:
         click.echo(click.style("agents that did not answer: " + ", ".join(result.observed.unreachable),
                                fg="red"), err=True)
-    return 0
+    if not converged and result.plan is not None and not result.plan.empty:
+        click.echo(click.style(f"not converged: {len(result.plan.pending)} change(s) pending (plantkg plan shows them)",
+                               fg="yellow"), err=True)
+    return code
+
+
+def typed_broker_rows(desired: DesiredState, observed: ObservedState, now: float) -> list[dict[str, object]]:
+    """The table's rows with typed values: ints, seconds, ``None`` for what is not known."""
+    out: list[dict[str, object]] = []
+    for row in status_rows(desired, observed, now):
+        have = observed.broker(row["id"])
+        present, _, wanted = row["topics"].split()[0].partition("/")
+        alive = have is not None and have.status in (BrokerStatus.RUNNING, BrokerStatus.STARTING)
+        out.append({
+            "id": row["id"], "kind": row["kind"], "host_port": row["host:port"],
+            "status": row["status"].split()[0], "in_plant": "(not in plant)" not in row["status"],
+            "pid": have.pid if have and have.pid else None,
+            "uptime_s": round(now - have.started_at, 3) if alive and have and have.started_at else None,
+            "restarts": have.restarts if have else None,
+            "topics_present": None if present == "?" else int(present), "topics_wanted": int(wanted),
+        })
+    return out
+
+
+def _typed_bridge(row: dict[str, str]) -> dict[str, object]:
+    def number(text: str) -> int | None:
+        return None if text == "-" else int(text)
+    return {**row, "forwarded": number(row["forwarded"]), "retried": number(row["retried"])}

@@ -18,7 +18,7 @@ from engine import pipeline
 from engine.cli import main
 from engine.cli import reconcile
 from engine.errors import PermanentDispatchError
-from engine.model import DesiredState
+from engine.model import DesiredState, ObservedState
 from tests.unit.fake_agents import FakeFleet
 from tests.unit.plan_data import load_case
 
@@ -125,12 +125,13 @@ def test_failed_change_exits_3_and_names_it(fleet: FakeFleet, capsys) -> None:  
 
 def test_status_table_and_destroy(fleet: FakeFleet, capsys) -> None:  # type: ignore[no-untyped-def]
     code, out, _ = run(capsys, "status", PLANT)
-    assert code == 0
+    assert code == 2  # not converged: nothing runs yet
     brokers, bridges = out.split("\n\n")
     assert [line.split()[3] for line in brokers.splitlines()[1:]] == ["absent", "absent"]
     assert bridges.splitlines()[1].split()[:3] == ["bridge.mosquitto.kafka", "mqtt-kafka", "absent"]
     run(capsys, "apply", PLANT, "--yes")
     code, out, _ = run(capsys, "status", PLANT)
+    assert code == 0  # converged
     brokers, bridges = out.split("\n\n")
     header, *rows = brokers.splitlines()
     assert bridges.splitlines()[0].split() == ["BRIDGE", "MECHANISM", "STATUS", "ROUTES", "FORWARDED",
@@ -200,3 +201,36 @@ def test_detailed_exitcode_is_terraforms(capsys: pytest.CaptureFixture[str], tmp
     code, _, err = run(capsys, "plan", str(broken), "--detailed-exitcode")
     assert code == 1 and "broken.ttl" in err
     assert run(capsys, "plan", str(broken))[0] == 2  # without the flag: unusable input, as before
+
+
+def test_status_json_is_typed_and_says_whether_the_plant_converged(fleet: FakeFleet, capsys) -> None:  # type: ignore[no-untyped-def]
+    code, out, _ = run(capsys, "status", PLANT, "--format", "json")
+    answer = json.loads(out)
+    assert code == 2 and answer["converged"] is False
+    assert {b["status"] for b in answer["brokers"]} == {"absent"} and answer["brokers"][0]["pid"] is None
+    run(capsys, "apply", PLANT, "--yes")
+    code, out, _ = run(capsys, "status", PLANT, "--format", "json")
+    answer = json.loads(out)
+    assert code == 0 and answer["converged"] is True and answer["unreachable"] == []
+    kafka = next(b for b in answer["brokers"] if b["id"] == "kafka")
+    assert kafka["status"] == "running" and kafka["in_plant"] is True
+    assert isinstance(kafka["restarts"], int) and (kafka["topics_present"], kafka["topics_wanted"]) == (2, 2)
+    assert isinstance(answer["bridges"][0]["forwarded"], int)
+
+
+def test_status_of_an_unreadable_plant_is_an_error(capsys, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    broken = tmp_path / "broken.ttl"
+    broken.write_text("not turtle", encoding="utf-8")
+    code, _, err = run(capsys, "status", str(broken))
+    assert code == 1 and "broken.ttl" in err
+
+
+def test_a_broker_whose_agent_did_not_answer_shows_unknown_topics_not_zero() -> None:
+    from engine.cli.status import status_rows
+
+    desired, _, _ = load_case("empty-all-create")
+    host = desired.brokers[0].host
+    rows = status_rows(desired, ObservedState(unreachable=(host,)), 0.0)
+    row = next(r for r in rows if r["id"] == desired.brokers[0].id)
+    wanted = len(desired.topics_of(desired.brokers[0].id))
+    assert row["status"] == "unknown" and row["topics"] == f"?/{wanted}"  # not "0/N", which reads as missing
