@@ -29,7 +29,7 @@ def query_command(args: tuple[str, ...], query_file: Path | None, fmt: str, bind
                   live: bool, agents_file: Path | None) -> int:
     """Run a SPARQL SELECT, ASK, CONSTRUCT or DESCRIBE over plant FILE(s) and the ontology.
 
-    The prefixes pk:, rdf:, rdfs:, owl:, xsd:, sh: and ngsi: are predeclared. Values given with --bind
+    The prefixes pk:, rdf:, rdfs:, owl:, xsd:, sh:, ngsi: and fleet: are predeclared. Values given with --bind
     are passed as bound variables, never pasted into the query text.
 
     \b
