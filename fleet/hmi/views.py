@@ -160,7 +160,9 @@ def _job_number(job: str) -> tuple[int, str]:
 
 
 def _task_row(t: dict[str, Any]) -> dict[str, Any]:
-    return {"id": t.get("id"), "job": t.get("job"), "lotlanTask": t.get("lotlanTask"), "state": t.get("state"),
+    purpose = str(t.get("purpose") or "job")  # park / charge: a task the planner made (no LoTLan task)
+    return {"id": t.get("id"), "job": t.get("job"), "purpose": purpose,
+            "lotlanTask": t.get("lotlanTask") or (f"({purpose})" if purpose != "job" else ""), "state": t.get("state"),
             "vehicle": t.get("vehicle") or "", "step": step_text(t), "updated": t.get("updated", ""),
             "reason": t.get("reason", "")}
 
