@@ -1,6 +1,7 @@
 """The task-planner benchmark: its pure parts (ideal travel time, generated map and LoTLan) and a
 tiny run (6 orders over 2 simulated AGVs) whose results say what it measured. The issue's goals are
-reported by the benchmark (met / not met), never asserted here."""
+reported by the benchmark (met / not met), never asserted here. notebooks/fleet.ipynb (a small
+fleet, its tasks plotted) runs here too, with the notebook tests' runner."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from benchmarks import bench_fleet_tasks as bench
 from benchmarks import report
 from fleet.planner import build
 from fleet.sim import map as site_map
+from tests.notebooks.test_notebooks import cell, execute, text
 
 
 def test_trapezoid_reaches_top_speed_or_is_a_triangle() -> None:
@@ -60,3 +62,20 @@ def test_fleet_tasks_benchmark_runs_tiny(tmp_path: Path) -> None:
     assert "| 6/6 | 0 |" in (tmp_path / "fleet_tasks.md").read_text()
     verdicts = [g for g in report.goals(tmp_path) if g[0].startswith("task planner")]
     assert len(verdicts) == 2 and all(v[3] in ("met", "**not met**") for v in verdicts)
+
+
+@pytest.mark.integration
+def test_fleet_notebook_runs_a_small_fleet_and_plots_its_tasks(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """notebooks/fleet.ipynb in a real kernel (the notebook tests' runner: no process may be left)."""
+    nb = execute("fleet.ipynb", tmp_path, monkeypatch)
+    assert text(nb, "program").count("\n    Transport\n") == 3  # three Task blocks
+    ran = text(nb, "run")
+    assert "finished 3/3 orders" in ran
+    rows = [line.split() for line in ran.splitlines() if line.startswith("order")]
+    assert len(rows) == 3 and all(row[-1] == "FINISHED" for row in rows)
+    assert len({row[1] for row in rows}) == 2  # both vehicles carried one
+    for row in rows:
+        assert 0 <= float(row[2]) < float(row[3]) < float(row[4])
+    for cell_id in ("gantt", "paths"):
+        assert any("image/png" in o.get("data", {}) for o in cell(nb, cell_id).outputs)
+    assert "processes left: none" in text(nb, "close")
