@@ -122,6 +122,25 @@ def ideal(all_orders: list[Order], the_map: dict[str, Any], vehicles: int, v_max
             "orders_per_min": len(all_orders) / (total / vehicles) * 60}
 
 
+def turning_points(track: list[list[float]], tolerance: float = 0.02) -> list[list[float]]:
+    """``[t, x, y]`` samples without those on a straight line between their kept neighbours (within
+    ``tolerance`` m): the vehicles drive straight between stations, so the path keeps its shape
+    while the results' JSON stays small. The first and last samples and every stop are kept."""
+    if len(track) <= 2:
+        return list(track)
+    kept = [track[0]]
+    for point, after in zip(track[1:-1], track[2:]):
+        a = kept[-1]
+        dx, dy = after[1] - a[1], after[2] - a[2]
+        length = math.hypot(dx, dy)
+        off = abs(dx * (point[2] - a[2]) - dy * (point[1] - a[1])) / length if length else math.inf
+        between = length and 0 <= ((point[1] - a[1]) * dx + (point[2] - a[2]) * dy) / length <= length
+        if off > tolerance or not between:
+            kept.append(point)
+    kept.append(track[-1])
+    return kept
+
+
 def _t(iso: str) -> float:
     return datetime.fromisoformat(iso.replace("Z", "+00:00")).timestamp()
 
@@ -259,7 +278,7 @@ def _figures(n_orders: int, n_vehicles: int, v_max: float, a_max: float, seed: i
               "leg0_done": round(t["leg0_done"] - start, 3) if "leg0_done" in t else None,
               "finished": round(t["finished"] - start, 3) if "finished" in t else None, "state": t["state"]}
              for t in tasks if "assigned" in t]
-    paths = {k: [[round(p[0] + shift, 2), p[1], p[2]] for p in v] for k, v in measured["paths"].items()}
+    paths = {k: turning_points([[round(p[0] + shift, 2), p[1], p[2]] for p in v]) for k, v in measured["paths"].items()}
     rate = len(finished) / makespan * 60 if finished else 0.0
     loaded = [(t["finished"] - t["leg0_done"]) / best["loaded_leg_s"][t["lotlanTask"]]
               for t in finished if "leg0_done" in t]
@@ -273,6 +292,7 @@ def _figures(n_orders: int, n_vehicles: int, v_max: float, a_max: float, seed: i
         "queued_active": summarize(queued),
         "planner_cpu_s": measured["cpu_s"], "planner_cpu_ms_per_order": measured["cpu_s"] / n_orders * 1000,
         "planner_rss_mib_max_sampled": measured["rss_mib_max_sampled"], "planner_rss_mib_peak": measured["rss_mib_peak"],
+        "position_samples": sum(len(v) for v in measured["paths"].values()),
         "map": the_map, "gantt": gantt, "paths": paths,
     }
 

@@ -126,10 +126,10 @@ def fleet_paths(data: dict[str, Any], path: Path) -> Path:
     """``fleet_tasks-paths.png`` (the paper's Fig. 8): every vehicle's sampled positions as a line
     over the map's stations (pick/drop as squares, parking as dots, chargers as triangles)."""
     the_map = data["map"]
-    fig, ax = plt.subplots(figsize=(7, 7 * the_map["height"] / the_map["width"] + 0.6))
+    fig, ax = plt.subplots(figsize=(6, 6 * the_map["height"] / the_map["width"] + 0.6))
     for name, track in sorted(data["paths"].items()):
         if track:
-            ax.plot([p[1] for p in track], [p[2] for p in track], lw=0.8, alpha=0.7, label=name.split("/")[-1])
+            ax.plot([p[1] for p in track], [p[2] for p in track], lw=0.6, alpha=0.6, label=name.split("/")[-1])
     for s in the_map["stations"]:
         marker = "^" if s.get("charger") else "." if s["name"].startswith("park-") else "s"
         ax.plot(s["x"], s["y"], marker, color="black", ms=5 if marker == "s" else 4)

@@ -79,3 +79,11 @@ def test_fleet_notebook_runs_a_small_fleet_and_plots_its_tasks(tmp_path: Path, m
     for cell_id in ("gantt", "paths"):
         assert any("image/png" in o.get("data", {}) for o in cell(nb, cell_id).outputs)
     assert "processes left: none" in text(nb, "close")
+
+
+def test_turning_points_keep_the_path_and_drop_samples_on_straight_lines() -> None:
+    track = [[0.0, 0.0, 0.0], [1.0, 1.0, 0.0], [2.0, 2.0, 0.0], [3.0, 3.0, 0.0],  # straight along x
+             [4.0, 3.0, 1.0], [5.0, 3.0, 2.0],                                    # turn, along y
+             [6.0, 3.0, 1.0]]                                                     # back the same way
+    assert bench.turning_points(track) == [track[0], track[3], track[5], track[6]]
+    assert bench.turning_points(track[:2]) == track[:2]
