@@ -81,7 +81,8 @@ def hermit(tmp_path: Path, request: pytest.FixtureRequest) -> Callable[..., Reas
     """``hermit(label, plant)`` loads the ontology plus ``plant`` (a path or Turtle text, with its
     ontology IRI found from the file) in a new World and runs HermiT on it."""
 
-    def run(label: str, plant: Path | str | None = None, plant_iri: str | None = None) -> Reasoned:
+    def run(label: str, plant: Path | str | None = None, plant_iri: str | None = None,
+            infer_property_values: bool = False) -> Reasoned:
         world = owlready2.World()
         tbox = _to_ntriples(ONTOLOGY_TTL, tmp_path / "plantkg.nt")
         with tbox.open("rb") as fh:
@@ -99,7 +100,7 @@ def hermit(tmp_path: Path, request: pytest.FixtureRequest) -> Callable[..., Reas
                 world.get_ontology(iri).load(fileobj=fh, format="ntriples")
         start = time.perf_counter()
         try:
-            owlready2.sync_reasoner(world, infer_property_values=False, debug=0)
+            owlready2.sync_reasoner(world, infer_property_values=infer_property_values, debug=0)
         finally:
             seconds = time.perf_counter() - start
             request.config.stash.setdefault(_TIMINGS, []).append((label, seconds))
