@@ -65,12 +65,13 @@ class Vehicle:
 
     def battery(self) -> float | None:
         s = self.state or {}
-        value = s.get("battery") if self.paper else (s.get("batteryState") or {}).get("batteryCharge")
+        value = s.get("battery") if self.paper else s.get("batteryCharge", (s.get("batteryState") or {}).get(
+            "batteryCharge"))  # the manager's rows: flat (fleet/discovery/inbox.py); a raw VDA 5050 state: nested
         return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
 
     def charging(self) -> bool:
         s = self.state or {}
-        value = s.get("charging") if self.paper else (s.get("batteryState") or {}).get("charging")
+        value = s.get("charging") if self.paper else s.get("charging", (s.get("batteryState") or {}).get("charging"))
         return value is True
 
     def view(self) -> VehicleView:

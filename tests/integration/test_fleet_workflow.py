@@ -18,6 +18,12 @@ tests/integration/test_fleet_planner.py, the browser of test_fleet_hmi_browser.p
     station's page; both Task entities on the context broker FINISHED) and the AGV's marker on the
     fleet page stands on the waiting spot.
 
+Charging: with a ``--min-battery`` above any charge (101 %: the simulator has no option for a low
+start charge) every vehicle is low: each gets a ``charge`` task to its own charger, reaches it and
+charges (the manager's state: ``batteryState.charging``, its position on the charger), a job
+started meanwhile is given to nobody; the planner restarted on the same data with the default
+minimum gives the job to a charging vehicle (``stopCharging`` first: it drives) and it finishes.
+
 Every step is asserted in the order of the planner's journal (each record has a sequence number),
 and what the HMI showed is tied to it: when the page said "ready to load" the journal had the
 pick done and no Loaded yet.
@@ -36,13 +42,17 @@ from engine import process
 from tests.integration.test_fleet_hmi_browser import JOBS, browser, shot, spawn_hmi, wait_js  # noqa: F401
 from tests.integration.test_fleet_planner import CB_HOST, PARK, ROOT, Planner, Rig, entities, spawn_sim
 from tests.integration.test_fleet_planner import rig as rig  # noqa: F401 - the module's fixture
-from tests.integration.test_fleet_planner import wait_ready, write_map
+from tests.integration.test_fleet_planner import manager_row, wait_ready, write_map
 
 pytestmark = pytest.mark.integration
+CHARGERS = [{"name": "charger-1", "x": 1.0, "y": 4.0, "charger": True},
+            {"name": "charger-2", "x": 11.0, "y": 4.0, "charger": True}]
 
 
 class WorkflowPlanner(Planner):
-    """The rig's planner with ``--waiting-area`` (park spots)."""
+    """The rig's planner with ``--waiting-area`` (park spots) and ``extra`` arguments."""
+
+    extra: tuple[str, ...] = ()
 
     def start(self) -> process.Child:
         self.runs += 1
@@ -50,7 +60,7 @@ class WorkflowPlanner(Planner):
             [sys.executable, "-m", "fleet.planner", "--plant", self.rig.plant, "--lotlan", self.lotlan,
              "--data-dir", self.data, "--manager-data-dir", self.rig.data, "--map", self.map_file,
              "--ngsi-url", f"http://{CB_HOST}:{self.rig.cb_port}", "--ngsi-token-file", self.rig.cb_token_file,
-             "--waiting-area"],
+             "--waiting-area", *self.extra],
             log_dir=self.rig.tmp / "logs", name=f"{self.name}-{self.runs}", cwd=ROOT)
         process.wait_until(lambda: self._where().get("pid") == self.child.pid, 30.0, 0.05,
                            what="the planner's API", child=self.child)
@@ -196,3 +206,49 @@ def test_the_papers_eleven_step_load_unload_workflow(rig: Rig, browser: Any) -> 
         planner.stop()
         assert process.stop(sim, grace=15.0) == 0, sim.log_tail()
 
+
+
+def test_low_vehicles_go_charging_and_a_job_takes_one_from_its_charger(rig: Rig) -> None:  # noqa: F811
+    map_file = write_map(rig.tmp / "map-charging.json", PARK + CHARGERS)
+    lotlan = rig.tmp / "charging.tl"
+    lotlan.write_text(JOBS.replace("    FinishedBy loaded == True\n", "").replace("    FinishedBy unloaded == True\n", ""),
+                      encoding="utf-8")
+    sim = spawn_sim(rig, "ch-", map_file, 2, "sim-charging")
+    planner = WorkflowPlanner(rig, rig.tmp / "planner-charging", lotlan, map_file, "planner-charging")
+    planner.extra = ("--min-battery", "101")
+    serials = ["ch-0001", "ch-0002"]
+    try:
+        wait_ready(rig, serials, sim)
+        planner.start()
+        assert planner.call("POST", "/v1/jobs", {"tasks": ["transport"]})[0] == 201
+
+        def charging() -> bool:
+            return all((manager_row(rig, s).get("state") or {}).get("charging") is True
+                       for s in serials)
+        planner.wait(charging, 60.0, "both vehicles charging")
+        tasks = planner.tasks()
+        charges = {t["vehicle"]: t for t in tasks.values() if t["purpose"] == "charge"}
+        assert sorted(charges) == [f"plan/{s}" for s in serials]
+        assert sorted(t["legs"][0]["station"] for t in charges.values()) == ["charger-1", "charger-2"]
+        planner.wait(lambda: all(t["state"] == "FINISHED" for t in planner.tasks().values()
+                                 if t["purpose"] == "charge"), 20.0, "the charge tasks FINISHED")
+        for t in charges.values():
+            at = next(c for c in CHARGERS if c["name"] == t["legs"][0]["station"])
+            pos = manager_row(rig, t["vehicle"].split("/")[1])["state"]["agvPosition"]
+            assert math.hypot(pos["x"] - at["x"], pos["y"] - at["y"]) < 0.3
+        assert planner.tasks()["j1-transport-1"]["state"] == "ACTIVE"  # nobody fit: all below 101 %
+        found = entities(rig)
+        assert sorted(e["state"] for i, e in found.items() if e.get("purpose") == "charge"
+                      and any(i.endswith(t) for t in (t["id"] for t in charges.values()))) == ["FINISHED"] * 2
+
+        planner.stop()
+        planner.extra = ()  # the default minimum (20 %): the charging vehicles fit again
+        planner.start()
+        planner.wait(lambda: planner.tasks()["j1-transport-1"]["state"] == "FINISHED", 90.0,
+                     "j1-transport-1 FINISHED on a vehicle taken from its charger")
+        vehicle = planner.tasks()["j1-transport-1"]["vehicle"]
+        assert "stopCharging sent to " + vehicle in planner.logs()
+        assert len([t for t in planner.tasks().values() if t["purpose"] == "charge"]) == 2  # none made again
+    finally:
+        planner.stop()
+        assert process.stop(sim, grace=15.0) == 0, sim.log_tail()

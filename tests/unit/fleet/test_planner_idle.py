@@ -209,3 +209,17 @@ def test_a_vehicle_that_finishes_its_job_low_goes_charging_not_parking(
     assert "j1-first-1-park" not in planner.tasks
     assert planner.tasks["charge-a-1-1"].state is TaskState.BEING_PROCESSED
     planner.journal.close()
+
+
+ROWS = [  # (what, the state the planner got, battery, charging)
+    ("the manager's row (flat, fleet/discovery/inbox.py)", {"batteryCharge": 12.5, "charging": True}, 12.5, True),
+    ("a raw VDA 5050 state", {"batteryState": {"batteryCharge": 40.0, "charging": False}}, 40.0, False),
+    ("no battery reported", {"batteryCharge": None, "charging": None}, None, False),
+]
+
+
+@pytest.mark.parametrize(("state", "battery", "charging"), [r[1:] for r in ROWS], ids=[r[0] for r in ROWS])
+def test_battery_and_charging_are_read_from_the_managers_rows(state: dict, battery: float | None,
+                                                              charging: bool) -> None:
+    vehicle = Vehicle("t/a-1", "a-1", "t", "vda5050", True, "ONLINE", state)
+    assert (vehicle.battery(), vehicle.charging()) == (battery, charging)
