@@ -1,6 +1,6 @@
 """The task-planner benchmark: its pure parts (ideal travel time, generated map and LoTLan) and a
 tiny run (6 orders over 2 simulated AGVs) whose results say what it measured. The issue's goals are
-reported by the benchmark (met / not met), never asserted here. notebooks/fleet.ipynb (a small
+reported by the benchmark (met / not met), never asserted here. notebooks/03-fleet.ipynb (a small
 fleet, its tasks plotted) runs here too, with the notebook tests' runner."""
 
 from __future__ import annotations
@@ -68,8 +68,8 @@ def test_fleet_tasks_benchmark_runs_tiny(tmp_path: Path) -> None:
 
 @pytest.mark.integration
 def test_fleet_notebook_runs_a_small_fleet_and_plots_its_tasks(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """notebooks/fleet.ipynb in a real kernel (the notebook tests' runner: no process may be left)."""
-    nb = execute("fleet.ipynb", tmp_path, monkeypatch)
+    """notebooks/03-fleet.ipynb in a real kernel (the notebook tests' runner: no process may be left)."""
+    nb = execute("03-fleet.ipynb", tmp_path, monkeypatch)
     assert text(nb, "program").count("\n    Transport\n") == 3  # three Task blocks
     ran = text(nb, "run")
     assert "finished 3/3 orders" in ran
