@@ -335,7 +335,7 @@ def to_markdown(data: dict[str, Any]) -> str:
     ]
     lines += [f"| {g['goal']} | {g['measured']} | {g['target']} | {'met' if g['met'] else '**not met**'} |"
               for g in data["goals"]]
-    lines += ["", "![paths](fleet_tasks-paths.png)", "", "![tasks per vehicle](fleet_tasks-gantt.png)"]
+    # the plots (fleet_tasks-paths.png, fleet_tasks-gantt.png) are placed by benchmarks/report.py
     return "\n".join(lines) + "\n"
 
 
