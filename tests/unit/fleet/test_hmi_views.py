@@ -142,3 +142,20 @@ def test_vehicle_rows_position_battery_and_the_task_held() -> None:
     assert (out["m/b"]["x"], out["m/b"]["battery"]) == (None, 55.5)  # no position heard yet
     assert (out["m/b"]["task"], out["m/b"]["taskState"], out["m/b"]["step"]) == ("t1", "BEING_PROCESSED", "0: load-1 [pick] SENT")
     assert (out["m/c"]["x"], out["m/c"]["battery"], out["m/c"]["connectionState"]) == (None, None, "CONNECTIONBROKEN")
+
+
+PARKED = [  # (what, the park task's state, the job's state on the station page)
+    ("the vehicle on its way to the waiting area", "BEING_PROCESSED", "BEING_PROCESSED"),
+    ("the vehicle back in the waiting area", "FINISHED", "FINISHED"),
+]
+
+
+@pytest.mark.parametrize(("park_state", "expected"), [p[1:] for p in PARKED], ids=[p[0] for p in PARKED])
+def test_a_job_is_finished_once_its_vehicle_is_back_in_the_waiting_area(park_state: str, expected: str) -> None:
+    park = {"id": "j1-first-1-park", "job": "j1", "lotlanTask": "", "purpose": "park", "state": park_state,
+            "vehicle": "m/a", "legs": [leg(0, "park-1", "DONE" if park_state == "FINISHED" else "SENT", (), "park")]}
+    view = views.station_view(PROGRAM, SITE, "unload-1", {"tasks": [task("j1-first-1", "FINISHED", ("DONE", "DONE"),
+                                                                         "m/a"), park]})
+    (job,) = view["jobs"]
+    assert job["state"] == expected
+    assert [(t["lotlanTask"], t["purpose"]) for t in job["tasks"]] == [("first", "job"), ("(park)", "park")]
