@@ -22,8 +22,10 @@ nothing waits) with ``{"error", "field"}``; a refusal of the planner is passed o
 
 from __future__ import annotations
 
+import json
 import secrets
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from flask import Blueprint, Flask, abort, current_app, render_template, request
@@ -102,6 +104,14 @@ def site() -> Any:
             "routes": [r.to_json() for r in views.routes(config.program, config.site)]}
 
 
+def _manager_status(data_dir: Path) -> Any:
+    """The manager's ``status.json`` (written atomically by it), or {} while there is none."""
+    try:
+        return json.loads((data_dir / "status.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+
+
 @api.route("/fleet")
 @login_required
 def fleet_json() -> Any:
@@ -113,6 +123,7 @@ def fleet_json() -> Any:
         rows, manager = [], {"ok": False, "error": exc.message}
     tasks = snapshot.get("tasks") or []
     return {"planner": planner, "manager": manager, "vehicles": views.vehicle_rows(rows, tasks),
+            "refused": views.refused_rows(_manager_status(_config().manager.data_dir)),
             "tasks": views.filter_tasks(tasks, state, vehicle), "filters": {"state": state, "vehicle": vehicle}}
 
 

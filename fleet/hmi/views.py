@@ -236,9 +236,24 @@ def vehicle_rows(rows: list[dict[str, Any]], tasks: list[dict[str, Any]]) -> lis
         task = holding.get(key)
         x, y = _number(position.get("x")), _number(position.get("y"))
         out.append({"key": key, "serial": row.get("serial"), "name": row.get("name") or "",
+                    "interface": str(row.get("interface") or ""), "pinned": row.get("pinned") is True,
                     "connectionState": row.get("connectionState"), "battery": battery,
                     "driving": bool(state.get("driving")),
                     "x": x, "y": y, "theta": _number(position.get("theta")) or 0.0,
                     "task": task.get("id") if task else "", "taskState": task.get("state") if task else "",
                     "step": step_text(task) if task else ""})
     return sorted(out, key=lambda v: v["key"])
+
+
+MAX_REFUSED = 50
+
+
+def refused_rows(status: Any) -> list[dict[str, str]]:
+    """The vehicles plug and play refused, with their reasons, from the manager's ``status.json``
+    (its ``refused`` list; anything malformed is left out, never an error)."""
+    items = status.get("refused") if isinstance(status, dict) else None
+    out = []
+    for item in items if isinstance(items, list) else []:
+        if isinstance(item, dict) and isinstance(item.get("vehicle"), str):
+            out.append({"vehicle": item["vehicle"], "reason": str(item.get("reason") or "")[:500]})
+    return out[:MAX_REFUSED]

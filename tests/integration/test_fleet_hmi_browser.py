@@ -144,6 +144,8 @@ def test_an_operator_runs_a_load_unload_job_from_the_browser(rig: Rig, browser: 
         assert set(before) == {"plan/hm-0001", "plan/hm-0002"}
         rows = fleet.inner_text("#vehicles tbody")
         assert rows.count("ONLINE") == 2 and "%" in rows and "idle" in rows
+        assert rows.count("(vda5050)") == 2  # both joined by plug and play, over VDA 5050
+        assert fleet.inner_text("#refused tbody").strip() == ""  # nobody refused
         shot(fleet, shots, "fleet-idle")
 
         station = context.new_page()

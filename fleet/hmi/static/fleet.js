@@ -76,9 +76,13 @@
     HMI.fill(document.querySelector("#vehicles tbody"), tbody => {
       for (const v of data.vehicles) {
         const pos = v.x === null ? "no position heard" : v.x.toFixed(2) + ", " + v.y.toFixed(2);
-        HMI.row(tbody, [v.key, v.connectionState, v.battery === null ? "—" : v.battery.toFixed(1) + " %", pos,
+        const label = v.key + " (" + (v.interface || "?") + (v.pinned ? ", pinned" : "") + ")";
+        HMI.row(tbody, [label, v.connectionState, v.battery === null ? "—" : v.battery.toFixed(1) + " %", pos,
                         v.task ? v.task + " (" + v.taskState + ")" : "idle", v.step], {"data-vehicle": v.key});
       }
+    });
+    HMI.fill(document.querySelector("#refused tbody"), tbody => {
+      for (const r of data.refused || []) HMI.row(tbody, [r.vehicle, r.reason], {"data-refused": r.vehicle});
     });
     HMI.sync(document.querySelector("#tasks tbody"), data.tasks, t => t.id,
              t => [t.id, t.job, t.lotlanTask, t.state, t.vehicle, t.step, t.updated],

@@ -6,6 +6,7 @@ the page (never a 500), and a job started, its pick waiting, **Loaded** pressed,
 
 from __future__ import annotations
 
+import json
 import re
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -276,3 +277,18 @@ def test_withdraw_a_task_and_the_planners_409_passed_on(rig: Rig) -> None:
     unknown = rig.client.post("/api/tasks/j9-x-1/withdraw", headers={"X-CSRF-Token": csrf})
     assert unknown.status_code == 404 and "no task 'j9-x-1'" in unknown.json["error"]
     assert rig.client.get("/api/stations/load-1").json["jobs"][0]["state"] == "WITHDRAWN"
+
+
+def test_the_fleet_page_lists_refused_vehicles_with_their_reason(rig: Rig) -> None:
+    """Plug and play's refusals (the manager's status.json) are on the fleet page, as issue 11 asks."""
+    login(rig.client)
+    assert rig.client.get("/api/fleet").json["refused"] == []  # no status.json yet: nothing, no error
+    (rig.manager_dir / "status.json").write_text(json.dumps({"refused": [
+        {"vehicle": "acme/v-9", "reason": "the plant would be invalid with this vehicle: serial in use"},
+        {"vehicle": 7, "reason": "malformed: left out"}, "junk"]}), encoding="utf-8")
+    fleet = rig.client.get("/api/fleet").json
+    assert fleet["refused"] == [{"vehicle": "acme/v-9",
+                                 "reason": "the plant would be invalid with this vehicle: serial in use"}]
+    assert {"interface", "pinned"} <= set(fleet["vehicles"][0])
+    page = rig.client.get("/").get_data(as_text=True)
+    assert 'id="refused"' in page
