@@ -10,10 +10,11 @@
   keeps a second process out, with a clear message and exit code 2); subscriptions in
   ``D/subscriptions``. An answered write survives kill -9; ``--fsync`` also makes it survive a
   power loss (one ``fdatasync`` per write).
-- Served by waitress (:mod:`.http_server`): requests are read whole, asynchronously, before a
-  worker runs them, so slow or stalled clients hold no worker; 204 answers keep the connection.
-  (cheroot was tried too: there, 16 clients stalled mid-body hold all 16 workers.)
-  SIGTERM or SIGINT stop it cleanly (exit 0).
+- Served by :mod:`.http_server` (asyncio + httptools): requests are read whole, asynchronously,
+  before anything runs them, so slow or stalled clients hold nothing; the hot writes run on the
+  event loop, everything else in ``--threads`` worker threads. (cheroot was tried: there, 16
+  clients stalled mid-body hold all 16 workers; waitress cost ~3x the write per request.)
+  SIGTERM or SIGINT stop it cleanly (exit 0). A port in use exits 2 with the reason.
 """
 
 from __future__ import annotations
@@ -21,10 +22,8 @@ from __future__ import annotations
 import argparse
 import ipaddress
 import logging
-import signal
 import sys
 from pathlib import Path
-from types import FrameType
 
 from engine.context_broker.app import create_app
 from engine.context_broker.store import ContextStore, StoreLocked
@@ -85,20 +84,15 @@ def read_token(args: argparse.Namespace) -> str | None:
 
 
 def _logging(log_file: Path | None) -> None:
-    handler: logging.Handler = (logging.FileHandler(log_file, encoding="utf-8") if log_file
-                                else logging.StreamHandler(sys.stderr))
+    try:
+        handler: logging.Handler = (logging.FileHandler(log_file, encoding="utf-8") if log_file
+                                    else logging.StreamHandler(sys.stderr))
+    except OSError as err:
+        raise ConfigError(f"cannot write --log-file {log_file}: {err.strerror}") from None
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     root = logging.getLogger()
     root.addHandler(handler)
     root.setLevel(logging.INFO)
-
-
-class _Stop(SystemExit):
-    """Raised by the signal handler in the serving (main) thread, ending ``server.run()``."""
-
-
-def _on_signal(signum: int, frame: FrameType | None) -> None:
-    raise _Stop(signal.Signals(signum).name)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -106,31 +100,37 @@ def main(argv: list[str] | None = None) -> int:
     try:
         check_host(args.host, args.allow_remote)
         token = read_token(args)
+        _logging(args.log_file)
     except ConfigError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    _logging(args.log_file)
     try:
         store = ContextStore(args.data_dir, fsync=args.fsync)
     except StoreLocked as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    from engine.context_broker.fastpath import is_hot_write
     from engine.context_broker.http_server import make_server
     from engine.context_broker.subscriptions import SubscriptionService
 
     subscriptions = SubscriptionService(args.data_dir / "subscriptions")
     subscriptions.start()
-    app = create_app(store, token=token, listeners=[subscriptions],
-                     subscriptions_blueprint=subscriptions.blueprint())
-    server = make_server(app, args.host, args.port, args.threads)
-    signal.signal(signal.SIGTERM, _on_signal)
-    signal.signal(signal.SIGINT, _on_signal)
+    try:
+        app = create_app(store, token=token, listeners=[subscriptions],
+                         subscriptions_blueprint=subscriptions.blueprint())
+        # with --fsync a write waits for the disk: keep it off the event loop
+        server = make_server(app, args.host, args.port, args.threads,
+                             inline=None if args.fsync else is_hot_write)
+    except OSError as err:
+        subscriptions.close()
+        store.close()
+        print(f"error: cannot listen on {args.host}:{args.port}: {err.strerror or err}", file=sys.stderr)
+        return 2
     log.info("context broker on http://%s:%d (data %s, %d entities, writes %s)", args.host,
              args.port, args.data_dir, store.count(), "open" if token is None else "need a token")
     try:
-        server.run()
-    except _Stop as stop:
-        log.info("%s: stopping", stop)
+        stopped_by = server.run()
+        log.info("%s: stopping", stopped_by)
     finally:
         server.close()
         subscriptions.close()
