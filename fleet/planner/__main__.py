@@ -2,7 +2,8 @@
 
     python -m fleet.planner --plant PLANT.ttl --lotlan jobs.tl --data-dir DIR \\
         --manager-data-dir MANAGER_DIR [--ngsi-url http://127.0.0.3:1026 --ngsi-token-file F] \\
-        [--map map.json] [--min-battery 20] [--waiting-area [park|LOCATION]] [--no-charging] [--start]
+        [--map map.json] [--min-battery 20] [--waiting-area [park|LOCATION]] [--no-charging] [--start] \\
+        [--events-mqtt HOST:PORT [--events-topic plantkg/events]] [--events-ngsi [--events-ngsi-listen HOST:PORT]]
 
 The fleet manager is found through its data directory (``manager.json``, ``manager.token``; its
 ``discovered/*.ttl`` join the plant graph the assignment query runs on), or given as
@@ -15,6 +16,11 @@ value when none is given) or a Location of the LoTLan file; without it vehicles 
 finished. A vehicle below ``--min-battery`` goes to a charger unless ``--no-charging``. The API binds to 127.0.0.1; its
 address and token are in ``DIR/planner.json`` and ``DIR/planner.token``. SIGTERM/SIGINT stop it
 (exit 0); an unusable argument, plant, map or LoTLan file exits 2 with the reason, nothing started.
+
+LoTLan Events fire through ``POST /v1/events``, and with ``--events-mqtt`` from messages on
+``<topic>/<event>`` (fleet/planner/events_mqtt.py), with ``--events-ngsi`` from ``Event`` entities
+on the context broker through a subscription whose notifications reach a second loopback server
+(``--events-ngsi-listen``, address in ``DIR/planner-notify.json``; fleet/planner/events_ngsi.py).
 """
 
 from __future__ import annotations
@@ -26,14 +32,18 @@ import signal
 import sys
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import fleet.lotlan
 from fleet.lotlan.errors import LotlanError
 from fleet.manager.client import ManagerClient
 from fleet.planner import build
-from fleet.planner.api import ApiServer
+from fleet.loopback_api import token_for
+from fleet.planner.api import ApiServer, NotifyServer
 from fleet.planner.dispatch import Dispatcher, VdaSender
 from fleet.planner.errors import PlannerError
+from fleet.planner.events_mqtt import DEFAULT_PREFIX, MqttEvents, check_prefix
+from fleet.planner.events_ngsi import NgsiEvents, description_for
 from fleet.planner.journal import Journal
 from fleet.planner.ngsi import TaskPublisher
 from fleet.planner.plantview import PlantView
@@ -45,6 +55,21 @@ from kg.errors import PlantKGError
 
 log = logging.getLogger("fleet.planner")
 MANAGER_TIMEOUT = 2.0  # s: the planner's loop calls the manager; a hung manager stalls it at most this long
+
+
+def _address(text: str, *, port_zero: bool = False) -> tuple[str, int]:
+    host, sep, port = text.rpartition(":")
+    low = 0 if port_zero else 1
+    if not sep or not host or not port.isdigit() or not low <= int(port) <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected HOST:PORT with a port from {low} to 65535")
+    return host, int(port)
+
+
+def _prefix(text: str) -> str:
+    try:
+        return check_prefix(text)
+    except PlannerError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def parser() -> argparse.ArgumentParser:
@@ -67,6 +92,15 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--no-charging", action="store_true",
                    help="do not send vehicles below --min-battery to a charger")
     p.add_argument("--start", action="store_true", help="start one job when the journal has none")
+    p.add_argument("--events-mqtt", type=_address, default=None, metavar="HOST:PORT",
+                   help="fire Events from MQTT messages on <--events-topic>/<event> (QoS 1)")
+    p.add_argument("--events-topic", type=_prefix, default=DEFAULT_PREFIX, metavar="PREFIX",
+                   help=f"topic prefix of --events-mqtt (default {DEFAULT_PREFIX})")
+    p.add_argument("--events-ngsi", action="store_true",
+                   help="fire Events from entities of type Event on the context broker (needs --ngsi-url)")
+    p.add_argument("--events-ngsi-listen", type=lambda t: _address(t, port_zero=True), default=("127.0.0.1", 0),
+                   metavar="HOST:PORT", help="where the context broker's notifications arrive "
+                                             "(default 127.0.0.1:0, a free port; the subscription names it)")
     p.add_argument("--api-host", default="127.0.0.1")
     p.add_argument("--api-port", type=int, default=0)
     return p
@@ -77,6 +111,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     journal = None
     try:
+        if args.events_ngsi and not args.ngsi_url:
+            raise PlannerError("--events-ngsi needs --ngsi-url (the context broker that holds the Event entities)")
         plant_files = tuple(p.resolve() for p in args.plant)
         site = site_map.default_map() if args.map == "default" else site_map.load(Path(args.map))
         program = fleet.lotlan.load(args.lotlan)
@@ -106,7 +142,18 @@ def main(argv: list[str] | None = None) -> int:
                                waiting_area=args.waiting_area, charging=not args.no_charging)
         planner = Planner(config, program, journal, Fleet(manager, ngsi.agv_status if ngsi else None), plant,
                           dispatch, publisher, dispatch.cancel, dispatch.stop_charging)
-        api = ApiServer(planner, args.data_dir.resolve(), args.api_host, args.api_port)
+        data_dir = args.data_dir.resolve()
+        sources: dict[str, Any] = {}
+        mqtt_events = ngsi_events = notify = None
+        if args.events_mqtt is not None:
+            mqtt_events = MqttEvents(*args.events_mqtt, args.events_topic, planner.fire, data_dir)
+            sources["mqtt"] = mqtt_events.status
+        if args.events_ngsi:
+            ngsi_events = NgsiEvents(args.ngsi_url, token, planner.fire, description_for(data_dir),
+                                     token_for(data_dir, "planner-notify"))
+            notify = NotifyServer(ngsi_events.notify, data_dir, *args.events_ngsi_listen)
+            sources["ngsi"] = ngsi_events.status
+        api = ApiServer(planner, data_dir, args.api_host, args.api_port, sources)
     except (PlantKGError, LotlanError, OSError, IndexError) as exc:
         if journal is not None:
             journal.close()
@@ -117,6 +164,11 @@ def main(argv: list[str] | None = None) -> int:
     if publisher is not None:
         publisher.start()
     api.start(os.getpid())
+    if notify is not None and ngsi_events is not None:
+        notify.start(os.getpid())
+        ngsi_events.start(notify.notify_url)
+    if mqtt_events is not None:
+        mqtt_events.start()
     if args.start and not planner.jobs:
         log.info("started job %s", planner.start_job(None))
     log.info("task planner: LoTLan %s, manager %s, context broker %s, API %s, data %s", args.lotlan,
@@ -124,6 +176,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         planner.run()
     finally:
+        if mqtt_events is not None:
+            mqtt_events.stop()
+        if ngsi_events is not None and notify is not None:
+            ngsi_events.stop()
+            notify.stop()
         api.stop()
         if publisher is not None:
             publisher.stop()

@@ -7,20 +7,29 @@ with a 4xx status naming the field; a bug answers 500 with its name and the plan
 
 | method | path | what |
 |--------|------|------|
-| GET | ``/v1/tasks`` | ``{"tasks": [...], "jobs": {...}, "events": N}`` |
+| GET | ``/v1/tasks`` | ``{"tasks": [...], "jobs": {...}, "events": N, "eventSources": {"mqtt"?, "ngsi"?}}`` |
 | GET | ``/v1/tasks/<id>`` | one task (404 if unknown) |
 | POST | ``/v1/jobs`` | ``{"tasks": [LoTLan task names]?}`` (default: the program's start tasks) -> 201 ``{"job", "tasks"}`` |
 | POST | ``/v1/events`` | ``{"event": name or physical name, "value": true}`` -> 201 the journaled event |
 | POST | ``/v1/tasks/<id>/withdraw`` | -> 200 the task, 409 if it is final already |
+
+``eventSources`` are the counts of the event sources running (:mod:`events_mqtt`,
+:mod:`events_ngsi`: received, fired, refused, the last refusals). The context broker's
+notifications go to a second server, :class:`NotifyServer` (``planner-notify.json``,
+``planner-notify.token``), with one route, ``POST /v1/ngsi/notify`` (Orion's notification body ->
+200 ``{"fired", "refused"}``; 400 naming the field when the body is no notification): its token
+sits in the context broker's subscription, so it may fire Events and nothing else.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 from fleet.loopback_api import ApiError, LoopbackServer, token_for as _token_for
+from fleet.planner.event_sources import EventMessageError
+from fleet.planner.events_ngsi import NOTIFY_PATH
 from fleet.planner.service import Planner, RequestError
 
 MAX_BODY = 100_000
@@ -40,9 +49,16 @@ def _object(body: Callable[[], Any]) -> dict[str, Any]:
     return value
 
 
-def routes(planner: Planner) -> Callable[[str, str, Callable[[], Any]], tuple[int, Any]]:
+#: an event source's ``status()`` (counts for ``GET /v1/tasks``)
+Status = Callable[[], dict[str, Any]]
+
+
+def routes(planner: Planner, sources: Mapping[str, Status] | None = None
+           ) -> Callable[[str, str, Callable[[], Any]], tuple[int, Any]]:
     def route(method: str, path: str, body: Callable[[], Any]) -> tuple[int, Any]:
         try:
+            if method == "GET" and path == "/v1/tasks" and sources:
+                return 200, {**planner.snapshot(), "eventSources": {k: status() for k, status in sources.items()}}
             return _route(planner, method, path, body)
         except RequestError as exc:
             raise ApiError(exc.status, _NAMES.get(exc.status, "Error"), exc.message) from None
@@ -71,5 +87,32 @@ def _route(planner: Planner, method: str, path: str, body: Callable[[], Any]) ->
 
 
 class ApiServer(LoopbackServer):
-    def __init__(self, planner: Planner, data_dir: Path, host: str = "127.0.0.1", port: int = 0) -> None:
-        super().__init__(routes(planner), data_dir, "planner", host, port, max_body=MAX_BODY)
+    def __init__(self, planner: Planner, data_dir: Path, host: str = "127.0.0.1", port: int = 0,
+                 sources: Mapping[str, Status] | None = None) -> None:
+        super().__init__(routes(planner, sources), data_dir, "planner", host, port, max_body=MAX_BODY)
+
+
+def notify_routes(notify: Callable[[Any], dict[str, Any]]) -> Callable[[str, str, Callable[[], Any]], tuple[int, Any]]:
+    """``POST /v1/ngsi/notify`` only: ``notify(body)`` (:meth:`NgsiEvents.notify`)."""
+    def route(method: str, path: str, body: Callable[[], Any]) -> tuple[int, Any]:
+        if path != NOTIFY_PATH:
+            raise ApiError(404, "NotFound", f"{method} {path}: this server only takes POST {NOTIFY_PATH}")
+        if method != "POST":
+            raise ApiError(405, "MethodNotAllowed", f"{method} {path}: only POST (the context broker's notifications)")
+        try:
+            return 200, notify(body())
+        except EventMessageError as exc:
+            raise ApiError(400, "BadRequest", str(exc)) from None
+    return route
+
+
+class NotifyServer(LoopbackServer):
+    """The endpoint of the context broker's Event subscription, with a token of its own."""
+
+    def __init__(self, notify: Callable[[Any], dict[str, Any]], data_dir: Path, host: str = "127.0.0.1",
+                 port: int = 0) -> None:
+        super().__init__(notify_routes(notify), data_dir, "planner-notify", host, port, max_body=MAX_BODY)
+
+    @property
+    def notify_url(self) -> str:
+        return self.url + NOTIFY_PATH
