@@ -89,7 +89,8 @@ def events_of(body: Any) -> tuple[list[tuple[str, Any]], list[tuple[str, str]]]:
         try:
             fire.append(_entity_event(entity, f"data[{i}]"))
         except EventMessageError as exc:
-            where = entity.get("id") if isinstance(entity, dict) and isinstance(entity.get("id"), str) else f"data[{i}]"
+            named = isinstance(entity, dict) and isinstance(entity.get("id"), str) and entity["id"]
+            where = entity["id"] if named else f"data[{i}]"
             refused.append((where, str(exc)))
     return fire, refused
 
