@@ -76,10 +76,13 @@ class MqttEvents:
         self.host, self.port, self.prefix = host, port, check_prefix(prefix)
         self.tally = Tally("mqtt", fire)
         self.connected = threading.Event()
+        self.connects = 0  # successful connections: more than one means paho reconnected
+        self._stopping = False
         self.client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=client_id(data_dir), clean_session=False)
         self.client.reconnect_delay_set(0.1, 2)
         self.client.on_connect = self._on_connect
         self.client.on_disconnect = self._on_disconnect
+        self.client.on_subscribe = self._on_subscribe
         self.client.on_message = self._on_message
 
     @property
@@ -91,23 +94,31 @@ class MqttEvents:
         self.client.loop_start()
 
     def stop(self) -> None:
+        self._stopping = True
         self.client.disconnect()
         self.client.loop_stop()
 
     def status(self) -> dict[str, Any]:
-        return {"broker": f"{self.host}:{self.port}", "topic": self.topic, "connected": self.connected.is_set(),
-                **self.tally.status()}
+        return {"broker": f"{self.host}:{self.port}", "topic": self.topic, "subscribed": self.connected.is_set(),
+                "connects": self.connects, **self.tally.status()}
 
     def _on_connect(self, client: mqtt.Client, _u: Any, _f: Any, reason: Any, _p: Any = None) -> None:
         if getattr(reason, "is_failure", False):
             log.warning("events: MQTT %s:%d refused the connection: %s", self.host, self.port, reason)
             return
-        client.subscribe(self.topic, qos=QOS)
-        self.connected.set()
+        client.subscribe(self.topic, qos=QOS)  # on every connect: a restarted broker may have lost the session
+
+    def _on_subscribe(self, _c: Any, _u: Any, _mid: int, reasons: list[Any], _p: Any = None) -> None:
+        if any(getattr(r, "is_failure", False) for r in reasons):
+            log.warning("events: MQTT %s:%d refused the subscription to %s: %s", self.host, self.port, self.topic,
+                        ", ".join(map(str, reasons)))
+            return
+        self.connects += 1
+        self.connected.set()  # subscribed (SUBACK): from now on every event published reaches the planner
         log.info("events: connected to MQTT %s:%d, subscribed to %s", self.host, self.port, self.topic)
 
     def _on_disconnect(self, *_: Any) -> None:
-        if self.connected.is_set():
+        if self.connected.is_set() and not self._stopping:
             log.warning("events: MQTT %s:%d connection lost; reconnecting", self.host, self.port)
         self.connected.clear()
 
