@@ -152,6 +152,15 @@ def subscriptions(rig: Rig) -> list[dict[str, Any]]:
         return [s for s in json.loads(reply.read()) if (s.get("description") or "").startswith("plantkg task planner")]
 
 
+def create_subscription(rig: Rig, body: dict[str, Any]) -> None:
+    token = rig.cb_token_file.read_text(encoding="utf-8").splitlines()[0].strip()
+    request = urllib.request.Request(f"http://{CB_HOST}:{rig.cb_port}/v2/subscriptions", method="POST",
+                                     data=json.dumps(body).encode(), headers={
+                                         "Content-Type": "application/json", "Authorization": f"Bearer {token}"})
+    with urllib.request.urlopen(request, timeout=10) as reply:
+        assert reply.status == 201
+
+
 def fired(planner: Planner) -> list[tuple[str, Any]]:
     return [(r["event"], r["value"]) for r in planner.journal() if r["kind"] == "event"]
 
@@ -188,7 +197,12 @@ def test_events_from_mqtt_and_the_context_broker_finish_waiting_steps(rig: Rig, 
         assert planner.tasks()["j1-second-1"]["legs"][0]["state"] == "ACTED"  # Loaded does not finish Checked
         subs = subscriptions(rig)
         assert len(subs) == 1 and subs[0]["subject"]["entities"] == [{"idPattern": ".*", "type": "Event"}], subs
-        # restarted: the same subscription, no second one
+        # restarted: the same subscription, no second one (a duplicate, as a crash between create and
+        # list could leave, is deleted)
+        copy = {k: subs[0][k] for k in ("description", "subject")}
+        copy["notification"] = {k: subs[0]["notification"][k] for k in ("httpCustom", "attrs", "attrsFormat")}
+        create_subscription(rig, copy)
+        assert len(subscriptions(rig)) == 2
         planner.stop()
         planner.start()
         after = subscriptions(rig)

@@ -14,12 +14,15 @@ from typing import Any
 
 import pytest
 
+from fleet.planner.__main__ import main
 from fleet.planner.api import ApiServer, NotifyServer
 from fleet.planner.event_sources import EventMessageError, Refusal, Tally
 from fleet.planner.events_mqtt import check_prefix, client_id, event_of
 from fleet.planner.events_ngsi import NgsiEvents, description_for, differs, events_of, subscription
 from fleet.planner.plantview import PlantView
 from fleet.planner.service import Planner
+from tests.unit.fleet.planner_data import JOBS
+from tests.unit.fleet.test_planner_cli import EXAMPLE, MAP
 from tests.unit.fleet.test_planner_service import GivenFleet, planner_on
 from tests.unit.fleet.test_planner_service import plant as plant  # noqa: F401 - the module's fixture
 
@@ -217,3 +220,30 @@ def test_the_notification_endpoint_over_http(planner: Planner, tmp_path: Path) -
     finally:
         notify.stop()
         api.stop()
+
+
+# ---------------------------------------------------------------------- the command line
+CLI_BAD = [  # (id, extra arguments, in stderr)
+    ("--events-ngsi without a context broker", ["--events-ngsi"], "--events-ngsi needs --ngsi-url"),
+    ("--events-mqtt without a port", ["--events-mqtt", "127.0.0.1"], "expected HOST:PORT"),
+    ("--events-mqtt port 0", ["--events-mqtt", "127.0.0.1:0"], "a port from 1 to 65535"),
+    ("a wildcard prefix", ["--events-mqtt", "127.0.0.1:1883", "--events-topic", "plantkg/#"], "--events-topic"),
+    ("--events-ngsi-listen not HOST:PORT", ["--events-ngsi-listen", "here"], "expected HOST:PORT"),
+]
+
+
+@pytest.mark.parametrize(("extra", "expected"), [c[1:] for c in CLI_BAD], ids=[c[0] for c in CLI_BAD])
+def test_unusable_event_options_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: list[str],
+                                       expected: str) -> None:
+    (tmp_path / "jobs.tl").write_text(JOBS, encoding="utf-8")
+    (tmp_path / "map.json").write_text(MAP, encoding="utf-8")
+    data = tmp_path / "planner-data"
+    argv = ["--plant", str(EXAMPLE), "--lotlan", str(tmp_path / "jobs.tl"), "--data-dir", str(data),
+            "--manager-data-dir", str(tmp_path / "no-manager"), "--map", str(tmp_path / "map.json"), *extra]
+    try:
+        code = main(argv)
+    except SystemExit as exc:  # argparse's refusal
+        code = exc.code
+    assert code == 2
+    assert expected in capsys.readouterr().err
+    assert not data.exists()
