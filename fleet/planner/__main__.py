@@ -144,7 +144,9 @@ def main(argv: list[str] | None = None) -> int:
                           dispatch, publisher, dispatch.cancel, dispatch.stop_charging)
         data_dir = args.data_dir.resolve()
         sources: dict[str, Any] = {}
-        mqtt_events = ngsi_events = notify = None
+        mqtt_events: MqttEvents | None = None
+        ngsi_events: NgsiEvents | None = None
+        notify: NotifyServer | None = None
         if args.events_mqtt is not None:
             mqtt_events = MqttEvents(*args.events_mqtt, args.events_topic, planner.fire, data_dir)
             sources["mqtt"] = mqtt_events.status
