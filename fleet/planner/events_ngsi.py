@@ -216,6 +216,7 @@ class NgsiEvents:
                 raw = reply.read()
                 return reply.status, dict(reply.headers), json.loads(raw) if raw else None
         except urllib.error.HTTPError as exc:
-            raise ContextBrokerError(f"{method} {path}: {exc.code} {exc.read()[:300].decode('utf-8', 'replace')}") from None
+            said = exc.read()[:300].decode("utf-8", "replace")
+            raise ContextBrokerError(f"{method} {path}: {exc.code} {said}") from None
         except (urllib.error.URLError, OSError, ValueError) as exc:
             raise ContextBrokerError(f"{method} {path}: {exc}") from None
