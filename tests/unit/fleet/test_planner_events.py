@@ -6,6 +6,7 @@ the notification endpoint answers over HTTP (400 naming the field, the refused e
 from __future__ import annotations
 
 import json
+import socket
 import urllib.error
 import urllib.request
 from collections.abc import Iterator
@@ -14,6 +15,7 @@ from typing import Any
 
 import pytest
 
+from engine.process import wait_until
 from fleet.planner.__main__ import main
 from fleet.planner.api import ApiServer, NotifyServer
 from fleet.planner.event_sources import EventMessageError, Refusal, Tally
@@ -220,6 +222,21 @@ def test_the_notification_endpoint_over_http(planner: Planner, tmp_path: Path) -
     finally:
         notify.stop()
         api.stop()
+
+
+def test_without_a_context_broker_the_subscription_is_retried_and_the_reason_shown(planner: Planner,
+                                                                                   tmp_path: Path) -> None:
+    with socket.socket() as probe:  # a port nobody listens on
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    events = NgsiEvents(f"http://127.0.0.1:{port}", None, planner.fire, "d", "t", timeout=1.0, retry=0.05)
+    events.start("http://127.0.0.1:9/v1/ngsi/notify")
+    try:
+        status = wait_until(lambda: (s := events.status())["lastError"] and s, 10.0, 0.01, what="the reason shown")
+        assert status["subscription"] is None and status["lastError"].startswith("GET /v2/subscriptions"), status
+    finally:
+        events.stop()
+    assert not events._thread.is_alive()
 
 
 # ---------------------------------------------------------------------- the command line
