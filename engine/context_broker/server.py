@@ -113,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     from engine.context_broker.http_server import make_server
     from engine.context_broker.subscriptions import SubscriptionService
 
-    subscriptions = SubscriptionService(args.data_dir / "subscriptions")
+    subscriptions = SubscriptionService(args.data_dir / "subscriptions", fsync=args.fsync)
     subscriptions.start()
     try:
         app = create_app(store, token=token, listeners=[subscriptions],

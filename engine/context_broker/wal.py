@@ -68,18 +68,22 @@ def read_records(path: Path, after: int | None = None) -> tuple[list[Record], bo
 
 class WriteAheadLog:
     """The live log file ``path`` (created empty; an existing one must have been replayed and is
-    truncated). Not thread-safe: the store appends under its write lock."""
+    truncated, unless ``truncate`` is False: then records are appended to it, numbered from
+    ``next_seq``). Not thread-safe: the store appends under its write lock."""
 
-    def __init__(self, path: Path, *, fsync: bool = False, next_seq: int = 1) -> None:
+    def __init__(self, path: Path, *, fsync: bool = False, next_seq: int = 1,
+                 truncate: bool = True) -> None:
         self.path = path
         self.old_path = path.with_name(path.name + ".old")
         self.fsync = fsync
         self.next_seq = next_seq
         self.size = 0
+        self._truncate = truncate
         self._fd = self._open()
 
     def _open(self) -> int:
-        fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_APPEND, 0o600)
+        flags = os.O_WRONLY | os.O_CREAT | os.O_APPEND | (os.O_TRUNC if self._truncate else 0)
+        fd = os.open(self.path, flags, 0o600)
         if self.fsync:
             _sync_dir(self.path.parent)
         return fd
@@ -103,6 +107,7 @@ class WriteAheadLog:
         """The live file becomes ``<name>.old``; new records go to a fresh file."""
         os.close(self._fd)
         os.replace(self.path, self.old_path)
+        self._truncate = True
         self._fd = self._open()
         self.size = 0
 

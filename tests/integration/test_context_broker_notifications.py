@@ -526,3 +526,70 @@ def test_kafka_down_then_up_gets_every_notification_in_order(broker: Broker, tmp
     finally:
         consumer.close()
     assert _dedup(values) == [1, 2, 3]   # at least once: a timed-out produce may be written twice
+
+
+def test_notifications_of_answered_writes_survive_kill_9_of_the_server(server: Any, cleanup: list) -> None:
+    """The receiver is down while 200 writes are answered 204; the context broker is SIGKILLed,
+    started again on the same folder, the receiver comes up: every one of the 200 notifications
+    arrives, in order (the outbox; delivery is at least once, so a repeat would be allowed, a gap
+    never). Then a clean stop with the receiver down again: what was queued is sent after the
+    next start too."""
+    from benchmarks.context_broker_rig import ContextBroker
+
+    port = netutil.free_port(HOST)
+    url = f"http://{HOST}:{port}/notify"
+    http = server.http()
+    headers = {"Content-Type": "application/json", "Fiware-Service": ACME.service,
+               "Fiware-ServicePath": ACME.service_path, **server.auth}
+    reply = http.request("POST", "/v2/subscriptions", json.dumps({
+        "subject": {"entities": [{"id": "AGV1", "type": "AGV"}]},
+        "notification": {"http": {"url": url}, "attrsFormat": "keyValues"}}), headers)
+    assert reply.status == 201, reply.body
+    reply = http.request("POST", "/v2/entities?options=keyValues",
+                         json.dumps({"id": "AGV1", "type": "AGV", "seq": 0}), headers)
+    assert reply.status == 201, reply.body
+    for seq in range(1, 201):
+        reply = http.request("PATCH", "/v2/entities/AGV1/attrs?options=keyValues",
+                             json.dumps({"seq": seq}), headers)
+        assert reply.status == 204, reply.body
+    http.close()
+    rig.kill_group(server.child)
+    server.child = None
+
+    def restarted() -> ContextBroker:
+        cb = ContextBroker(server.folder, port=server.port, token=server.token).start()
+        cleanup.append(cb.stop)
+        return cb
+
+    again = restarted()
+    rec = Receiver(port=port).start()
+    cleanup.append(rec.stop)
+
+    def seqs() -> list[int]:
+        with rec.lock:
+            return [r["body"]["data"][0]["seq"] for r in rec.requests]
+
+    wait_for(lambda: set(range(201)) <= set(seqs()), "all 201 notifications after the restart", 60)
+    got = _dedup(seqs())
+    assert got == list(range(201)), got[:20]
+
+    port2 = netutil.free_port(HOST)                    # a receiver not listening yet
+    http = again.http()
+    reply = http.request("GET", "/v2/subscriptions", headers=headers)
+    sub_id = reply.json()[0]["id"]
+    reply = http.request("PATCH", f"/v2/subscriptions/{sub_id}", json.dumps(
+        {"notification": {"http": {"url": f"http://{HOST}:{port2}/notify"}, "attrsFormat": "keyValues"}}),
+        headers)
+    assert reply.status == 204, reply.body
+    for seq in range(201, 211):
+        assert http.request("PATCH", "/v2/entities/AGV1/attrs?options=keyValues",
+                            json.dumps({"seq": seq}), headers).status == 204
+    http.close()
+    again.stop()                                       # a clean stop with 10 queued
+    rec2 = Receiver(port=port2).start()
+    cleanup.append(rec2.stop)
+    restarted()
+    wait_for(lambda: len(rec2.requests) >= 10, "the 10 queued at the clean stop", 60)
+    with rec2.lock:
+        later = _dedup([r["body"]["data"][0]["seq"] for r in rec2.requests])
+    assert later == list(range(201, 211)), later

@@ -12,8 +12,10 @@ is at least once, as it is for one message at a time). A permanent failure (see 
 uses the subscription's *current* target, so a ``PATCH`` of a wrong URL unblocks a lane.
 
 Bounded: past ``bound`` queued notifications the oldest is dropped and counted
-(``droppedNotifications`` on the subscription). Queued notifications live in memory only: they
-are lost if the process is killed (docs/context-broker.md says so).
+(``droppedNotifications`` on the subscription). Every notification is handed to ``settle`` once
+the lane is done with it (sent, refused for good, dropped or discarded): the service's
+:class:`~.outbox.Outbox` logs it as settled, so what is still queued at a kill -9 or a stop is
+sent again at the next start.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from collections.abc import Callable
 from typing import Protocol
 
 from engine.context_broker.subscriptions.model import Subscription, Target
+from engine.context_broker.subscriptions.outbox import Outbox
 from engine.context_broker.subscriptions.render import Outgoing
 from engine.context_broker.subscriptions.result import Result
 
@@ -66,8 +69,10 @@ class Hooks(Protocol):
 
 class Lane:
     def __init__(self, sub_id: str, hooks: Hooks, stop: threading.Event, bound: int,
-                 backoff: Callable[[int], float]) -> None:
+                 backoff: Callable[[int], float],
+                 settle: Callable[[list[Outgoing]], None] = lambda _msgs: None) -> None:
         self.sub_id = sub_id
+        self._settle = settle
         self._hooks = hooks
         self._stop = stop
         self._bound = bound
@@ -80,19 +85,20 @@ class Lane:
         self._wake = threading.Event()
 
     def put(self, msg: Outgoing) -> None:
-        dropped = 0
+        dropped: list[Outgoing] = []
         with self._lock:
             self._queue.append(msg)
             while len(self._queue) > self._bound and len(self._queue) > self._sending:
+                dropped.append(self._queue[self._sending])
                 del self._queue[self._sending]   # the oldest not being sent
-                dropped += 1
             self._more.notify()
             if self._thread is None and not self._stop.is_set():
                 self._thread = threading.Thread(target=self._run, name=f"notify-{self.sub_id}",
                                                 daemon=True)
                 self._thread.start()
         if dropped:
-            self._hooks.dropped(self.sub_id, dropped)
+            self._settle(dropped)
+            self._hooks.dropped(self.sub_id, len(dropped))
 
     def pending(self) -> int:
         with self._lock:
@@ -101,10 +107,11 @@ class Lane:
     def discard(self) -> int:
         """Throw away what is queued (subscription deleted or deactivated); returns how many."""
         with self._lock:
-            count = len(self._queue)
+            thrown = list(self._queue)
             self._queue.clear()
         self._wake.set()
-        return count
+        self._settle(thrown)
+        return len(thrown)
 
     def join(self, timeout: float) -> None:
         thread = self._thread
@@ -136,6 +143,9 @@ class Lane:
             if self._queue and self._queue[0] is msg:
                 self._queue.popleft()
                 self._sending = max(0, self._sending - 1)
+            else:
+                return  # discarded meanwhile (and settled then)
+        self._settle([msg])
 
     def _release(self) -> None:
         with self._lock:
@@ -177,8 +187,12 @@ class Delivery:
     """The lanes of all subscriptions."""
 
     def __init__(self, hooks: Hooks, *, bound: int = DEFAULT_BOUND,
-                 backoff: Callable[[int], float] = backoff_delay) -> None:
+                 backoff: Callable[[int], float] = backoff_delay,
+                 outbox: Outbox | None = None) -> None:
         self._hooks = hooks
+        self._outbox = outbox
+        self._settle: Callable[[list[Outgoing]], None] = (
+            outbox.settle if outbox is not None else (lambda _msgs: None))
         self._bound = bound
         self._backoff = backoff
         self._stop = threading.Event()
@@ -186,11 +200,16 @@ class Delivery:
         self._lanes: dict[str, Lane] = {}
 
     def enqueue(self, msg: Outgoing) -> None:
+        """Queue ``msg`` on its subscription's lane, logged in the outbox first (a notification
+        recovered from the outbox carries its id already and is not logged again)."""
+        if self._outbox is not None and not msg.outbox_id:
+            msg = self._outbox.add(msg)
         with self._lock:
             lane = self._lanes.get(msg.subscription_id)
             if lane is None:
                 lane = self._lanes[msg.subscription_id] = Lane(
-                    msg.subscription_id, self._hooks, self._stop, self._bound, self._backoff)
+                    msg.subscription_id, self._hooks, self._stop, self._bound, self._backoff,
+                    self._settle)
         lane.put(msg)
 
     def forget(self, sub_id: str) -> None:

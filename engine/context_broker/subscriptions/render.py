@@ -35,6 +35,7 @@ class Outgoing:
     service_path: str
     entity_id: str
     correlator: str
+    outbox_id: int = 0  # its record in the outbox (0: not logged); see .outbox
 
 
 def selected_attrs(entity: Mapping[str, Any], n: Notification, changed: frozenset[str]) -> list[str]:

@@ -3,8 +3,10 @@
 ``SubscriptionService(data_dir)`` gives the Flask blueprint of ``/v2/subscriptions``
 (:meth:`blueprint`) and is the :class:`~engine.context_broker.contract.ChangeListener` of the
 entity layer (:meth:`entity_changed`: match, render, enqueue; it never waits for a receiver).
-:meth:`start` starts the status flusher; :meth:`close` stops the lanes, flushes the status and
-closes the MQTT and Kafka connections. As Orion 3.2+, creating a subscription sends nothing.
+:meth:`start` queues again what the last run left undelivered (the :class:`~.outbox.Outbox`,
+``outbox.log`` in ``data_dir``) and starts the status flusher; :meth:`close` stops the lanes
+(what is still queued stays in the outbox for the next start), flushes the status and closes the
+MQTT and Kafka connections. As Orion 3.2+, creating a subscription sends nothing.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from engine.context_broker.subscriptions.http import HttpSender
 from engine.context_broker.subscriptions.model import (
     DeliveryStatus, HttpTarget, KafkaTarget, MqttTarget, Status, Subscription, Target,
 )
+from engine.context_broker.subscriptions.outbox import Outbox
 from engine.context_broker.subscriptions.parse import QParser
 from engine.context_broker.subscriptions.registry import Registry
 from engine.context_broker.subscriptions.result import Result
@@ -42,7 +45,7 @@ class SubscriptionService:
                  parse_q: QParser | None = None, queue_bound: int = DEFAULT_BOUND,
                  backoff: Callable[[int], float] = backoff_delay,
                  status_flush_interval: float = STATUS_FLUSH_INTERVAL,
-                 senders: dict[type, Sender] | None = None) -> None:
+                 senders: dict[type, Sender] | None = None, fsync: bool = False) -> None:
         self.clock = clock
         self._parse_q = parse_q or _default_parse_q
         self.registry = Registry(Path(data_dir), self._parse_q)
@@ -51,13 +54,26 @@ class SubscriptionService:
         self._trigger_lock = threading.Lock()
         self._senders: dict[type, Sender] = senders or {}
         self._sender_lock = threading.Lock()
-        self.delivery = Delivery(self, bound=queue_bound, backoff=backoff)
+        self.outbox = Outbox(Path(data_dir), fsync=fsync)
+        self._recovered = self.outbox.recover()
+        self.delivery = Delivery(self, bound=queue_bound, backoff=backoff, outbox=self.outbox)
         self._flush_interval = status_flush_interval
         self._stop = threading.Event()
         self._flusher: threading.Thread | None = None
 
     # --- lifecycle -----------------------------------------------------------------------
     def start(self) -> None:
+        recovered, self._recovered = self._recovered, []
+        gone = []
+        for msg in recovered:
+            if self.registry.current(msg.subscription_id) is None:  # deleted meanwhile
+                gone.append(msg)
+            else:
+                self.delivery.enqueue(msg)
+        self.outbox.settle(gone)
+        if recovered:
+            log.info("%d notification(s) left undelivered by the last run queued again (%d of "
+                     "deleted subscriptions let go)", len(recovered) - len(gone), len(gone))
         if self._flusher is None:
             self._flusher = threading.Thread(target=self._flush_loop, name="subscription-status",
                                              daemon=True)
@@ -73,6 +89,7 @@ class SubscriptionService:
     def close(self) -> None:
         self._stop.set()
         self.delivery.close()
+        self.outbox.close()
         if self._flusher is not None:
             self._flusher.join(5.0)
         self.registry.flush_status()
