@@ -12,6 +12,7 @@
 | ``plantkg fleet remove VEHICLE`` | forget it (its file and record); it is discovered again when it comes back online |
 | ``plantkg fleet order SERIAL NODE...`` | send a VDA 5050 order through the running manager's API |
 | ``plantkg fleet hmi ...`` | serve the operators' screens (the options of ``python -m fleet.hmi``) |
+| ``plantkg fleet planner ...`` | run the task planner (the options of ``python -m fleet.planner``), restarted when it crashes (``fleet/supervise.py``) |
 | ``plantkg fleet demo`` | the fleet end to end on this machine (``fleet/demo.py``), nothing left running |
 
 The data directory is ``--data-dir`` or ``$PLANTKG_FLEET_DATA``. pin/rename/remove change the data
@@ -73,6 +74,24 @@ def hmi_command(args: tuple[str, ...]) -> int:
         return main(list(args))
     except SystemExit as exc:  # argparse's --help and usage errors
         return int(exc.code or 0)
+
+
+@fleet_group.command("planner", context_settings={"ignore_unknown_options": True, "help_option_names": []})
+@click.argument("args", nargs=-1, type=click.UNPROCESSED)
+def planner_command(args: tuple[str, ...]) -> int:
+    """Run the task planner, restarted when it crashes (options of python -m fleet.planner; --help lists them)."""
+    import sys
+
+    if "--help" in args or "-h" in args:
+        from fleet.planner.__main__ import main as planner_main
+
+        try:
+            return planner_main(["--help"])
+        except SystemExit as exc:
+            return int(exc.code or 0)
+    from fleet.supervise import main
+
+    return main(["--name", "planner", "--", sys.executable, "-m", "fleet.planner", *args])
 
 
 @fleet_group.command("demo")
