@@ -19,6 +19,8 @@ run), only what the ontology concluded:
   forwarding the topics both brokers must carry (a bridge only R1 derives: the topics that made
   it fire, from publisher to subscriber — query ``SHARED``), its mechanism chosen from the brokers' inferred
   classes (:mod:`engine.bridge_pairs`), ``asserted`` when the plant states ``pk:bridgesTo``.
+  Bridges that would forward a topic round a cycle of three or more brokers are refused
+  (:mod:`engine.bridge_cycles`) before anything is deployed.
 
 No value is spliced into a query: the only constants are vocabulary IRIs, serialised by Oxigraph.
 A deployed broker or carried topic missing what its spec needs raises :class:`DeriveError` naming
@@ -35,6 +37,7 @@ from typing import Iterable
 import pyoxigraph as ox
 
 from engine.errors import ConfigValueError, EngineError
+from engine.bridge_cycles import check_no_cycles
 from engine.bridge_pairs import DirectedBridge, TopicOptions, pair_bridges
 from engine.model import BrokerSpec, DesiredState, TopicSpec
 from engine.reason import INFERRED, input_graphs, is_reasoned
@@ -164,6 +167,7 @@ def derive(plant: PlantGraph) -> DesiredState:
                               "is at one end of a required bridge but is not a deployed broker")
         directed.append(DirectedBridge(by_iri[a].id, by_iri[c].id, frozenset(shared[(a, c)]),
                                        asserted=row["asserted"].value == "true"))
+    check_no_cycles(directed)  # a topic forwarded round 3+ brokers loops for ever (docs/bridges.md)
     bridges = pair_bridges(directed, {b.id: b for b in brokers},
                            {b.id: frozenset(classes[b.iri]) for b in brokers}, topic_options,
                            external=frozenset(by_iri[iri].id for iri in external))
