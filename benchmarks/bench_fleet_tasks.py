@@ -39,6 +39,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import random
 import re
 import sys
@@ -373,7 +374,9 @@ def to_markdown(data: dict[str, Any]) -> str:
         "",
         f"Command: `{data['command']}` · machine: {data['machine']} · vehicles: v_max {data['v_max']} m/s, "
         f"a_max {data['a_max']} m/s², turns omega_max {data.get('omega_max', 1.0)} rad/s, "
-        f"alpha_max {data.get('alpha_max', 1.0)} rad/s², pick/drop {ActionTimes().pick:g} s + {ActionTimes().drop:g} s.",
+        f"alpha_max {data.get('alpha_max', 1.0)} rad/s², pick/drop {ActionTimes().pick:g} s + {ActionTimes().drop:g} s. "
+        f"Load average (1 min, 2 shared cores): {data['machine'].get('load_average', [nan])[0]:.1f} at the start, "
+        f"{(data.get('load_average_end') or [nan])[0]:.1f} at the end.",
         "",
         "| finished | failed | makespan | orders/min | vs executed-legs ideal (busiest vehicle) | "
         "vs executed-legs ideal (mean vehicle) | vs loaded-only ideal | assign p50 | assign p99 | "
@@ -452,6 +455,7 @@ def main(argv: list[str] | None = None) -> int:
                          alpha_max=args.alpha_max)
     data = {"command": command_line("benchmarks.bench_fleet_tasks", argv), "machine": info, **data}
     data["goals"] = goals(data)
+    data["load_average_end"] = os.getloadavg()  # write_results records it too; the table names it
     write_results(args.out, "fleet_tasks", data, to_markdown(data))
     plots.fleet_paths(data, args.out / "fleet_tasks-paths.png")
     plots.fleet_gantt(data, args.out / "fleet_tasks-gantt.png")
