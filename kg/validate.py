@@ -16,13 +16,11 @@ from __future__ import annotations
 from dataclasses import asdict, astuple, dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Iterable, Literal as Lit
+from typing import TYPE_CHECKING, Iterable, Literal as Lit
 
 import pyoxigraph as ox
 import rdflib
 from rdflib import BNode, Graph, Literal, URIRef
-from rdflib.plugins.sparql import prepareQuery
-from rdflib.plugins.sparql.sparql import Query
 from rdflib.term import Node
 
 from kg import resources
@@ -31,6 +29,9 @@ from kg.load import PlantGraph
 from kg.namespaces import SH
 from kg.shacl_sparql import Violation, run
 from kg.shapes import ShapesGraph, load_shapes
+
+if TYPE_CHECKING:  # rdflib's SPARQL engine (~0.25 s to import) is loaded by the pySHACL path only
+    from rdflib.plugins.sparql.sparql import Query
 
 Engine = Lit["auto", "oxigraph", "pyshacl"]
 ENGINES: tuple[str, ...] = ("auto", "oxigraph", "pyshacl")
@@ -142,6 +143,8 @@ def _from_violations(plant: PlantGraph, violations: list[Violation]) -> list[Val
 
 @lru_cache(maxsize=1024)
 def _prepared(query: str) -> Query:
+    from rdflib.plugins.sparql import prepareQuery  # noqa: PLC0415 - only pySHACL needs it
+
     return prepareQuery(query)
 
 

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 
 import click
 
-from engine.agent.server import DEFAULT_PORT, parse_listen, run_agent
+#: engine.agent.server.DEFAULT_PORT, written out so that listing this command does not import the
+#: agent's HTTP server (tests/unit/test_cli_imports.py holds the two equal).
+DEFAULT_PORT = 7300
 
 
 @click.command("agent")
@@ -31,6 +32,10 @@ def agent_command(listen: str, state_dir: Path, token_file: Path | None, allow_r
     Brokers outlive the agent: on restart it re-adopts those still running and restarts the
     others. Stop it with SIGTERM or Ctrl-C.
     """
+    import logging  # noqa: PLC0415
+
+    from engine.agent.server import parse_listen, run_agent  # noqa: PLC0415 - Flask: only when run
+
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     logging.getLogger("werkzeug").setLevel(logging.INFO if verbose else logging.WARNING)
     address = parse_listen(listen, allow_remote=allow_remote)

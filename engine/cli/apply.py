@@ -16,7 +16,7 @@ from pathlib import Path
 import click
 
 from engine.cli.common import file_argument
-from engine.cli.reconcile import agents_option, make_changes, owner_option, prune_option, yes_option
+from engine.cli.options import agents_option, owner_option, prune_option, yes_option
 
 
 @click.command("apply")
@@ -35,5 +35,7 @@ def apply_command(files: tuple[str, ...], yes: bool, agents_file: Path | None, p
     Example:
       plantkg apply ontology/examples/robot-cell.ttl --agents agents.toml
     """
+    from engine.cli.reconcile import make_changes  # noqa: PLC0415 - the pipeline: only when run
+
     return make_changes(files, agents_file, yes=yes, parallelism=parallelism, destroy=False,
                         owner=owner, prune=prune)

@@ -6,8 +6,6 @@ from pathlib import Path
 
 import click
 
-from kg import resources
-
 
 @click.command("demo")
 @click.argument("files", nargs=-1, type=click.Path(exists=True, dir_okay=False))
@@ -23,6 +21,7 @@ def demo_command(files: tuple[str, ...], duration: float | None, work_dir: Path 
     """
     from engine.cli import main  # the same commands a person would type, run in-process
     from engine.demo import run_demo
+    from kg import resources
 
     plant = list(files) or [str(resources.examples_dir() / "robot-cell.ttl")]
     return run_demo(plant, main, duration=duration, work_dir=work_dir)

@@ -12,7 +12,7 @@ from pathlib import Path
 import click
 
 from engine.cli.common import file_argument
-from engine.cli.reconcile import agents_option, make_changes, owner_option, yes_option
+from engine.cli.options import agents_option, owner_option, yes_option
 
 
 @click.command("destroy")
@@ -30,5 +30,7 @@ def destroy_command(files: tuple[str, ...], yes: bool, agents_file: Path | None,
     Example:
       plantkg destroy ontology/examples/robot-cell.ttl --agents agents.toml --yes
     """
+    from engine.cli.reconcile import make_changes  # noqa: PLC0415 - the pipeline: only when run
+
     return make_changes(files, agents_file, yes=yes, parallelism=parallelism, destroy=True,
                         owner=owner)

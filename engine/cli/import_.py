@@ -17,9 +17,8 @@ from pathlib import Path
 import click
 
 from engine.cli.common import file_argument
-from engine.cli.reconcile import agents_option, owner_option, prepare, print_violations
+from engine.cli.options import agents_option, owner_option
 from engine.errors import EngineError
-from engine.plan import Ownership, ownership
 from kg.errors import EXIT_VIOLATIONS
 
 
@@ -43,6 +42,9 @@ def import_command(address: str, files: tuple[str, ...], agents_file: Path | Non
     Example:
       plantkg import broker.mosquitto ontology/examples/robot-cell.ttl --agents agents.toml
     """
+    from engine.cli.reconcile import prepare, print_violations  # noqa: PLC0415 - only when run
+    from engine.plan import Ownership, ownership  # noqa: PLC0415
+
     kind, _, broker_id = address.partition(".")
     if kind != "broker" or not broker_id:
         raise ImportRefusedError(f"cannot import {address!r}: only a broker is imported (broker.ID)",

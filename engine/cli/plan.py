@@ -13,8 +13,7 @@ from pathlib import Path
 import click
 
 from engine.cli.common import fail, file_argument
-from engine.cli.reconcile import agents_option, owner_option, prepare, print_violations, prune_option
-from engine.render_plan import plan_json, render_plan
+from engine.cli.options import agents_option, owner_option, prune_option
 from kg.errors import EXIT_UNUSABLE, EXIT_VIOLATIONS, PlantKGError
 
 EXIT_CHANGES = 2  # --detailed-exitcode, as terraform plan -detailed-exitcode
@@ -43,6 +42,9 @@ def plan_command(files: tuple[str, ...], fmt: str, agents_file: Path | None,
     Example:
       plantkg plan ontology/examples/robot-cell.ttl --agents agents.toml
     """
+    from engine.cli.reconcile import prepare, print_violations  # noqa: PLC0415 - only when run
+    from engine.render_plan import plan_json, render_plan  # noqa: PLC0415
+
     try:
         result, _ = prepare(files, agents_file, owner=owner, prune=prune)
     except PlantKGError as error:

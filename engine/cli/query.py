@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from kg.errors import InputError
-from kg.load import PlantGraph, load_plant
-from kg.query import parse_binding, run_query
-from kg.render import query_csv, query_json, query_table
+
+if TYPE_CHECKING:
+    from kg.load import PlantGraph
 
 
 @click.command("query")
@@ -42,6 +43,10 @@ def query_command(args: tuple[str, ...], query_file: Path | None, fmt: str, bind
       plantkg query ontology/examples/robot-cell.ttl \\
         'SELECT ?broker ?ip ?port WHERE { ?broker a pk:Broker ; pk:ip ?ip ; pk:port ?port }'
     """
+    from kg.load import load_plant  # noqa: PLC0415 - rdflib, pyoxigraph: only when run
+    from kg.query import parse_binding, run_query  # noqa: PLC0415
+    from kg.render import query_csv, query_json, query_table  # noqa: PLC0415
+
     if query_file is not None:
         files, text = list(args), _read_query(query_file)
     else:

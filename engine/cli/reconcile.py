@@ -5,33 +5,22 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from engine.agents_config import AgentDirectory
-from engine.apply import PlanNotApplicableError, apply
-from engine.cli.progress import Progress, result_lines
-from engine.render_plan import render_plan
+from engine.cli.options import agents_option, owner_option, prune_option, yes_option
 from engine.errors import EngineError
-from engine.desired_cache import DesiredCache
-from engine.pipeline import Pipeline, run_pipeline
 from kg.errors import EXIT_VIOLATIONS
-from kg.render import validation_json, validation_text
 
-agents_option = click.option(
-    "--agents", "agents_file", type=click.Path(path_type=Path, dir_okay=False), default=None,
-    metavar="FILE",
-    help="agents file (TOML); default $PLANTKG_AGENTS or ~/.config/plantkg/agents.toml",
-)
-yes_option = click.option("--yes", "-y", is_flag=True, help="do not ask for confirmation")
-owner_option = click.option(
-    "--owner", default=None, metavar="NAME",
-    help="the plant's owner name (default: its pk:plantName, else its owl:Ontology IRI); only "
-         "what this owner owns is changed")
-prune_option = click.option(
-    "--prune", is_flag=True,
-    help="also delete what nobody owns (made before ownership, or by hand); other plants' "
-         "things are never deleted")
+if TYPE_CHECKING:
+    from engine.pipeline import Pipeline
+
+# The pipeline, apply and the renderers are imported in the functions that use them: `plan` needs
+# neither apply nor its progress display. The options live in engine.cli.options (kept here too).
+__all__ = ["agents_option", "owner_option", "prune_option", "yes_option", "prepare", "make_changes",
+           "print_violations", "load_directory", "confirm", "ConfirmationRequiredError"]
 
 
 class ConfirmationRequiredError(EngineError):
@@ -54,6 +43,9 @@ def prepare(files: tuple[str, ...], agents_file: Path | None, *, destroy: bool =
             observe: bool = True, owner: str | None = None,
             prune: bool = False) -> tuple[Pipeline, AgentDirectory | None]:
     """Run the pipeline; the directory is None when ``observe`` is False."""
+    from engine.desired_cache import DesiredCache  # noqa: PLC0415
+    from engine.pipeline import run_pipeline  # noqa: PLC0415
+
     directory = load_directory(agents_file) if observe else None
     seen = len(directory.warnings) if directory else 0
     result = run_pipeline(files, directory, destroy=destroy, observe=observe, cache=DesiredCache(),
@@ -65,6 +57,8 @@ def prepare(files: tuple[str, ...], agents_file: Path | None, *, destroy: bool =
 
 def print_violations(result: Pipeline, fmt: str = "text") -> None:
     """An invalid plant's report (stdout, as ``plantkg validate`` prints it) and a note (stderr)."""
+    from kg.render import validation_json, validation_text  # noqa: PLC0415
+
     if fmt == "json":
         click.echo(validation_json(result.report))
     else:
@@ -98,6 +92,10 @@ def make_changes(files: tuple[str, ...], agents_file: Path | None, *, yes: bool,
     Exit codes: 0 converged, 1 violations (nothing dispatched), 3 some changes failed or did not
     take effect; a plan that cannot be applied raises PlanNotApplicableError (exit 2).
     """
+    from engine.apply import PlanNotApplicableError, apply  # noqa: PLC0415
+    from engine.cli.progress import Progress, result_lines  # noqa: PLC0415
+    from engine.render_plan import render_plan  # noqa: PLC0415
+
     result, directory = prepare(files, agents_file, destroy=destroy, owner=owner, prune=prune)
     if not result.valid:
         print_violations(result)

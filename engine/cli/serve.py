@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 
 import click
 
-from engine.agent.server import parse_listen
 from engine.cli.common import file_argument
-from engine.cli.reconcile import agents_option, owner_option
+from engine.cli.options import agents_option, owner_option
 
 DEFAULT_PORT = 8080
 
@@ -50,6 +48,8 @@ def serve_command(files: tuple[str, ...], listen: str, agents_file: Path | None,
       plantkg serve ontology/examples/robot-cell.ttl --agents agents.toml
     """
     # Imported here: the web layer imports engine.cli.progress, and other commands need no Flask app.
+    from engine.agent.server import parse_listen  # noqa: PLC0415
+    import logging  # noqa: PLC0415
     from engine.web.server import run_server  # noqa: PLC0415
     from engine.web.sparql_protocol import Limits  # noqa: PLC0415
 

@@ -18,14 +18,19 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from engine.cli.common import fail, file_argument
-from engine.cli.progress import duration
-from engine.cli.reconcile import agents_option, prepare, print_violations
-from engine.model import BrokerStatus, DesiredState, ObservedBroker, ObservedState, to_dict
+from engine.cli.options import agents_option
 from kg.errors import EXIT_VIOLATIONS, PlantKGError
+
+if TYPE_CHECKING:
+    from engine.model import DesiredState, ObservedBroker, ObservedState
+
+# The model, the pipeline and the progress display are imported where they are used, so that
+# `plantkg --help` (which lists this command) does not load them.
 
 EXIT_CONVERGED, EXIT_ERROR, EXIT_NOT_CONVERGED = 0, 1, 2
 
@@ -94,6 +99,9 @@ def bridge_rows(desired: DesiredState, observed: ObservedState) -> list[dict[str
 
 def _row(broker_id: str, kind: str, host: str, port: int, state: str, have: ObservedBroker | None,
          now: float, wanted: set[str]) -> dict[str, str]:
+    from engine.cli.progress import duration  # noqa: PLC0415
+    from engine.model import BrokerStatus  # noqa: PLC0415
+
     present = {t.name for t in have.topics} if have else set()
     alive = have is not None and have.status in (BrokerStatus.RUNNING, BrokerStatus.STARTING)
     uptime = duration(max(0.0, now - have.started_at)) if alive and have and have.started_at else "-"
@@ -134,6 +142,9 @@ def status_command(files: tuple[str, ...], agents_file: Path | None, fmt: str) -
     Example:
       plantkg status ontology/examples/robot-cell.ttl --agents agents.toml
     """
+    from engine.cli.reconcile import prepare, print_violations  # noqa: PLC0415 - only when run
+    from engine.model import to_dict  # noqa: PLC0415
+
     try:
         result, _ = prepare(files, agents_file)
     except PlantKGError as error:
@@ -168,6 +179,8 @@ def status_command(files: tuple[str, ...], agents_file: Path | None, fmt: str) -
 
 def typed_broker_rows(desired: DesiredState, observed: ObservedState, now: float) -> list[dict[str, object]]:
     """The table's rows with typed values: ints, seconds, ``None`` for what is not known."""
+    from engine.model import BrokerStatus  # noqa: PLC0415
+
     out: list[dict[str, object]] = []
     for row in status_rows(desired, observed, now):
         have = observed.broker(row["id"])

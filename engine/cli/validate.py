@@ -5,11 +5,11 @@ from __future__ import annotations
 import click
 
 from kg.errors import EXIT_VIOLATIONS
-from kg.load import load_plant
-from kg.render import validation_json, validation_text
-from kg.shapes import load_shapes
-from kg.validate import ENGINES, validate
 from engine.cli.common import file_argument
+
+#: kg.validate.ENGINES, written out so that listing this command does not import the validators
+#: (rdflib, pyoxigraph); tests/unit/test_cli_imports.py holds the two equal.
+ENGINES: tuple[str, ...] = ("auto", "oxigraph", "pyshacl")
 
 
 @click.command("validate")
@@ -29,6 +29,11 @@ def validate_command(files: tuple[str, ...], fmt: str, engine: str, shapes_files
     Example:
       plantkg validate ontology/examples/robot-cell.ttl
     """
+    from kg.load import load_plant  # noqa: PLC0415 - the heavy imports: only when run
+    from kg.render import validation_json, validation_text  # noqa: PLC0415
+    from kg.shapes import load_shapes  # noqa: PLC0415
+    from kg.validate import validate  # noqa: PLC0415
+
     plant = load_plant(files)
     shapes = load_shapes(shapes_files) if shapes_files else None
     report = validate(plant, shapes, engine=engine)  # type: ignore[arg-type]

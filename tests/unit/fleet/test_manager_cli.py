@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import click
 import pytest
 import rdflib
 
@@ -38,7 +39,7 @@ def run(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
 
 
 def test_fleet_is_a_plugin_command_of_plantkg() -> None:
-    assert "fleet" in cli.commands and PLUGIN_GROUP == "plantkg.commands"
+    assert "fleet" in cli.list_commands(click.Context(cli)) and PLUGIN_GROUP == "plantkg.commands"
 
 
 def test_vehicles_lists_what_was_discovered(data: DataDir, capsys: pytest.CaptureFixture[str]) -> None:
