@@ -1,8 +1,8 @@
 """Bridge cycles through real agents and Mosquitto brokers (issue 15).
 
 Three "machines" (127.0.0.2, .3, .4), one agent each. A plant whose brokers bridge in a ring
-A -> B -> C -> A is refused by ``plantkg apply`` (exit 2, the cycle named in order) and nothing is
-started; a chain of two-way bridges A <-> B <-> C, which the same check allows, is applied and one
+A -> B -> C -> A (and one of four, and one through a Kafka broker) is refused by ``plantkg apply``
+(exit 2, the cycle named in order) and nothing is started; a chain of two-way bridges A <-> B <-> C, which the same check allows, is applied and one
 QoS-1 publish reaches each broker exactly once, counted for 10 s (the ring delivered ~36,000 copies
 per broker in 5 s before the check existed).
 """
@@ -29,16 +29,18 @@ from tests.integration.agents import AgentFleet, start_agents
 pytestmark = pytest.mark.integration
 
 HOSTS = {"a": "127.0.0.2", "b": "127.0.0.3", "c": "127.0.0.4"}
-TOPIC = "line/t"
+#: Brokers of the refused rings only (nothing is started for them): a fourth Mosquitto, a Kafka.
+MORE = {"d": ("127.0.0.2", "mosquitto"), "k": ("127.0.0.3", "kafka")}
+TOPIC = "line.t"
 COUNT_FOR = 10.0
 
 HEADER = """\
 @prefix pk: <https://w3id.org/plantkg/ontology#> .
 @prefix : <http://example.org/bridge-cycle-test#> .
-:t a pk:Topic ; pk:id "t" ; pk:name "line/t" ; pk:qos 1 .
+:t a pk:Topic ; pk:id "t" ; pk:name "line.t" ; pk:qos 1 ; pk:partitions 1 ; pk:replicationFactor 1 .
 :sensor a pk:Resource ; pk:id "sensor" ; pk:name "sensor" ; pk:sendsTo :a ; pk:publishes :t .
 """
-BROKER = """:{id} a pk:Broker ; pk:id "{id}" ; pk:name "{id}" ; pk:brokerType "mosquitto" ;
+BROKER = """:{id} a pk:Broker ; pk:id "{id}" ; pk:name "{id}" ; pk:brokerType "{kind}" ;
     pk:ip "{host}" ; pk:port {port} ; pk:hasTopic :t ; pk:bridgesTo {to} .
 """
 
@@ -52,7 +54,9 @@ class Machines:
     def plant(self, name: str, bridges: dict[str, list[str]]) -> Path:
         path = self.tmp / f"{name}.ttl"
         path.write_text(HEADER + "".join(
-            BROKER.format(id=b, host=HOSTS[b], port=self.ports[b], to=" , ".join(f":{t}" for t in to))
+            BROKER.format(id=b, host=HOSTS[b] if b in HOSTS else MORE[b][0],
+                          kind="mosquitto" if b in HOSTS else MORE[b][1], port=self.ports[b],
+                          to=" , ".join(f":{t}" for t in to))
             for b, to in bridges.items()))
         return path
 
@@ -67,7 +71,8 @@ def machines(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Machines]:
     tmp = tmp_path_factory.mktemp("bridge-cycles")
     fleet = start_agents(list(HOSTS.values()), tmp / "agents")
     try:
-        yield Machines(fleet, {b: netutil.free_port(h) for b, h in HOSTS.items()}, tmp)
+        hosts = {**HOSTS, **{b: h for b, (h, _) in MORE.items()}}
+        yield Machines(fleet, {b: netutil.free_port(h) for b, h in hosts.items()}, tmp)
     finally:
         fleet.stop()  # also fails the module if a broker was left deployed or a process survived
 
@@ -111,14 +116,23 @@ def publish_one(host: str, port: int, payload: str) -> None:
         pub.disconnect()
 
 
-def test_a_ring_of_three_is_refused_and_nothing_starts(machines: Machines,
-                                                       capsys: pytest.CaptureFixture[str]) -> None:
-    ring = machines.plant("ring", {"a": ["b"], "b": ["c"], "c": ["a"]})
+RINGS = {
+    "three-mosquitto": ({"a": ["b"], "b": ["c"], "c": ["a"]}, "a -> b -> c -> a"),
+    "four-mosquitto": ({"a": ["b"], "b": ["c"], "c": ["d"], "d": ["a"]}, "a -> b -> c -> d -> a"),
+    "through-kafka": ({"a": ["k"], "k": ["b"], "b": ["a"]}, "a -> k -> b -> a"),
+}
+
+
+@pytest.mark.parametrize("ring_name", sorted(RINGS))
+def test_a_ring_is_refused_and_nothing_starts(machines: Machines, capsys: pytest.CaptureFixture[str],
+                                              ring_name: str) -> None:
+    bridges, cycle = RINGS[ring_name]
+    ring = machines.plant(ring_name, bridges)
     code, out = machines.run(capsys, "validate", ring)
-    assert code == 0, out  # each bridge alone is valid: the loop is the three together
+    assert code == 0, out  # each bridge alone is valid: the loop is the ring as a whole
     code, out = machines.run(capsys, "apply", ring, "--agents", machines.fleet.agents_file, "--yes")
     assert code == 2, out
-    assert "bridge cycle" in out and "a -> b -> c -> a forwards line/t" in out, out
+    assert "bridge cycle" in out and f"{cycle} forwards line.t" in out, out
     assert "remove one pk:bridgesTo" in out and "Traceback" not in out
     assert machines.fleet.brokers() == {}, "a refused plant must start no broker"
     assert all(not m.client().list_bridges() for m in machines.fleet.agents.values())
