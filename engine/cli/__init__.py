@@ -7,21 +7,20 @@ stderr and an exit code — never a traceback. Exit codes: 0 success, 1 the plan
 The group is lazy, so the command line starts at once: a command's module is imported only when
 that command runs or ``--help`` lists it, and each module imports its heavy needs (rdflib's SPARQL
 engine, pyoxigraph, the agent's HTTP server, Flask) inside the command. Plugin commands (entry
-points) are loaded the same way. ``tests/unit/test_cli_imports.py`` keeps it so.
+points, found by :mod:`engine.cli.plugins` without importing ``importlib.metadata``) are loaded
+the same way. ``tests/unit/test_cli_imports.py`` keeps it so.
 """
 
 from __future__ import annotations
 
 import sys
 from importlib import import_module
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import click
 
 from engine.cli.common import run_guarded
-
-if TYPE_CHECKING:
-    from importlib.metadata import EntryPoint
+from engine.cli.plugins import Plugin, find_plugins
 
 #: The built-in commands: name -> ``module:attribute`` of its click command.
 BUILTIN_COMMANDS: dict[str, str] = {
@@ -49,7 +48,7 @@ def _load_builtin(target: str) -> click.Command:
     return command
 
 
-def _broken_plugin(entry: EntryPoint, exc: Exception) -> click.Command:
+def _broken_plugin(entry: Plugin, exc: Exception) -> click.Command:
     message = f"plugin command {entry.name!r} ({entry.value}) cannot be loaded: {exc}"
 
     @click.command(entry.name, help=message)
@@ -70,15 +69,16 @@ class LazyGroup(click.Group):
         super().__init__(*args, **kwargs)
         self.builtins = dict(builtins)
         self.plugin_group = plugin_group
-        self._plugins: dict[str, EntryPoint] | None = None
+        self._plugins: dict[str, Plugin] | None = None
 
-    def plugins(self) -> dict[str, EntryPoint]:
-        """The plugin entry points by command name (built-in names are never shadowed)."""
+    def plugins(self) -> dict[str, Plugin]:
+        """The plugin entry points by command name: built-in names are never shadowed, and of two
+        plugins of one name the first found wins."""
         if self._plugins is None:
-            from importlib.metadata import entry_points  # noqa: PLC0415 - costs ~30 ms; only here
-
-            found = sorted(entry_points(group=self.plugin_group), key=lambda e: e.name)
-            self._plugins = {e.name: e for e in found if e.name not in self.builtins}
+            self._plugins = {}
+            for entry in find_plugins(self.plugin_group):
+                if entry.name not in self.builtins:
+                    self._plugins.setdefault(entry.name, entry)
         return self._plugins
 
     def list_commands(self, ctx: click.Context) -> list[str]:

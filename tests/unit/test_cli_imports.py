@@ -19,6 +19,7 @@ import click
 import pytest
 
 from engine.cli import BUILTIN_COMMANDS, PLUGIN_GROUP, LazyGroup, cli, main
+from engine.cli.plugins import Plugin, find_plugins
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "ontology" / "examples" / "robot-cell.ttl"
@@ -69,6 +70,7 @@ def test_help_lists_every_command_and_loads_only_the_command_modules(tmp_path: P
     for target in BUILTIN_COMMANDS.values():  # listing a command imports its (light) module
         assert target.partition(":")[0] in modules
     assert "fleet.cli" in modules  # the plugin is listed too (its group is light)
+    assert "importlib.metadata" not in modules  # engine.cli.plugins reads entry_points.txt itself
 
 
 def test_a_command_imports_only_its_own_module(tmp_path: Path) -> None:
@@ -119,18 +121,42 @@ def test_every_builtin_resolves_to_its_command() -> None:
     assert cli.list_commands(ctx) == sorted(cli.list_commands(ctx))
 
 
-@pytest.fixture
-def group_with_plugins(monkeypatch: pytest.MonkeyPatch) -> LazyGroup:
+def test_plugins_are_found_as_importlib_metadata_finds_them() -> None:
     from importlib import metadata
 
-    plugins = [metadata.EntryPoint("zz-broken", "no_such_module_xyz:command", PLUGIN_GROUP),
-               metadata.EntryPoint("plan", "no_such_module_xyz:command", PLUGIN_GROUP),
-               metadata.EntryPoint("hello", "tests.unit.test_cli_imports:hello_command", PLUGIN_GROUP)]
+    groups = {e.group for d in metadata.distributions() for e in d.entry_points}
+    assert {PLUGIN_GROUP, "plantkg.drivers", "console_scripts"} <= groups
+    for group in sorted(groups):
+        expected = [(e.name, e.value) for e in metadata.entry_points(group=group)]
+        assert [(p.name, p.value) for p in find_plugins(group)] == expected, group
 
-    def entry_points(group: str) -> list[metadata.EntryPoint]:
-        return [e for e in plugins if e.group == group]
 
-    monkeypatch.setattr(metadata, "entry_points", entry_points)
+def test_the_first_distribution_of_a_name_wins_and_other_groups_are_ignored(tmp_path: Path) -> None:
+    for where, value in (("a", "first:command"), ("b", "second:command")):
+        info = tmp_path / where / "some_pkg-1.0.dist-info"
+        info.mkdir(parents=True)
+        (info / "entry_points.txt").write_text(
+            f"# comment\n[console_scripts]\nx = other:main\n\n[{PLUGIN_GROUP}]\nhi = {value}\n",
+            encoding="utf-8")
+    (tmp_path / "b" / "other-2.0.dist-info").mkdir()  # no entry_points.txt: nothing, no error
+    paths = [str(tmp_path / "a"), str(tmp_path / "missing"), str(tmp_path / "b")]
+    assert find_plugins(PLUGIN_GROUP, paths) == [Plugin("hi", "first:command", PLUGIN_GROUP)]
+
+
+def test_a_plugin_loads_its_attribute_or_says_what_is_wrong() -> None:
+    assert Plugin("p", "engine.cli:cli", PLUGIN_GROUP).load() is cli
+    assert Plugin("p", "engine.cli.plugins:Plugin.load", PLUGIN_GROUP).load() is Plugin.load
+    with pytest.raises(ValueError, match="is not 'module:attribute'"):
+        Plugin("p", "not a value!", PLUGIN_GROUP).load()
+
+
+@pytest.fixture
+def group_with_plugins(monkeypatch: pytest.MonkeyPatch) -> LazyGroup:
+    plugins = [Plugin("zz-broken", "no_such_module_xyz:command", PLUGIN_GROUP),
+               Plugin("plan", "no_such_module_xyz:command", PLUGIN_GROUP),
+               Plugin("hello", "tests.unit.test_cli_imports:hello_command", PLUGIN_GROUP),
+               Plugin("hello", "no_such_module_xyz:command", PLUGIN_GROUP)]  # a second one: ignored
+    monkeypatch.setattr("engine.cli.find_plugins", lambda group: [p for p in plugins if p.group == group])
     group = LazyGroup("plantkg", builtins={"plan": BUILTIN_COMMANDS["plan"]}, plugin_group=PLUGIN_GROUP)
     return group
 
