@@ -107,7 +107,8 @@ BAD: list[tuple[str, dict[str, Any], str, Any, str, str]] = [
 
 
 @pytest.mark.parametrize(("kind", "base", "path", "value", "where", "fragment"), BAD,
-                         ids=[f"{c[0]}:{c[2]}={c[3]!r}"[:60] for c in BAD])
+                         ids=[f"{c[0]}:{c[2]}={'<deleted>' if c[3] is DELETE else repr(c[3])}"[:60]
+                              for c in BAD])
 def test_bad_messages_are_refused_naming_path_and_value(kind: str, base: dict[str, Any], path: str, value: Any,
                                                         where: str, fragment: str) -> None:
     message = _set(base, path, value)
