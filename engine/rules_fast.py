@@ -176,6 +176,22 @@ class FastRule:
     table: list[tuple[Key, tuple[str, str]]] = field(default_factory=list)
     last: int = -1
 
+    def instances_query(self, fact: tuple[ox.NamedNode, ox.NamedNode, object]) -> str | None:
+        """SPARQL: every binding of this rule's body that concludes ``fact`` (None when the head
+        cannot), without ``MINUS`` — the rule's own body, for provenance (engine.explain)."""
+        bound: dict[str, object] = {}
+        for slot, term in zip(self.head, fact):
+            if isinstance(slot, str):
+                if bound.setdefault(slot, term) != term:
+                    return None
+            elif slot != term:
+                return None
+        values = "".join(f"VALUES {v} {{ {t} }} " for v, t in bound.items())
+        if self.table_vars:
+            rows = " ".join(f"({a} {b})" for _, (a, b) in self.table)
+            values += f"VALUES ({self.table_vars}) {{ {rows} }} "
+        return f"SELECT * WHERE {{ {values}{self.where} }}"
+
     def query(self, rows: list[tuple[str, str]] | None) -> str:
         variables = sorted({x for x in self.head if isinstance(x, str)})
         s, p, o = (x if isinstance(x, str) else str(x) for x in self.head)
@@ -484,6 +500,8 @@ class Outcome:
     added: list[ox.Quad]
     rounds: int
     queries: int
+    #: each added fact (subject, predicate, object) -> the name of the rule that first derived it
+    provenance: dict[tuple[object, object, object], str] = field(default_factory=dict)
 
 
 def run(program: Program, store: ox.Store, inputs: list[ox.NamedNode], work: ox.NamedNode,
@@ -498,6 +516,7 @@ def run(program: Program, store: ox.Store, inputs: list[ox.NamedNode], work: ox.
     version: dict[Key, int] = defaultdict(int)
     clock = 0
     added: list[ox.Quad] = []
+    provenance: dict[tuple[object, object, object], str] = {}
     queries = rounds = 0
     while True:
         rounds += 1
@@ -528,6 +547,7 @@ def run(program: Program, store: ox.Store, inputs: list[ox.NamedNode], work: ox.
                 added.extend(new)
                 for q in new:
                     version[_key(q.predicate, q.object)] = clock
+                    provenance.setdefault((q.subject, q.predicate, q.object), rule.name)
                 progress = True
         if not progress:
             break
@@ -566,4 +586,4 @@ def run(program: Program, store: ox.Store, inputs: list[ox.NamedNode], work: ox.
                 f"a condition no named individual fulfils ({check.name}; for {who})", "the plant",
                 hint="the fast engine reasons over named individuals only; if a defined class is "
                 "asserted, drop the assertion (it is inferred), or use --engine owlready2")
-    return Outcome(added, rounds, queries)
+    return Outcome(added, rounds, queries, provenance)

@@ -28,11 +28,15 @@ BUILTIN_COMMANDS: dict[str, str] = {
     "apply": "engine.cli.apply:apply_command",
     "demo": "engine.cli.demo:demo_command",
     "destroy": "engine.cli.destroy:destroy_command",
+    "explain": "engine.cli.explain:explain_command",
     "import": "engine.cli.import_:import_command",
     "plan": "engine.cli.plan:plan_command",
     "query": "engine.cli.query:query_command",
+    "restart": "engine.cli.lifecycle:restart_command",
     "serve": "engine.cli.serve:serve_command",
+    "start": "engine.cli.lifecycle:start_command",
     "status": "engine.cli.status:status_command",
+    "stop": "engine.cli.lifecycle:stop_command",
     "validate": "engine.cli.validate:validate_command",
 }
 
