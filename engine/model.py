@@ -24,6 +24,7 @@ class BrokerStatus(str, enum.Enum):
     RUNNING = "running"          # process alive and health check passed
     STARTING = "starting"        # process alive, health check not yet passed
     STOPPED = "stopped"          # not running, on purpose
+    STOPPED_BY_OPERATOR = "stopped-by-operator"  # `plantkg stop`: kept stopped until started
     CRASHED = "crashed"          # exited unexpectedly; the agent will restart it (with backoff)
     FAILED = "failed"            # could not be started (bad config, port in use, ...)
 

@@ -33,6 +33,7 @@ STATUS_TERMS: dict[BrokerStatus, str] = {
     BrokerStatus.RUNNING: "Running",
     BrokerStatus.STARTING: "Starting",
     BrokerStatus.STOPPED: "Stopped",
+    BrokerStatus.STOPPED_BY_OPERATOR: "Stopped",  # the ontology has no term of its own for it yet
     BrokerStatus.CRASHED: "Crashed",
     BrokerStatus.FAILED: "Failed",
 }

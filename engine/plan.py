@@ -15,6 +15,10 @@ Change kinds, per address (``broker.<id>``, ``topic.<broker>.<name>``, ``bridge.
 - delete: observed, not desired (a broker's bridges and topics are listed before the broker).
 - no-op: nothing to do (kept in ``Plan.changes`` so a plan accounts for every object).
 
+A broker the operator stopped (``plantkg stop``, status stopped-by-operator) is present and
+meant to be down: whose essence matches is a no-op, not a restart, and so are the Mosquitto
+bridges it carries (its topics are those it had when stopped); only ``plantkg start`` starts it.
+
 A bridge is compared on its essence (both ends' addresses, mechanism, routes), so moving its remote
 broker or changing a bridged topic updates the bridge, which the agent of its local broker applies
 (a Mosquitto bridge by re-rendering and restarting that broker only, a worker by restarting the
@@ -185,6 +189,7 @@ def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False)
         else:
             foreign.append(_foreign(have.spec.address, have.owner))
     hosts = {b.id: b.host for b in desired.brokers}
+    held = {b.spec.id for b in observed.brokers if b.status is BrokerStatus.STOPPED_BY_OPERATOR}
     for bridge in desired.bridges:
         if hosts.get(bridge.local.id) in unreachable or bridge.local.id in claimed:
             continue
@@ -194,7 +199,7 @@ def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False)
             refusals.append(_claimed_refusal(bridge.address, have.owner if have else None,
                                              importable=False))
             continue
-        change = _bridge_change(bridge, have)
+        change = _bridge_change(bridge, have, bridge.local.id in held)
         changes.append(_adopted(change, owner) if whose is Ownership.NOBODY else change)
     wanted_bridges = {b.address for b in desired.bridges}
     for seen in observed.bridges:
@@ -298,6 +303,9 @@ def _broker_change(spec: BrokerSpec, have: ObservedBroker | None) -> Change:
     if before != after:
         changed = ", ".join(f for f in after if before[f] != after[f])
         return Change(spec.address, Action.UPDATE, before, after, f"{changed} changed in place")
+    if have.status is BrokerStatus.STOPPED_BY_OPERATOR:
+        return Change(spec.address, Action.NOOP, before, after,
+                      f"stopped by the operator: `plantkg start {spec.id}` starts it")
     if have.status in RESTART_STATUSES:
         detail = f": {have.last_error}" if have.last_error else ""
         return Change(spec.address, Action.UPDATE,
@@ -307,7 +315,8 @@ def _broker_change(spec: BrokerSpec, have: ObservedBroker | None) -> Change:
     return Change(spec.address, Action.NOOP, before, after)
 
 
-def _bridge_change(spec: BridgeSpec, have: ObservedBridge | None) -> Change:
+def _bridge_change(spec: BridgeSpec, have: ObservedBridge | None, held: bool = False) -> Change:
+    """``held``: its local broker is stopped by the operator (a stopped bridge is meant)."""
     after = bridge_essence(spec)
     if have is None:
         return Change(spec.address, Action.CREATE, None, after, "not running on its broker's agent")
@@ -317,7 +326,7 @@ def _bridge_change(spec: BridgeSpec, have: ObservedBridge | None) -> Change:
         how = ("its broker restarts with the new bridge" if spec.mechanism.value == "mosquitto"
                else "its worker restarts")
         return Change(spec.address, Action.UPDATE, before, after, f"{changed} changed ({how})")
-    if have.status in BRIDGE_RESTART_STATUSES:
+    if have.status in BRIDGE_RESTART_STATUSES and not held:
         detail = f": {have.last_error}" if have.last_error else ""
         return Change(spec.address, Action.UPDATE, {**before, "status": have.status.value},
                       {**after, "status": BridgeStatus.RUNNING.value},

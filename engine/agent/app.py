@@ -9,7 +9,8 @@ Routes and bodies are those of docs/engine-contracts.md; the OpenAPI document
 400    malformed JSON, unknown/missing field, invalid value (``field`` names it)
 401    missing or wrong token
 404    unknown broker or route
-409    the broker cannot do it: fewer Kafka partitions, broker failed or stopped; or the
+409    the broker cannot do it: fewer Kafka partitions, broker failed or stopped (a PUT that
+       would start a broker the operator stopped, too); or the
        request names an ``owner`` and another plant owns the broker, topic or bridge
 422    the agent cannot do it: no driver for the kind, a part missing, the broker exited
        while starting
@@ -189,6 +190,34 @@ def delete_broker(broker_id: str) -> tuple[str, int]:
             if bridge.spec.local.id == broker_id:
                 state.workers.delete(broker_id, bridge.spec.remote.id)
     return "", 204
+
+
+@v1.post("/brokers/<broker_id>/stop")
+def stop_broker(broker_id: str) -> Response:
+    """The operator's stop (no body): the broker stops and stays stopped — its spec, config and
+    data kept — until ``start`` or ``restart``; idempotent. Answers the broker as GET does."""
+    return _verb("stop", broker_id)
+
+
+@v1.post("/brokers/<broker_id>/start")
+def start_broker(broker_id: str) -> Response:
+    """Start a broker the operator stopped, as it was; answers once healthy (a running one is
+    left alone)."""
+    return _verb("start", broker_id)
+
+
+@v1.post("/brokers/<broker_id>/restart")
+def restart_broker(broker_id: str) -> Response:
+    """Stop the broker gracefully and start it again (a new pid, its data kept)."""
+    return _verb("restart", broker_id)
+
+
+def _verb(verb: str, broker_id: str) -> Response:
+    if request.get_data(cache=False).strip():
+        raise WireError("body", f"POST .../{verb} takes no body")
+    brokers = _state().brokers
+    action = {"stop": brokers.stop, "start": brokers.start, "restart": brokers.restart}[verb]
+    return jsonify(to_dict(action(_broker_id(broker_id))))
 
 
 @v1.get("/bridges")

@@ -90,6 +90,15 @@ class AgentClient:
         self._request("DELETE", f"/v1/brokers/{_segment(broker_id)}{_owner_query(owner)}",
                       timeout=self.broker_timeout)
 
+    def broker_verb(self, broker_id: str, verb: str) -> ObservedBroker:
+        """The operator's ``stop``, ``start`` or ``restart`` of a broker (its data and config are
+        kept); waits like :meth:`put_broker`. An unknown broker is a PermanentDispatchError (404)."""
+        if verb not in ("stop", "start", "restart"):
+            raise ValueError(f"verb {verb!r} is not one of stop, start, restart")
+        path = f"/v1/brokers/{_segment(broker_id)}/{verb}"
+        data = self._request("POST", path, timeout=self.broker_timeout)
+        return self._parse(observed_broker_from_json, data, path)
+
     def set_owner(self, broker_id: str, owner: str) -> ObservedBroker:
         """Import: ``owner`` takes over the broker and its topics and bridges nobody owns."""
         path = f"/v1/brokers/{_segment(broker_id)}/owner"

@@ -12,7 +12,12 @@ per broker) and is what the HTTP layer calls. Its rules:
   ``last_error`` show in its status. The backoff resets after ``stable_after`` s of health.
 - ``open()`` re-adopts brokers an earlier agent left running (pid, start time and command line
   must match, see :mod:`engine.agent.procs`), stops strays, and starts brokers whose process is
-  gone: every folder with a ``spec.json`` is a broker that should run.
+  gone: every folder with a ``spec.json`` is a broker that should run — unless the operator
+  stopped it.
+- ``stop``/``start``/``restart`` are the operator's verbs (:mod:`engine.agent.held`): ``stop``
+  writes the broker's ``stopped.json`` and stops its process; the broker then reports
+  STOPPED_BY_OPERATOR, keeps its folder (spec, config, data), and nothing starts it (supervisor,
+  re-adoption, PUT) until ``start`` or ``restart``; ``restart`` is a stop and a start (a new pid).
 
 Locking: each broker has an operation lock held for a whole PUT/DELETE/topic call (the supervisor
 only ``try``-locks it, so it never waits behind a slow start); ``self._lock`` guards the broker
@@ -32,6 +37,7 @@ from typing import Any
 
 from engine import process
 from engine.agent.folder import BrokerFolder, PidRecord
+from engine.agent.held import Held, clear_held, read_held, write_held
 from engine.agent.owners import Owners, claim
 from engine.agent.procs import (
     AdoptedProcess,
@@ -89,6 +95,17 @@ class BrokerNotRunningError(EngineError):
     """The broker failed or is stopped; a topic cannot be changed on it now (HTTP 409)."""
 
 
+class BrokerHeldError(BrokerNotRunningError):
+    """The operator stopped the broker; nothing that would start it is done until it is started
+    again (HTTP 409)."""
+
+    def __init__(self, broker_id: str, doing: str) -> None:
+        super().__init__(f"broker {broker_id!r} is stopped by the operator; {doing} would start it",
+                         hint=f"`plantkg start {broker_id}` (POST /v1/brokers/{broker_id}/start) "
+                              "first")
+        self.broker_id = broker_id
+
+
 @dataclass(eq=False)
 class _Broker:
     spec: BrokerSpec
@@ -106,6 +123,7 @@ class _Broker:
     healthy_since: float | None = None
     deleted: bool = False
     owners: Owners | None = None           # owner.json: the broker's, its topics', its bridges'
+    held: Held | None = None               # stopped.json: the operator stopped it
 
     def record(self) -> Owners:
         if self.owners is None:
@@ -186,6 +204,8 @@ class BrokerManager:
         b = self._claim(spec, driver)
         try:
             owner = claim(b.record().owner, owner, f"broker {spec.id!r}")
+            if b.held is not None:
+                raise BrokerHeldError(spec.id, "a PUT")
             if self._unchanged(b, spec, driver):
                 if b.spec != spec:
                     b.folder.write_spec(spec)
@@ -292,6 +312,78 @@ class BrokerManager:
                 log.warning("topics of broker %s not observed: %s", b.spec.id, exc)
         return []
 
+    # --- the operator's verbs ------------------------------------------------------------------
+
+    def stop(self, broker_id: str) -> ObservedBroker:
+        """Stop the broker and keep it stopped (spec, config and data kept) until :meth:`start`;
+        idempotent. The flag is written first: a crash in between leaves it stopped."""
+        b = self._existing(broker_id)
+        try:
+            if b.held is None:
+                held = write_held(b.folder.path, self._live_topics(b))
+                if b.proc is not None:
+                    self._stop_proc(b)
+                self._update(b, held=held, status=BrokerStatus.STOPPED_BY_OPERATOR, failures=0,
+                             next_start=None, healthy_since=None)
+                log.info("broker %s stopped by the operator", broker_id)
+        finally:
+            b.op.release()
+        return self._observe(b)
+
+    def start(self, broker_id: str) -> ObservedBroker:
+        """Start a broker the operator stopped (or one that is down) with its stored spec and
+        config; return it once healthy. A running broker is left alone."""
+        b = self._existing(broker_id)
+        try:
+            if b.driver is None:
+                raise BrokerNotRunningError(f"broker {broker_id!r} cannot be started: "
+                                            f"{b.last_error}", hint="install its driver")
+            if b.proc is not None and b.proc.alive():
+                if b.status is not BrokerStatus.RUNNING:
+                    self._wait_healthy(b)
+                return self._observe(b)
+            self._start_now(b)
+        finally:
+            b.op.release()
+        return self._observe(b)
+
+    def restart(self, broker_id: str) -> ObservedBroker:
+        """Stop the broker (gracefully, its data kept) and start it again: a new process."""
+        b = self._existing(broker_id)
+        try:
+            if b.driver is None:
+                raise BrokerNotRunningError(f"broker {broker_id!r} cannot be restarted: "
+                                            f"{b.last_error}", hint="install its driver")
+            if b.proc is not None:
+                self._stop_proc(b)
+            self._start_now(b)
+        finally:
+            b.op.release()
+        return self._observe(b)
+
+    def _start_now(self, b: _Broker) -> None:
+        """Spawn (the operation lock held), clear the operator's flag, wait until healthy."""
+        self._update(b, failures=0, next_start=None, last_error=None)
+        try:
+            self._start(b, restart=False)
+        except Exception as exc:
+            self._update(b, status=BrokerStatus.FAILED if b.held is None
+                         else BrokerStatus.STOPPED_BY_OPERATOR, last_error=f"start failed: {exc}")
+            raise
+        clear_held(b.folder.path)
+        self._update(b, held=None)
+        self._wait_healthy(b)
+
+    def _live_topics(self, b: _Broker) -> list[ObservedTopic]:
+        """The topics a running broker reports now (kept in the flag while it is stopped)."""
+        if b.driver is None or b.driver.implicit_topics or b.status is not BrokerStatus.RUNNING:
+            return []
+        try:
+            return b.driver.observe_topics(b.spec)
+        except DriverError as exc:
+            log.warning("topics of broker %s not observed before its stop: %s", b.spec.id, exc)
+            return []
+
     # --- native bridges (carried in the broker's own config) ---------------------------------
 
     def put_native_bridge(self, bridge: BridgeSpec, owner: str | None = None) -> ObservedBridge:
@@ -302,6 +394,8 @@ class BrokerManager:
             record = b.record()
             claim(record.owner, owner, f"broker {b.spec.id!r}")
             owner = claim(record.bridges.get(bridge.remote.id), owner, bridge.address)
+            if b.held is not None:
+                raise BrokerHeldError(b.spec.id, f"changing {bridge.address}")
             if (b.spec.host, b.spec.port) != (bridge.local.host, bridge.local.port):
                 raise BridgeConflictError(
                     f"{bridge.address}: its local end {bridge.local.host}:{bridge.local.port} is "
@@ -327,6 +421,8 @@ class BrokerManager:
                 return False
             record = b.record()
             claim(record.bridges.get(remote_id), owner, f"bridge.{local_id}.{remote_id}")
+            if b.held is not None:
+                raise BrokerHeldError(local_id, f"removing bridge.{local_id}.{remote_id}")
             self._rerender(b, kept)
             record.set_bridge(remote_id, None)
             return True
@@ -425,6 +521,8 @@ class BrokerManager:
     def _require_running(self, b: _Broker) -> None:
         if b.status is BrokerStatus.RUNNING and b.proc is not None and b.proc.alive():
             return
+        if b.held is not None:
+            raise BrokerHeldError(b.spec.id, "changing its topics")
         where = f"broker {b.spec.id!r} is {b.status.value}"
         if b.status in (BrokerStatus.STARTING, BrokerStatus.CRASHED):
             raise BrokerUnavailableError(f"{where}; the agent is (re)starting it",
@@ -444,9 +542,12 @@ class BrokerManager:
                 restarts=b.restarts, config_hash=b.config_hash, last_error=b.last_error,
                 owner=record.owner,
             )
+            held = b.held
         topics: list[ObservedTopic] = []
         if driver is not None and driver.implicit_topics:
             topics = b.folder.read_topics()
+        elif held is not None:
+            topics = list(held.topics)
         elif driver is not None and status is BrokerStatus.RUNNING:
             try:
                 topics = driver.observe_topics(spec)
@@ -546,10 +647,12 @@ class BrokerManager:
                                              last_error=exc.message)
             return
         assert driver is not None
-        b = _Broker(spec, driver, folder)
+        b = _Broker(spec, driver, folder, held=read_held(path))
         pid = folder.read_pid()
         adopted = None
-        if pid is not None:
+        if pid is not None and b.held is not None:
+            b.restarts = pid.restarts  # its process (if any) is a stray: the operator stopped it
+        elif pid is not None:
             info = proc_info(pid.pid)
             if info is not None and info.start_ticks == pid.start_ticks \
                     and mentions(info, path, pid.argv[0]):
@@ -566,7 +669,11 @@ class BrokerManager:
                 log.warning("stopping stray process %d of broker %s: %s", stray.pid, spec.id,
                             " ".join(stray.argv))
                 stop_foreign(stray, driver.stop_grace)
-        if adopted is not None and pid is not None:
+        if b.held is not None:
+            folder.remove_pid()
+            b.status = BrokerStatus.STOPPED_BY_OPERATOR
+            log.info("broker %s stays stopped by the operator", spec.id)
+        elif adopted is not None and pid is not None:
             b.proc, b.config_hash, b.essence = adopted, pid.config_hash, pid.essence
             b.status = BrokerStatus.RUNNING if driver.health(spec, 1.0) else BrokerStatus.STARTING
             if b.status is BrokerStatus.RUNNING:

@@ -113,7 +113,8 @@ _SCHEMAS: dict[str, Any] = {
         "properties": {
             "spec": _ref("BrokerSpec"),
             "status": {"type": "string",
-                       "enum": ["running", "starting", "stopped", "crashed", "failed"]},
+                       "enum": ["running", "starting", "stopped", "stopped-by-operator",
+                                "crashed", "failed"]},
             "topics": {"type": "array", "items": _ref("ObservedTopic")},
             "pid": _NULLABLE_INT,
             "started_at": {"type": ["number", "null"], "description": "Seconds since the epoch"},
@@ -196,6 +197,22 @@ _SCHEMAS["OwnerPut"] = {"type": "object", "additionalProperties": False, "requir
                         "properties": {"owner": _OWNER}}
 
 
+#: The operator's verbs (docs/operating.md): no request body; each answers the broker.
+_VERBS: tuple[tuple[str, str, str, str, tuple[int, ...]], ...] = (
+    ("stop", "Stop the broker and keep it stopped until started (idempotent)",
+     "The broker's spec, config and data stay in its folder; it reports status "
+     "stopped-by-operator (with the topics it had), and nothing starts it — the supervisor, an "
+     "agent restart, a PUT (409) — until start or restart.",
+     "Stopped by the operator", (400, 401, 404, 422, 500)),
+    ("start", "Start a broker the operator stopped, as it was",
+     "Answers once the driver's health check passes (503 after its start deadline); a running "
+     "broker is left alone.", "Running and healthy", (400, 401, 404, 409, 422, 503, 500)),
+    ("restart", "Stop the broker gracefully and start it again (a new pid, data kept)",
+     "Also starts a broker the operator stopped. Answers once healthy.",
+     "Running and healthy, a new process", (400, 401, 404, 409, 422, 503, 500)),
+)
+
+
 def openapi_document(version: str) -> dict[str, Any]:
     """The document for agent ``version``."""
     secured = [{"bearer": []}]
@@ -267,6 +284,14 @@ def openapi_document(version: str) -> dict[str, Any]:
                                   **_error_responses(400, 401, 404, 409)},
                 },
             },
+            **{f"/v1/brokers/{{broker_id}}/{verb}": {
+                "parameters": [_BROKER_ID],
+                "post": {
+                    "operationId": f"{verb}Broker", "summary": summary, "description": text,
+                    "responses": {"200": _json(_ref("ObservedBroker"), answer),
+                                  **_error_responses(*codes)},
+                },
+            } for verb, summary, text, answer, codes in _VERBS},
             "/v1/brokers/{broker_id}/topics/{name}": {
                 "parameters": [_BROKER_ID, _TOPIC_NAME],
                 "put": {
