@@ -224,3 +224,68 @@ def test_stop_keeps_a_kafka_topics_messages(agents: Agents, tmp_path: Path) -> N
     assert got == sent
     client.delete_broker("k1")
     assert agent.terminate() == 0
+
+
+LOOP_PLANT = """\
+@prefix pk: <https://w3id.org/plantkg/ontology#> .
+@prefix owl: <http://www.w3.org/2002/07/owl#> .
+@prefix : <http://example.org/held-plant#> .
+<http://example.org/held-plant> a owl:Ontology .
+:cell a pk:Broker ; pk:id "cell" ; pk:name "cell broker" ; pk:brokerType "mosquitto" ;
+    pk:ip "{host}" ; pk:port {port} ; pk:hasTopic :pose .
+:pose a pk:Topic ; pk:id "pose" ; pk:name "cell/pose" ; pk:qos 1 .
+"""
+
+
+def test_the_reconcile_loop_leaves_a_stopped_broker_stopped(tmp_path: Path) -> None:
+    from engine.agents_config import AgentDirectory  # noqa: PLC0415
+    from engine.reconcile_loop import ReconcileLoop  # noqa: PLC0415
+    from tests.integration.agents import start_agents  # noqa: PLC0415
+
+    host = "127.0.0.2"
+    fleet = start_agents([host], tmp_path)
+    loop = None
+    try:
+        plant = tmp_path / "plant.ttl"
+        plant.write_text(LOOP_PLANT.format(host=host, port=netutil.free_port(host)))
+        directory = AgentDirectory.load(fleet.agents_file)
+        runs: list = []
+        loop = ReconcileLoop([plant], directory, owner="held-plant", interval=0.5,
+                             on_run=runs.append)
+        first = loop.run_once()
+        assert first.applied and first.converged and first.summary["create"] == 2, first
+        client = fleet.client(host)
+        running = client.get_broker("cell")
+        assert running is not None and running.status is BrokerStatus.RUNNING
+
+        client.broker_verb("cell", "stop")
+        held = loop.run_once()
+        assert held.converged and not held.applied and held.error is None, held
+        assert not any(held.summary.values()), held.summary
+        loop.start()  # observing every 0.5 s: five runs at least, none starts it
+        process.wait_until(lambda: len(runs) >= 7, 30.0, 0.05, what="five more runs of the loop")
+        now = client.get_broker("cell")
+        assert now is not None and now.status is BrokerStatus.STOPPED_BY_OPERATOR and now.pid is None
+        assert all(r.converged and not r.applied for r in runs[1:]), runs
+
+        started = client.broker_verb("cell", "start")
+        assert started.status is BrokerStatus.RUNNING and started.pid != running.pid
+        mqtt_roundtrip_on(host, started.spec.port)
+    finally:
+        if loop is not None:
+            loop.stop()
+        for broker in fleet.brokers():
+            fleet.client(host).delete_broker(broker)
+        fleet.stop()
+
+
+def mqtt_roundtrip_on(host: str, port: int) -> None:
+    """The broker on ``host`` answers an MQTT client (CONNACK)."""
+    client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"c-{uuid.uuid4().hex[:8]}")
+    client.connect(host, port, keepalive=10)
+    client.loop_start()
+    try:
+        process.wait_until(client.is_connected, 10.0, 0.005, what="CONNACK")
+    finally:
+        client.disconnect()
+        client.loop_stop()
