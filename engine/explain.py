@@ -190,6 +190,7 @@ def explain_plant(plant: PlantGraph, desired: DesiredState, address: str) -> Exp
                    "publishes a topic on one that a resource subscribes to on the other, and neither "
                    "pk:bridgesTo the other")
     reasons = [r for f in facts if ctx.holds(f) for r in ctx.reasons(f)]
+    capped = any(sum(r.conclusion == c for r in reasons) >= MAX_REASONS for c in {r.conclusion for r in reasons})
     if not present and kind == "bridge":
         other = f"bridge.{parts[1]}.{parts[0]}"
         if any(b.address == other for b in desired.bridges):
@@ -200,8 +201,10 @@ def explain_plant(plant: PlantGraph, desired: DesiredState, address: str) -> Exp
             "the reasoner concludes the facts below, but the desired state has no such address " \
             "(an external broker is not deployed; a bridge's address names its carrying end first)"
         return Explanation(address, kind, False, tuple(reasons) if reasons else (), note)
-    return Explanation(address, kind, True, tuple(reasons),
-                       "" if reasons else "no derivation was found (is the fact asserted in the ontology?)")
+    note = "" if reasons else "no derivation was found (is the fact asserted in the ontology?)"
+    if capped:
+        note = f"only the first {MAX_REASONS} reasons of each fact are shown; there are more"
+    return Explanation(address, kind, True, tuple(reasons), note)
 
 
 class _Context:

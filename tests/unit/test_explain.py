@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from engine import rules_fast
-from engine.explain import AddressError, explain, parse_address
+from engine.explain import MAX_REASONS, AddressError, explain, parse_address
 from engine.reason import INFERRED, input_graphs
 from engine.rules_tbox import dataset_options, read_tbox
 from kg.load import load_plant
@@ -203,3 +203,11 @@ def test_cli_text_json_and_exit_codes(tmp_path: Path) -> None:
     bad = _cli(str(ROBOT_CELL), "bridge.mosquitto")
     assert bad.returncode == 2
     assert "'bridge.mosquitto' is not a plan address" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_many_reasons_are_capped_and_say_so(tmp_path: Path) -> None:
+    from benchmarks.synthetic import write_file  # noqa: PLC0415
+
+    e = _explain(write_file(100, tmp_path), "broker.broker-0")  # dozens of resources send to it
+    assert e.required and len(e.reasons) == MAX_REASONS
+    assert f"only the first {MAX_REASONS} reasons" in e.note and e.note in e.text()
