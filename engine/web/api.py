@@ -14,6 +14,7 @@ from engine.render_plan import plan_dict, render_plan
 from engine.web.auth import login_required
 from engine.web.openapi import openapi_document
 from engine.web.plant_state import ApplyRefused, PlantState
+from kg.errors import PlantKGError
 
 bp = Blueprint("api", __name__, url_prefix="/api")
 
@@ -71,6 +72,27 @@ def refresh() -> Any:
     """Ask the agents again now (otherwise they are asked every few seconds)."""
     snap = _state().refresh()
     return jsonify(version=snap.version, observed_at=snap.observed_at, error=snap.error)
+
+
+@bp.get("/explain")
+def explain_address() -> Any:
+    """Why ``address`` (a broker, topic or bridge of the plan) must exist, as ``plantkg explain``
+    says it (engine.explain, on the plant's files; no agent asked); ``format=text``: its text."""
+    from engine.explain import AddressError, explain  # noqa: PLC0415 - only when asked
+
+    address = request.args.get("address", "")
+    try:
+        _, explanation = explain(_state().files, address)
+    except AddressError as exc:
+        return jsonify(error=exc.message, hint=exc.hint), 400
+    except PlantKGError as exc:
+        return jsonify(error=exc.message, hint=exc.hint), 422
+    if explanation is None:
+        return jsonify(error="the plant has violations: nothing can be explained",
+                       hint="see /api/validation"), 409
+    if request.args.get("format") == "text":
+        return Response(explanation.text() + "\n", mimetype="text/plain")
+    return jsonify(explanation.to_dict())
 
 
 @bp.get("/openapi.json")

@@ -109,6 +109,18 @@ def openapi_document() -> dict[str, Any]:
                                       "text": {"type": ["string", "null"]}}}, "The plan (null: none)")}}},
             "/api/validation": {"get": {"operationId": "validation", "summary": "The validation report",
                                         "responses": {"200": _json({"type": "object"}, "The report")}}},
+            "/api/explain": {"get": {
+                "operationId": "explain", "summary": "Why a broker, topic or bridge of the plan must exist",
+                "parameters": [
+                    {"name": "address", "in": "query", "required": True, "schema": {"type": "string"},
+                     "description": "broker.ID, topic.BROKER_ID.TOPIC_NAME or bridge.ID.ID"},
+                    {"name": "format", "in": "query", "schema": {"type": "string", "enum": ["json", "text"]}}],
+                "responses": {"200": _json({"type": "object", "properties": {
+                                  "address": {"type": "string"}, "required": {"type": "boolean"},
+                                  "reasons": {"type": "array"}, "note": {"type": "string"}}},
+                                  "The reasons (required false: why not)"),
+                              "400": _error("Not a plan address"), "409": _error("The plant has violations"),
+                              "422": _error("The plant cannot be explained (a bad file, or only HermiT reasons over it)")}}},
             "/api/apply": {"post": {
                 "operationId": "apply", "summary": "Start applying the plan named by its fingerprint", **_WRITE,
                 "requestBody": {"required": True, "content": {"application/json": {"schema": {
