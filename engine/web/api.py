@@ -1,7 +1,8 @@
 """``/api``: the JSON the dashboard uses, documented in ``/api/openapi.json`` (engine.web.openapi).
 
-Reads are open (the server binds loopback by default); writes (``apply``, ``refresh``) need a
-logged-in session with its CSRF token, or ``Authorization: Bearer <token>``.
+Reads are open (the server binds loopback by default); writes (``apply``, ``refresh``, and the
+operator's ``stop``/``start``/``restart`` of a broker) need a logged-in session with its CSRF
+token, or ``Authorization: Bearer <token>``.
 """
 
 from __future__ import annotations
@@ -10,6 +11,8 @@ from typing import Any
 
 from flask import Blueprint, Response, current_app, jsonify, request
 
+from engine.errors import DispatchError, TemporaryDispatchError
+from engine.model import to_dict
 from engine.render_plan import plan_dict, render_plan
 from engine.web.auth import login_required
 from engine.web.openapi import openapi_document
@@ -64,6 +67,45 @@ def apply() -> Any:
     except ApplyRefused as exc:
         return jsonify(error=exc.message, hint=exc.hint), 409
     return jsonify(state=job.state, fingerprint=job.fingerprint, started_at=job.started_at), 202
+
+
+@bp.post("/stop")
+@login_required
+def stop() -> Any:
+    """Stop a broker and keep it stopped (data and config kept) until started."""
+    return _broker_verb("stop")
+
+
+@bp.post("/start")
+@login_required
+def start() -> Any:
+    """Start a broker the operator stopped."""
+    return _broker_verb("start")
+
+
+@bp.post("/restart")
+@login_required
+def restart() -> Any:
+    """Stop a broker gracefully and start it again (a new pid)."""
+    return _broker_verb("restart")
+
+
+def _broker_verb(verb: str) -> Any:
+    """``{"broker_id": ...}`` (JSON body or form field) -> the broker as its agent answers."""
+    body = request.get_json(silent=True) if request.is_json else request.form
+    broker_id = (body or {}).get("broker_id")
+    if not isinstance(broker_id, str) or not broker_id:
+        return jsonify(error=f'name the broker to {verb}: {{"broker_id": "..."}}',
+                       hint="the id as the brokers table shows it"), 400
+    try:
+        broker = _state().broker_verb(broker_id, verb)
+    except ApplyRefused as exc:
+        return jsonify(error=exc.message, hint=exc.hint), 404
+    except TemporaryDispatchError as exc:
+        return jsonify(error=exc.message, hint=exc.hint), 503
+    except DispatchError as exc:
+        return jsonify(error=exc.message, hint=exc.hint), 409
+    return jsonify(broker=to_dict(broker))
 
 
 @bp.post("/refresh")

@@ -130,6 +130,22 @@ def openapi_document() -> dict[str, Any]:
                               "400": _error("No fingerprint"), "401": _error("Not authenticated"),
                               "403": _error("Missing or wrong CSRF token"),
                               "409": _error("Another plan is current, an apply runs, or the plan cannot be applied")}}},
+            **{f"/api/{verb}": {"post": {
+                "operationId": f"{verb}Broker", "summary": summary, **_WRITE,
+                "requestBody": {"required": True, "content": {"application/json": {"schema": {
+                    "type": "object", "required": ["broker_id"],
+                    "properties": {"broker_id": {"type": "string"}}}}}},
+                "responses": {"200": _json({"type": "object", "properties": {
+                                  "broker": {"type": "object"}}}, "The broker as its agent answers"),
+                              "400": _error("No broker_id"), "401": _error("Not authenticated"),
+                              "403": _error("Missing or wrong CSRF token"),
+                              "404": _error("No agent reports this broker"),
+                              "409": _error("The agent refused (e.g. unknown broker there)"),
+                              "503": _error("The agent did not answer")}}}
+              for verb, summary in (
+                  ("stop", "Stop a broker and keep it stopped, its data and config kept, until started"),
+                  ("start", "Start a broker the operator stopped"),
+                  ("restart", "Stop a broker gracefully and start it again (a new pid)"))},
             "/api/refresh": {"post": {
                 "operationId": "refresh", "summary": "Ask the agents again now", **_WRITE,
                 "responses": {"200": _json({"type": "object"}, "Observed again"),

@@ -37,7 +37,7 @@ from engine.apply import ApplyEvent, apply
 from engine.cli.progress import result_lines
 from engine.errors import EngineError
 from engine.context_view import ContextView, context_sources, write_context
-from engine.model import DesiredState, ObservedState, Plan
+from engine.model import DesiredState, ObservedBroker, ObservedState, Plan
 from engine.observed import observe, write_observed
 from engine.pipeline import run_pipeline
 from engine.plan import plan as make_plan
@@ -247,6 +247,24 @@ class PlantState:
             self.refresh()
 
     # ------------------------------------------------------------------------------ applying
+
+    def broker_verb(self, broker_id: str, verb: str) -> ObservedBroker:
+        """The operator's ``stop``/``start``/``restart`` of a broker an agent reports (its agent
+        does it; data and config kept, see docs/operating.md); then the agents are asked again.
+        Raises :class:`ApplyRefused` for a broker no agent reports, DispatchError if the agent
+        refuses or does not answer."""
+        if verb not in ("stop", "start", "restart"):
+            raise ApplyRefused(f"{verb!r} is not one of stop, start, restart")
+        snap = self._snap
+        have = snap.observed.broker(broker_id) if snap.observed is not None else None
+        if have is None:
+            raise ApplyRefused(f"no agent reports broker {broker_id!r}",
+                               hint="refresh, and pick a broker of the brokers table")
+        directory = self._load_directory(self.agents_file)
+        with self._apply_lock:  # not in the middle of an apply (or of the loop's)
+            after = directory.client_for(have.spec.host).broker_verb(broker_id, verb)
+        self.refresh()
+        return after
 
     def start_apply(self, fingerprint: str | None, *, by: str = "") -> ApplyJob:
         """Start applying the current plan if its fingerprint is ``fingerprint``."""

@@ -6,7 +6,9 @@
 - ``start`` serves again; a Kafka topic's messages produced before ``stop`` are consumed after
   ``start``;
 - the command line (``plantkg stop|start|restart``) finds the agent and exits 2 on an unknown
-  broker.
+  broker;
+- ``serve``'s reconcile loop leaves a stopped broker stopped; the dashboard's ``/api/stop|start|
+  restart`` work behind its login and CSRF token.
 
 The agents and their clean-up come from tests/integration/test_agent.py (imported, not copied).
 """
@@ -289,3 +291,56 @@ def mqtt_roundtrip_on(host: str, port: int) -> None:
     finally:
         client.disconnect()
         client.loop_stop()
+
+
+def test_the_dashboard_stops_and_starts_a_broker_behind_its_login(tmp_path: Path) -> None:
+    from engine.agents_config import AgentDirectory  # noqa: PLC0415
+    from engine.web.plant_state import PlantState  # noqa: PLC0415
+    from tests.integration.agents import start_agents  # noqa: PLC0415
+    from tests.web.conftest import login, make_app  # noqa: PLC0415
+
+    host = "127.0.0.2"
+    fleet = start_agents([host], tmp_path)
+    state = None
+    try:
+        plant, port = tmp_path / "plant.ttl", netutil.free_port(host)
+        plant.write_text(LOOP_PLANT.format(host=host, port=port))
+        directory = AgentDirectory.load(fleet.agents_file)
+        client = fleet.client(host)
+        client.put_broker(BrokerSpec("cell", "http://example.org/held-plant#cell", "cell broker",
+                                     "mosquitto", host, port))
+        first = client.get_broker("cell")
+        state = PlantState([str(plant)], fleet.agents_file, directory_loader=lambda _p: directory)
+        state.reload()
+        web = make_app(state).test_client()
+
+        # Not logged in: refused, nothing stopped. Logged in without the CSRF token: refused too.
+        assert web.post("/api/stop", json={"broker_id": "cell"}).status_code == 403
+        csrf = login(web)
+        assert web.post("/api/stop", json={"broker_id": "cell"}).status_code == 403
+        assert client.get_broker("cell").status is BrokerStatus.RUNNING
+        assert "<th>operator</th>" in web.get("/").get_data(as_text=True)
+
+        with_csrf = {"X-CSRF-Token": csrf}
+        stopped = web.post("/api/stop", json={"broker_id": "cell"}, headers=with_csrf)
+        assert stopped.status_code == 200, stopped.json
+        assert stopped.json["broker"]["status"] == "stopped-by-operator"
+        assert client.get_broker("cell").status is BrokerStatus.STOPPED_BY_OPERATOR
+        rows = {b["id"]: b for b in web.get("/api/status").json["brokers"]}
+        assert rows["cell"]["status"] == "stopped-by-operator"
+
+        missing = web.post("/api/start", json={"broker_id": "nope"}, headers=with_csrf)
+        assert missing.status_code == 404 and "no agent reports broker 'nope'" in missing.json["error"]
+        assert web.post("/api/start", json={}, headers=with_csrf).status_code == 400
+
+        started = web.post("/api/start", json={"broker_id": "cell"}, headers=with_csrf)
+        assert started.status_code == 200 and started.json["broker"]["status"] == "running"
+        restarted = web.post("/api/restart", json={"broker_id": "cell"}, headers=with_csrf)
+        assert restarted.status_code == 200
+        assert restarted.json["broker"]["pid"] not in (first.pid, started.json["broker"]["pid"])
+    finally:
+        if state is not None:
+            state.close()
+        for broker in fleet.brokers():
+            fleet.client(host).delete_broker(broker)
+        fleet.stop()

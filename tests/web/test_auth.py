@@ -26,7 +26,8 @@ def write_routes(app: Flask) -> list[tuple[str, str, str]]:
 
 def test_the_app_has_the_write_routes_we_guard(app: Flask) -> None:
     endpoints = {e for e, _m, _p in write_routes(app)}
-    assert endpoints == {"api.apply", "api.refresh", "sparql.endpoint", "auth.login", "auth.logout"}
+    assert endpoints == {"api.apply", "api.refresh", "api.stop", "api.start", "api.restart",
+                         "sparql.endpoint", "auth.login", "auth.logout"}
     assert CSRF_EXEMPT == {"sparql.endpoint"}  # read-only: a POST there is a query
 
 

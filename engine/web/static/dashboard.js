@@ -35,6 +35,38 @@
     if (id) td.setAttribute("data-status-of", id);
     return td;
   }
+  // The operator's stop/start/restart of a broker (logged in only; the CSRF token goes along).
+  var operator = document.querySelector("#brokers th:last-child").textContent === "operator";
+  var csrf = document.querySelector('meta[name="csrf-token"]').content;
+  function verbCell(b) {
+    var td = el("td", null, "verbs");
+    var known = ["absent", "unknown"].indexOf(b.status) < 0;
+    var verbs = b.status === "stopped-by-operator" ? ["start"] : ["stop", "restart"];
+    if (known) verbs.forEach(function (verb) {
+      var button = el("button", verb);
+      button.type = "button";
+      button.setAttribute("data-verb", verb);
+      button.addEventListener("click", function () { brokerVerb(verb, b.id, button); });
+      td.appendChild(button);
+    });
+    return td;
+  }
+  function brokerVerb(verb, id, button) {
+    var note = { stop: "Stop broker " + id + "? It stays stopped (data and config kept) until started.",
+      restart: "Restart broker " + id + " now?", start: "Start broker " + id + "?" }[verb];
+    if (!window.confirm(note)) return;
+    var line = document.getElementById("broker-verb");
+    button.disabled = true;
+    line.textContent = verb + " " + id + " ...";
+    fetch("api/" + verb, { method: "POST", credentials: "same-origin",
+      headers: { "Content-Type": "application/json", "X-CSRF-Token": csrf },
+      body: JSON.stringify({ broker_id: id })
+    }).then(function (r) { return r.json().then(function (body) {
+      line.textContent = r.ok ? verb + " " + id + ": " + body.broker.status + (body.broker.pid ? ", pid " + body.broker.pid : "")
+        : verb + " " + id + " refused: " + body.error;
+    }); }).catch(function () { line.textContent = verb + " " + id + ": no answer"; })
+      .finally(function () { button.disabled = false; });
+  }
   function renderTables(s) {
     fill("brokers", s.brokers, function (b) {
       var tr = [el("td", b.id + (b.in_plant ? "" : " (not in plant)")), b.kind, b.address,
@@ -45,6 +77,7 @@
       tr[0].setAttribute("data-broker", b.id);
       tr[4].setAttribute("data-started", b.started_at || "");
       if (b.last_error) tr[3].title = b.last_error;
+      if (operator) tr.push(verbCell(b));
       return tr;
     });
     fill("machines", s.machines, function (m) {
