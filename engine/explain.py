@@ -24,7 +24,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable
+from typing import Callable, Iterable
 
 import pyoxigraph as ox
 
@@ -49,12 +49,9 @@ _ID = ox.NamedNode(f"{PK}id")
 #: Derivations listed per fact at most (a topic published by 500 resources has 500 reasons).
 MAX_REASONS = 20
 
-_ID_RE = r"[^.\s]+"
-_FORMS = {
-    "broker": re.compile(rf"broker\.(?P<a>{_ID_RE})"),
-    "topic": re.compile(rf"topic\.(?P<a>{_ID_RE})\.(?P<b>\S+)"),
-    "bridge": re.compile(rf"bridge\.(?P<a>{_ID_RE})\.(?P<b>{_ID_RE})"),
-}
+#: ``kind.rest``; ids may hold dots (the shapes allow ``[A-Za-z0-9_.-]``), so where a topic's or a
+#: bridge's parts split is found against the plant's broker ids (``_split``).
+_FORM = re.compile(r"(?P<kind>broker|topic|bridge)\.(?P<rest>\S+)")
 _TRIPLE = re.compile(r"(\?\w+|<[^>\s]+>|\ba\b) (\?\w+|<[^>\s]+>|\ba\b) (\?\w+|<[^>\s]+>) \.")
 
 
@@ -136,13 +133,18 @@ class Explanation:
         return "\n".join(lines)
 
 
-def parse_address(address: str) -> tuple[str, tuple[str, ...]]:
-    """``("bridge", ("mosquitto", "kafka"))`` for ``bridge.mosquitto.kafka``; AddressError if none."""
-    for kind, form in _FORMS.items():
-        m = form.fullmatch(address)
-        if m:
-            return kind, tuple(v for v in m.groups() if v is not None)
-    raise AddressError(address)
+def parse_address(address: str) -> tuple[str, str]:
+    """``("bridge", "mosquitto.kafka")`` for ``bridge.mosquitto.kafka``; AddressError if it is not
+    a plan address (a topic's and a bridge's rest must hold two non-empty parts)."""
+    m = _FORM.fullmatch(address)
+    if m is None or (m["kind"] != "broker" and not _splits(m["rest"])):
+        raise AddressError(address)
+    return m["kind"], m["rest"]
+
+
+def _splits(rest: str) -> list[tuple[str, str]]:
+    """Every way ``rest`` is ``left.right`` with both parts non-empty, leftmost dot first."""
+    return [(rest[:i], rest[i + 1:]) for i, ch in enumerate(rest) if ch == "." and 0 < i < len(rest) - 1]
 
 
 def explain(files: Iterable[Path | str], address: str) -> tuple[Pipeline, Explanation | None]:
@@ -163,18 +165,20 @@ def explain(files: Iterable[Path | str], address: str) -> tuple[Pipeline, Explan
 
 def explain_plant(plant: PlantGraph, desired: DesiredState, address: str) -> Explanation:
     """Explain ``address`` of ``desired``, derived from ``plant`` reasoned over by the fast engine."""
-    kind, parts = parse_address(address)
+    kind, rest = parse_address(address)
     ctx = _Context(plant)
     brokers = {b.id: b for b in desired.brokers}
     present = address in {x.address for x in (*desired.brokers, *desired.topics, *desired.bridges)}
     if kind == "broker":
-        node = ctx.by_id(parts[0])
+        parts: tuple[str, ...] = (rest,)
+        node = ctx.by_id(rest)
         facts = [(node, _TYPE, _DEPLOYED)] if node is not None else []
-        missing = f"no broker has pk:id {parts[0]!r}" if node is None else \
+        missing = f"no broker has pk:id {rest!r}" if node is None else \
             "the reasoner does not conclude it is a pk:DeployedBroker (no resource sends to it, it " \
             "carries no topic, no bridge requires it), or it is pk:external"
     elif kind == "topic":
         topic = next((t for t in desired.topics if t.address == address), None)
+        parts = (topic.broker_id, topic.name) if topic else _split(rest, lambda a, _b: ctx.by_id(a) is not None)
         node = ctx.by_id(parts[0])
         tnode = ox.NamedNode(topic.iri) if topic else (ctx.topic_named(node, parts[1]) if node else None)
         facts = [(node, _MUST_CARRY, tnode)] if node is not None and tnode is not None else []
@@ -182,6 +186,7 @@ def explain_plant(plant: PlantGraph, desired: DesiredState, address: str) -> Exp
                    f"no topic named {parts[1]!r} must be carried by {parts[0]} (no resource sending to "
                    "it publishes or subscribes to it, and the plant asserts no pk:hasTopic)")
     else:
+        parts = _split(rest, lambda a, b: ctx.by_id(a) is not None and ctx.by_id(b) is not None)
         a = ox.NamedNode(brokers[parts[0]].iri) if parts[0] in brokers else ctx.by_id(parts[0])
         c = ox.NamedNode(brokers[parts[1]].iri) if parts[1] in brokers else ctx.by_id(parts[1])
         facts = [(a, _REQUIRES_BRIDGE, c), (c, _REQUIRES_BRIDGE, a)] if a is not None and c is not None else []
@@ -205,6 +210,12 @@ def explain_plant(plant: PlantGraph, desired: DesiredState, address: str) -> Exp
     if capped:
         note = f"only the first {MAX_REASONS} reasons of each fact are shown; there are more"
     return Explanation(address, kind, True, tuple(reasons), note)
+
+
+def _split(rest: str, known: Callable[[str, str], bool]) -> tuple[str, str]:
+    """The split of ``rest`` whose parts ``known`` accepts (the first such), else the first split."""
+    splits = _splits(rest)
+    return next((sp for sp in splits if known(*sp)), splits[0])
 
 
 class _Context:

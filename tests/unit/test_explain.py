@@ -124,7 +124,8 @@ def test_addresses_not_required_say_why(address: str, why: str) -> None:
     assert not e.required and why in e.note
 
 
-@pytest.mark.parametrize("address", ["bridge.mosquitto", "broker.", "topic.kafka", "queue.x", "broker.a.b", ""])
+@pytest.mark.parametrize("address", ["bridge.mosquitto", "broker.", "topic.kafka", "topic.kafka.", "bridge..x",
+                                     "queue.x", "broker.a b", ""])
 def test_malformed_addresses_are_refused(address: str) -> None:
     with pytest.raises(AddressError, match="is not a plan address"):
         parse_address(address)
@@ -140,6 +141,17 @@ def _rule_labels() -> set[str]:
                        "PREFIX rdfs: <http://www.w3.org/2000/01/rdf-schema#> "
                        "SELECT ?l WHERE { ?r a swrl:Imp ; rdfs:label ?l }")
     return {row["l"].value for row in rows}
+
+
+def test_ids_with_dots_split_where_the_plant_has_brokers(tmp_path: Path) -> None:
+    text = ROBOT_CELL.read_text(encoding="utf-8").replace('pk:id "mosquitto"', 'pk:id "cell.mosquitto"')
+    path = tmp_path / "robot-cell.ttl"
+    path.write_text(text, encoding="utf-8")
+    e = _explain(path, "bridge.cell.mosquitto.kafka")
+    assert e.required and R1 in {r.rule for r in e.reasons}
+    topic = _explain(path, "topic.cell.mosquitto.robot.abb-irb120.position")
+    assert topic.required and topic.reasons
+    assert _explain(path, "broker.cell.mosquitto").required
 
 
 @pytest.mark.parametrize("asserted", [True, False], ids=["as-shipped", "no-hasTopic-no-bridgesTo"])
