@@ -16,7 +16,7 @@ from pathlib import Path
 import click
 
 from engine.cli.common import file_argument
-from engine.cli.options import agents_option, owner_option, prune_option, yes_option
+from engine.cli.options import agents_option, owner_option, prune_option, result_format_option, yes_option
 
 
 @click.command("apply")
@@ -26,9 +26,10 @@ from engine.cli.options import agents_option, owner_option, prune_option, yes_op
 @click.option("--parallelism", type=click.IntRange(1, 64), default=8, show_default=True,
               help="how many brokers are changed at once")
 @owner_option
+@result_format_option
 @prune_option
 def apply_command(files: tuple[str, ...], yes: bool, agents_file: Path | None, parallelism: int,
-                  owner: str | None, prune: bool) -> int:
+                  owner: str | None, prune: bool, fmt: str = "text") -> int:
     """Make the brokers run as the plant in FILE(s) describes.
 
     \b
@@ -37,5 +38,5 @@ def apply_command(files: tuple[str, ...], yes: bool, agents_file: Path | None, p
     """
     from engine.cli.reconcile import make_changes  # noqa: PLC0415 - the pipeline: only when run
 
-    return make_changes(files, agents_file, yes=yes, parallelism=parallelism, destroy=False,
+    return make_changes(files, agents_file, yes=yes, parallelism=parallelism, destroy=False, fmt=fmt,
                         owner=owner, prune=prune)

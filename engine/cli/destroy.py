@@ -12,7 +12,7 @@ from pathlib import Path
 import click
 
 from engine.cli.common import file_argument
-from engine.cli.options import agents_option, owner_option, yes_option
+from engine.cli.options import agents_option, owner_option, result_format_option, yes_option
 
 
 @click.command("destroy")
@@ -22,8 +22,9 @@ from engine.cli.options import agents_option, owner_option, yes_option
 @click.option("--parallelism", type=click.IntRange(1, 64), default=8, show_default=True,
               help="how many brokers are removed at once")
 @owner_option
+@result_format_option
 def destroy_command(files: tuple[str, ...], yes: bool, agents_file: Path | None, parallelism: int,
-                    owner: str | None) -> int:
+                    owner: str | None, fmt: str = "text") -> int:
     """Stop and remove every broker of the plant in FILE(s), with its topics.
 
     \b
@@ -32,5 +33,5 @@ def destroy_command(files: tuple[str, ...], yes: bool, agents_file: Path | None,
     """
     from engine.cli.reconcile import make_changes  # noqa: PLC0415 - the pipeline: only when run
 
-    return make_changes(files, agents_file, yes=yes, parallelism=parallelism, destroy=True,
+    return make_changes(files, agents_file, yes=yes, parallelism=parallelism, destroy=True, fmt=fmt,
                         owner=owner)

@@ -21,3 +21,9 @@ prune_option = click.option(
     "--prune", is_flag=True,
     help="also delete what nobody owns (made before ownership, or by hand); other plants' "
          "things are never deleted")
+
+
+result_format_option = click.option(
+    "--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True,
+    help="text for people; json: one typed document on stdout at the end (no prompt: needs --yes "
+         "when there are changes)")

@@ -67,10 +67,15 @@ def print_violations(result: Pipeline, fmt: str = "text") -> None:
                + "the plant has violations; nothing was planned, started or stopped", err=True)
 
 
-def confirm(question: str, *, yes: bool, what: str) -> None:
-    """Go on if ``--yes``; else ask on a terminal (only 'yes' goes on); else refuse."""
+def confirm(question: str, *, yes: bool, what: str, ask: bool = True) -> None:
+    """Go on if ``--yes``; else ask on a terminal (only 'yes' goes on); else refuse.
+    ``ask`` False (JSON output): never ask, refuse without ``--yes``."""
     if yes:
         return
+    if not ask:
+        raise ConfirmationRequiredError(
+            f"refusing to {what} without confirmation: --format json never asks",
+            hint=f"pass --yes to {what} with --format json")
     if not sys.stdin.isatty():
         raise ConfirmationRequiredError(
             f"refusing to {what} without confirmation: standard input is not a terminal",
@@ -86,8 +91,12 @@ EXIT_NOT_CONVERGED = 3  # some changes failed or did not take effect: run again 
 
 
 def make_changes(files: tuple[str, ...], agents_file: Path | None, *, yes: bool, parallelism: int,
-                 destroy: bool, owner: str | None = None, prune: bool = False) -> int:
+                 destroy: bool, owner: str | None = None, prune: bool = False, fmt: str = "text") -> int:
     """What ``apply`` and ``destroy`` share: validate, plan, show, confirm, dispatch, report.
+
+    ``fmt`` "json": no plan text, no progress, no prompt (changes need ``--yes``), and one JSON
+    document on stdout at the end (:mod:`engine.render_result`; the violations report for an
+    invalid plant, the plan for one that cannot be applied).
 
     Exit codes: 0 converged, 1 violations (nothing dispatched), 3 some changes failed or did not
     take effect; a plan that cannot be applied raises PlanNotApplicableError (exit 2).
@@ -96,20 +105,38 @@ def make_changes(files: tuple[str, ...], agents_file: Path | None, *, yes: bool,
     from engine.cli.progress import Progress, result_lines  # noqa: PLC0415
     from engine.render_plan import render_plan  # noqa: PLC0415
 
+    from engine import render_result  # noqa: PLC0415
+
+    verb = "destroy" if destroy else "apply"
+    as_json = fmt == "json"
     result, directory = prepare(files, agents_file, destroy=destroy, owner=owner, prune=prune)
     if not result.valid:
-        print_violations(result)
+        print_violations(result, fmt="json" if as_json else "text")
         return EXIT_VIOLATIONS
     plan, desired = result.plan, result.desired
     assert plan is not None and desired is not None and directory is not None
+    if as_json and (plan.empty or not plan.applicable):
+        if not plan.applicable:
+            from engine.render_plan import plan_json  # noqa: PLC0415
+
+            click.echo(plan_json(plan))
+            raise PlanNotApplicableError(plan)
+        click.echo(render_result.to_json(render_result.nothing_done_dict(plan, verb=verb)))
+        return 0
     if destroy and plan.empty and plan.applicable:
         click.echo("Nothing to destroy: no broker of this plant runs.")
         return 0
-    click.echo(render_plan(plan, color=True))
+    if not as_json:
+        click.echo(render_plan(plan, color=True))
     if not plan.applicable:
         raise PlanNotApplicableError(plan)
     if plan.empty:
         return 0
+    if as_json:
+        confirm("", yes=yes, what=verb, ask=False)
+        outcome = apply(plan, desired, directory, parallelism=parallelism, destroy=destroy, prune=prune)
+        click.echo(render_result.to_json(render_result.result_dict(outcome, verb=verb)))
+        return 0 if outcome.ok else EXIT_NOT_CONVERGED
     if destroy:
         confirm("Do you really want to destroy these brokers? Their data is removed.", yes=yes,
                 what="destroy")
