@@ -137,8 +137,10 @@ def test_a_broker_deleted_behind_its_back_comes_back(looped: Looped) -> None:
     assert looped.fleet.client(HOST).get_broker("cell") is None
     took = looped.wait_running("cell", COMES_BACK_WITHIN)
     assert took < COMES_BACK_WITHIN
-    drift = [r for r in looped.runs[before:] if r.applied]
-    assert drift and drift[0].trigger == "drift" and drift[0].summary["create"] >= 1
+    # the broker runs before the run that started it has finished and been recorded: wait for it
+    drift = process.wait_until(lambda: [r for r in looped.runs[before:] if r.applied], 30.0, 0.05,
+                               what="the drift run's record")
+    assert drift[0].trigger == "drift" and drift[0].summary["create"] >= 1
     print(f"broker deleted behind the loop's back running again after {took:.2f} s "
           f"(interval {INTERVAL} s)")
 
