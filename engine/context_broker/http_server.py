@@ -14,10 +14,12 @@ topped out near 1,500 updates/s, and lower with more clients. Here:
   a client that stalls mid-header or mid-body costs a buffer, not a worker. Connections idle for
   ``idle_timeout`` s are closed. A client that does not read its answers is paused (no more of
   its requests are run, its socket is not read) until it drains them.
-- **Limits**: headers over ``MAX_HEADER_BYTES`` get 431, bodies over ``MAX_BODY_READ`` 413 (the
-  app refuses bodies over 1 MB itself, with Orion's body, after reading them so the client sees
-  the answer), bytes that are not HTTP/1.x a 400 — each as Orion's JSON error body, then the
-  connection is closed. At most ``max_connections`` connections: the next ones get 503.
+- **Limits**: headers over ``MAX_HEADER_BYTES`` get 431; a body over ``max_body`` (the app's
+  1 MB) is read and thrown away, not kept, then answered 413 (so a client still sending sees the
+  answer, not a reset) — up to ``MAX_BODY_READ``, past which the 413 comes at once; bytes that are
+  not HTTP/1.x get 400 — each as Orion's JSON error body, then the connection is closed. So a
+  connection holds at most ``max_body`` of request body in memory. At most ``max_connections``
+  connections: the next ones get 503.
 - HTTP/1.1 keep-alive (also after 204, which waitress closed), pipelining answered in order,
   ``Expect: 100-continue``, chunked request bodies (given to the app with their length, as
   waitress did), ``HEAD`` without a body.
@@ -43,7 +45,8 @@ from urllib.parse import unquote_to_bytes
 import httptools
 
 log = logging.getLogger("engine.context_broker.http")
-MAX_BODY_READ = 16 * 1024 * 1024  # the app's limit is 1 MB; up to this the body is read and refused by the app
+MAX_BODY_READ = 16 * 1024 * 1024  # bodies up to this are read (and thrown away) before their 413
+MAX_BODY = 16 * 1024 * 1024  # default ``max_body``; the context broker passes its 1 MB
 MAX_HEADER_BYTES = 64 * 1024
 MAX_PIPELINED = 32  # requests read ahead on one connection before its socket is paused
 IDLE_TIMEOUT = 120.0
@@ -81,7 +84,7 @@ def _date() -> str:
 
 class _Request:
     __slots__ = ("url", "headers", "header_bytes", "body", "body_size", "method", "version",
-                 "keep_alive", "chunked")
+                 "keep_alive", "chunked", "too_large")
 
     def __init__(self) -> None:
         self.url = b""
@@ -89,6 +92,7 @@ class _Request:
         self.header_bytes = 0
         self.body: list[bytes] = []
         self.body_size = 0
+        self.too_large = False  # over max_body: its bytes are dropped, the answer is a 413
         self.method = "GET"
         self.version = "1.1"
         self.keep_alive = True
@@ -231,10 +235,9 @@ class _Connection(asyncio.Protocol):
                                             f"Content-Length {value[:40]!r} is not a number of bytes")
                     raise httptools.HttpParserError("bad content-length")
                 if int(value) > MAX_BODY_READ:
-                    self.refusal = _Refusal("413 Request Entity Too Large", "RequestEntityTooLarge",
-                                            f"payload size: {int(value)} bytes, max size supported: "
-                                            "1048576 bytes")
+                    self.refusal = _too_large(f"{int(value)} bytes", self.server.max_body)
                     raise httptools.HttpParserError("body too large")
+                req.too_large = int(value) > self.server.max_body
             elif lower == b"transfer-encoding" and b"chunked" in value.lower():
                 req.chunked = True
             elif lower == b"expect" and value.strip().lower() == b"100-continue":
@@ -248,11 +251,13 @@ class _Connection(asyncio.Protocol):
         req.body_size += len(body)
         if req.body_size > MAX_BODY_READ:
             if self.refusal is None:
-                self.refusal = _Refusal("413 Request Entity Too Large", "RequestEntityTooLarge",
-                                        f"payload size: over {MAX_BODY_READ} bytes, max size "
-                                        "supported: 1048576 bytes")
+                self.refusal = _too_large(f"over {MAX_BODY_READ} bytes", self.server.max_body)
             raise httptools.HttpParserError("body too large")
-        req.body.append(body)
+        if req.body_size > self.server.max_body:
+            req.too_large = True
+            req.body.clear()
+        if not req.too_large:
+            req.body.append(body)
 
     def on_message_complete(self) -> None:
         req = self.current
@@ -274,6 +279,9 @@ class _Connection(asyncio.Protocol):
                     self.transport.resume_reading()  # type: ignore[union-attr]
                 return
             req = self.queue.popleft()
+            if req.too_large:  # read whole and thrown away: answer and close
+                self._refuse(_too_large(f"{req.body_size} bytes", self.server.max_body))
+                return
             environ = self.server.environ(req, self.peer)
             if self.server.inline(environ):
                 self._answer(req, *self.server.call(environ))
@@ -331,6 +339,12 @@ class _Connection(asyncio.Protocol):
             self.transport.close()
 
 
+def _too_large(size: str, limit: int) -> _Refusal:
+    """Orion's answer to a body over the limit (the app words its own 413 the same way)."""
+    return _Refusal("413 Request Entity Too Large", "RequestEntityTooLarge",
+                    f"payload size: {size}, max size supported: {limit} bytes")
+
+
 def _parser_reason(err: Exception) -> str:
     text = str(err).strip() or type(err).__name__
     return text[:200]
@@ -342,11 +356,12 @@ class HttpServer:
 
     def __init__(self, app: WSGIApp, host: str, port: int, threads: int,
                  inline: Inline | None = None, *, max_connections: int = MAX_CONNECTIONS,
-                 idle_timeout: float = IDLE_TIMEOUT) -> None:
+                 idle_timeout: float = IDLE_TIMEOUT, max_body: int = MAX_BODY) -> None:
         self.app = app
         self.host, self.port = host, port
         self.inline: Inline = inline or (lambda _environ: False)
         self.max_connections = max_connections
+        self.max_body = max_body
         self.idle_timeout = idle_timeout
         self.pool = ThreadPoolExecutor(max_workers=max(1, threads), thread_name_prefix="cb-http")
         self.loop = asyncio.new_event_loop()
@@ -451,6 +466,6 @@ class HttpServer:
 
 
 def make_server(app: WSGIApp, host: str, port: int, threads: int,
-                inline: Inline | None = None) -> HttpServer:
+                inline: Inline | None = None, max_body: int = MAX_BODY) -> HttpServer:
     """The server for ``app`` on ``host:port`` (bound on return; ``run()`` serves)."""
-    return HttpServer(app, host, port, threads, inline)
+    return HttpServer(app, host, port, threads, inline, max_body=max_body)

@@ -25,7 +25,7 @@ import logging
 import sys
 from pathlib import Path
 
-from engine.context_broker.app import create_app
+from engine.context_broker.app import MAX_BODY, create_app
 from engine.context_broker.store import ContextStore, StoreLocked
 
 log = logging.getLogger("engine.context_broker")
@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
                          subscriptions_blueprint=subscriptions.blueprint())
         # with --fsync a write waits for the disk: keep it off the event loop
         server = make_server(app, args.host, args.port, args.threads,
-                             inline=None if args.fsync else is_hot_write)
+                             inline=None if args.fsync else is_hot_write, max_body=MAX_BODY)
     except OSError as err:
         subscriptions.close()
         store.close()

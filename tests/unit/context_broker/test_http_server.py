@@ -267,3 +267,24 @@ def test_port_in_use_is_an_os_error() -> None:
         taken.listen()
         with pytest.raises(OSError):
             HttpServer(app, HOST, taken.getsockname()[1], threads=1)
+
+
+@pytest.mark.parametrize("server", [{"max_body": 1000}], indirect=True)
+def test_a_body_over_max_body_is_read_dropped_and_answered_413(server: HttpServer) -> None:
+    """The request before it is answered; the big one never reaches the app (its bytes are not
+    kept); the client, still sending, reads Orion's 413, then the connection closes."""
+    with connect(server) as sock:
+        buf = bytearray()
+        sock.sendall(request("POST", "/first", b"1") + request("POST", "/big", b"x" * 5000))
+        status, _, body = read_answer(sock, buf)
+        assert status == 200 and json.loads(body)["path"] == "/first"
+        status, headers, body = read_answer(sock, buf)
+        assert status == 413 and headers["connection"] == "close"
+        assert json.loads(body) == {"error": "RequestEntityTooLarge",
+                                    "description": "payload size: 5000 bytes, max size supported: 1000 bytes"}
+        assert closed(sock)
+    with connect(server) as sock:  # chunked: the same once its chunks pass the limit
+        sock.sendall(b"POST /big HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n"
+                     + b"".join(b"200\r\n" + b"z" * 512 + b"\r\n" for _ in range(4)) + b"0\r\n\r\n")
+        status, _, body = read_answer(sock, bytearray())
+        assert status == 413 and "2048 bytes" in json.loads(body)["description"]
