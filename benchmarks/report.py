@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.common import ROOT
+from benchmarks.staleness import stale_note
 
 CONCLUSIONS = ROOT / "benchmarks" / "conclusions.md"
 SECTIONS = (
@@ -147,6 +148,12 @@ def render(results: Path, base: Path) -> str:
     effects = load_effects(load) if load else []
     if effects:
         lines += ["", "### What moves the load test's latency (from `results/load.json`)", "", *effects]
+    notes = {name: stale_note(ROOT, name, data) for name, _t, _i in SECTIONS
+             if (data := _read(results, name)) is not None and (results / f"{name}.md").is_file()}
+    stale = [f"- {title}: {notes[name]}" for name, title, _i in SECTIONS if notes.get(name)]
+    if stale:
+        lines += ["", "### Tables that may not describe the current code", "",
+                  "Checked against the commit each run recorded (`benchmarks/staleness.py`):", "", *stale]
     if CONCLUSIONS.is_file():
         lines += ["", CONCLUSIONS.read_text().strip()]
     for name, title, images in SECTIONS:
@@ -154,7 +161,10 @@ def render(results: Path, base: Path) -> str:
         md = results / f"{name}.md"
         if data is None or not md.is_file():
             continue
-        lines += ["", f"## {title}", "", _run_line(data), "", _table_of(md.read_text())]
+        lines += ["", f"## {title}", "", _run_line(data)]
+        if notes.get(name):
+            lines += ["", str(notes[name])]
+        lines += ["", _table_of(md.read_text())]
         lines += [f"\n![{img}]({rel / img})" for img in images if (results / img).is_file()]
     return "\n".join(lines) + "\n"
 

@@ -1,0 +1,76 @@
+"""Whether a results file still measures the code in this checkout.
+
+Each study measures some code (:data:`MEASURES`: paths of the repository). A results file records
+the commit it ran at (``machine.commit``, ``+changes`` when the tree had uncommitted edits). If
+commits after that one changed the measured paths, the table is stale: :func:`stale_note` says so,
+naming how many commits and the command that measures it again. ``plantkg-bench report`` puts the
+note above the table and lists every stale table at the top of RESULTS.md, so no figure passes for
+the current code when it is not.
+"""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+from typing import Any
+
+#: study -> the repository paths whose code it measures
+MEASURES: dict[str, tuple[str, ...]] = {
+    "deploy": ("engine/apply.py", "engine/agent", "engine/drivers", "engine/mosquitto_runtime.py"),
+    "load": ("engine/apply.py", "engine/agent", "engine/drivers", "engine/mosquitto_runtime.py"),
+    "replan": ("kg", "shapes", "ontology", "engine/pipeline.py", "engine/derive.py", "engine/plan.py",
+               "engine/reason.py", "engine/rules_fast.py"),
+    "bridge": ("engine/bridge_worker", "engine/drivers"),
+    "durability": ("engine/bridge_worker", "engine/drivers", "engine/mosquitto_runtime.py"),
+    "web": ("engine/web",),
+    "context_broker": ("engine/context_broker",),
+    "bridge_ngsi": ("engine/bridge_worker", "engine/context_broker"),
+    "fleet_join": ("fleet/manager", "fleet/discovery", "fleet/model", "engine/apply.py", "engine/agent"),
+    "fleet_tasks": ("fleet/planner", "fleet/sim"),
+    "cli": ("engine/cli",),
+    "validate": ("kg", "shapes"),
+    "reason": ("engine/reason.py", "engine/rules_fast.py", "engine/rules_owlready.py", "ontology"),
+}
+
+
+def recorded_commit(data: dict[str, Any]) -> str | None:
+    machine = data.get("machine")
+    commit = machine.get("commit") if isinstance(machine, dict) else None
+    if not isinstance(commit, str) or not commit.strip() or commit.startswith("?"):
+        return None
+    return commit.split("+", 1)[0].strip()
+
+
+def commits_since(root: Path, commit: str, paths: tuple[str, ...]) -> int | None:
+    """How many commits after ``commit`` (up to HEAD) touch ``paths``; None when git cannot tell
+    (no git, not a repository, or a commit this clone does not have)."""
+    try:
+        done = subprocess.run(["git", "rev-list", "--count", f"{commit}..HEAD", "--", *paths], cwd=root,
+                              capture_output=True, text=True, timeout=30, check=False)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    if done.returncode != 0 or not done.stdout.strip().isdigit():
+        return None
+    return int(done.stdout.strip())
+
+
+def stale_note(root: Path, name: str, data: dict[str, Any]) -> str | None:
+    """A sentence when the table of study ``name`` may not describe the current code, else None."""
+    paths = MEASURES.get(name)
+    if not paths:
+        return None
+    commit = recorded_commit(data)
+    if commit is None:
+        return (f"**Stale?** This run records no commit, so it cannot be matched to the code; re-run "
+                f"`plantkg-bench {name}`.")
+    count = commits_since(root, commit, paths)
+    if count is None:
+        return (f"**Stale?** Its commit {commit} is not in this checkout's history, so it cannot be "
+                f"matched to the code; re-run `plantkg-bench {name}`.")
+    if count == 0:
+        return None
+    return (f"**Stale:** {count} commit(s) after {commit} touched the code it measures "
+            f"({', '.join(paths)}); re-run `plantkg-bench {name}`.")
+
+
+__all__ = ["MEASURES", "commits_since", "recorded_commit", "stale_note"]
