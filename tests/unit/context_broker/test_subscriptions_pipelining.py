@@ -83,5 +83,8 @@ def test_windows_in_order_and_a_failure_retried_from_where_it_happened(service, 
     assert len(second) > 1 and second[0] == 1            # then a window of what queued meanwhile
     assert len(second) <= WINDOW
     assert third[0] == second[3], "the retry starts at the notification that failed"
-    status = service.get(sub.id, Tenant())[1]
+    # the lane records a result after the sender has returned it: wait for the last record
+    status = process.wait_until(
+        lambda: (st := service.get(sub.id, Tenant())[1]).times_sent >= count + 1 and st, 10.0, 0.005,
+        what="the delivery status of every attempt")
     assert status.times_sent == count + 1 and status.fails_counter == 0
