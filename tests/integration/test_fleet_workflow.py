@@ -190,10 +190,12 @@ def test_the_papers_eleven_step_load_unload_workflow(rig: Rig, browser: Any) -> 
                        f" return m && Math.hypot(+m.dataset.x - {target['x']}, +m.dataset.y - {target['y']}) < 0.3;"
                        " })()", f"{vehicle} on {spot} on the map")
         shot(fleet, shots, "11-back-in-the-waiting-area")
-        found = entities(rig)
-        mine = {i: e for i, e in found.items() if i.endswith((task, f"{task}-park"))}
-        assert sorted((e["state"], e["purpose"]) for e in mine.values()) == [("FINISHED", "job"),
-                                                                              ("FINISHED", "park")], mine
+        def mine() -> list[tuple[str, str]]:
+            return sorted((e["state"], e["purpose"]) for i, e in entities(rig).items()
+                          if i.endswith((task, f"{task}-park")))
+        # the Task entities are written after the planner's own state changes: poll for them
+        process.wait_until(lambda: mine() == [("FINISHED", "job"), ("FINISHED", "park")], 20.0, 0.1,
+                           what="the job's and the park's Task entities FINISHED")
         position = fleet.evaluate(f"(() => {{ const m = document.querySelector('#map g.vehicle[data-key=\"{vehicle}\"]');"
                                   " return [+m.dataset.x, +m.dataset.y]; })()")
         assert math.hypot(position[0] - target["x"], position[1] - target["y"]) < 0.3
@@ -237,9 +239,13 @@ def test_low_vehicles_go_charging_and_a_job_takes_one_from_its_charger(rig: Rig)
             pos = manager_row(rig, t["vehicle"].split("/")[1])["state"]["agvPosition"]
             assert math.hypot(pos["x"] - at["x"], pos["y"] - at["y"]) < 0.3
         assert planner.tasks()["j1-transport-1"]["state"] == "ACTIVE"  # nobody fit: all below 101 %
-        found = entities(rig)
-        assert sorted(e["state"] for i, e in found.items() if e.get("purpose") == "charge"
-                      and any(i.endswith(t) for t in (t["id"] for t in charges.values()))) == ["FINISHED"] * 2
+        ids = [t["id"] for t in charges.values()]
+
+        def charge_entities() -> list[str]:
+            return sorted(e["state"] for i, e in entities(rig).items() if e.get("purpose") == "charge"
+                          and any(i.endswith(t) for t in ids))
+        # the Task entities are written after the planner's own state changes: poll for them
+        planner.wait(lambda: charge_entities() == ["FINISHED"] * 2, 20.0, "the charge Task entities FINISHED")
 
         planner.stop()
         planner.extra = ()  # the default minimum (20 %): the charging vehicles fit again
