@@ -224,7 +224,7 @@ class KafkaToMqtt:
             self.health.set(assigned=False)
 
     def _kafka_error(self, err: KafkaError) -> None:
-        self.health.error(f"Kafka consumer: {err.str()}")
+        self.health.error(f"Kafka consumer ({self.cfg.kafka_bootstrap}): {err.str()}")
 
     def stop(self, deadline: float) -> None:
         """Stop consuming; wait (until the monotonic ``deadline``) for the PUBACKs in flight and

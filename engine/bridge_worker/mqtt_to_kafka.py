@@ -144,7 +144,9 @@ class MqttToKafka:
                 log.info("%d messages unacknowledged at disconnect; the broker will send them again", dropped)
 
     def _kafka_error(self, err: KafkaError) -> None:
-        self.health.error(f"Kafka producer: {err.str()}")
+        # librdkafka's own texts ("1/1 brokers are down") do not always name the address: add it,
+        # so the operator reading the worker's status knows which Kafka to look at
+        self.health.error(f"Kafka producer ({self.cfg.kafka_bootstrap}): {err.str()}")
 
     def stop(self, deadline: float) -> None:
         """Take no new message; wait (until the monotonic ``deadline``) for the writes in flight
