@@ -4,7 +4,7 @@ For each size it writes a synthetic plant (``benchmarks/synthetic.py``: N resour
 N topics, every tenth resource a subscriber on a neighbour's broker, so rule R1 requires bridges),
 then runs, each in a fresh Python process so imports and memory are not shared:
 
-- ``fast``: ``load_plant``, ``kg.validate.validate`` (auto engine), ``engine.reason.reason`` with
+- ``fast``: ``load_plant``, ``kg.validate.validate`` (auto engine), ``engine.reasoning.reason.reason`` with
   the fast engine, ``engine.derive.derive`` — the stages ``plantkg plan`` runs before it asks the
   agents;
 - ``hermit`` (baseline, up to ``--hermit-max`` resources): the same with the owlready2 engine
@@ -36,7 +36,7 @@ mode, plant = sys.argv[1], sys.argv[2]
 from kg.load import load_plant
 from kg.namespaces import GRAPH_INFERRED
 from kg.validate import validate
-from engine.reason import ReasonerTimeoutError, reason
+from engine.reasoning.reason import ReasonerTimeoutError, reason
 from engine.derive import derive
 import pyoxigraph as ox
 t1 = time.perf_counter()

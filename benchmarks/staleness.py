@@ -19,7 +19,7 @@ MEASURES: dict[str, tuple[str, ...]] = {
     "deploy": ("engine/apply.py", "engine/agent", "engine/drivers", "engine/mosquitto_runtime.py"),
     "load": ("engine/apply.py", "engine/agent", "engine/drivers", "engine/mosquitto_runtime.py"),
     "replan": ("kg", "shapes", "ontology", "engine/pipeline.py", "engine/derive.py", "engine/plan.py",
-               "engine/reason.py", "engine/rules_fast.py"),
+               "engine/reasoning/reason.py", "engine/reasoning/rules_fast.py"),
     "bridge": ("engine/bridge_worker", "engine/drivers"),
     "durability": ("engine/bridge_worker", "engine/drivers", "engine/mosquitto_runtime.py"),
     "web": ("engine/web",),
@@ -29,7 +29,7 @@ MEASURES: dict[str, tuple[str, ...]] = {
     "fleet_tasks": ("fleet/planner", "fleet/sim"),
     "cli": ("engine/cli",),
     "validate": ("kg", "shapes"),
-    "reason": ("engine/reason.py", "engine/rules_fast.py", "engine/rules_owlready.py", "ontology"),
+    "reason": ("engine/reasoning/reason.py", "engine/reasoning/rules_fast.py", "engine/reasoning/rules_owlready.py", "ontology"),
 }
 
 

@@ -39,7 +39,7 @@ from engine.model import (
     BrokerSpec,
 )
 
-#: The inferred broker classes a bridge mechanism is chosen from (as engine.rules_fast.short_name writes them).
+#: The inferred broker classes a bridge mechanism is chosen from (as engine.reasoning.rules_fast.short_name writes them).
 MQTT_CLASS = "pk:MqttBroker"
 KAFKA_CLASS = "pk:KafkaBroker"
 NGSI_CLASS = "pk:ContextBroker"

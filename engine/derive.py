@@ -40,9 +40,9 @@ from engine.errors import ConfigValueError, EngineError
 from engine.bridge_cycles import check_no_cycles
 from engine.bridge_pairs import DirectedBridge, TopicOptions, pair_bridges
 from engine.model import BrokerSpec, DesiredState, TopicSpec
-from engine.reason import INFERRED, input_graphs, is_reasoned
-from engine.rules_fast import short_name
-from engine.rules_tbox import dataset_options
+from engine.reasoning.reason import INFERRED, input_graphs, is_reasoned
+from engine.reasoning.rules_fast import short_name
+from engine.reasoning.rules_tbox import dataset_options
 from engine.values import check_ngsi_id
 from kg.load import PlantGraph
 from kg.namespaces import PK, XSD
@@ -113,7 +113,7 @@ class NotReasonedError(EngineError):
 
     def __init__(self) -> None:
         super().__init__("the plant has not been reasoned over: there are no inferred facts to derive from",
-                         hint="call engine.reason.reason(plant) before engine.derive.derive(plant)")
+                         hint="call engine.reasoning.reason.reason(plant) before engine.derive.derive(plant)")
 
 
 class DeriveError(EngineError):

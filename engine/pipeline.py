@@ -26,7 +26,7 @@ from engine.observed import observe as observe_agents
 from engine.observed import write_observed
 from engine.owner import OwnerError, check_owner_name, plant_owner
 from engine.plan import destroy_plan, plan as make_plan
-from engine.reason import reason
+from engine.reasoning.reason import reason
 from kg.load import PlantGraph, load_plant
 from kg.validate import ValidationReport, validate
 

@@ -2,7 +2,7 @@
 
 Prints, for the plan address (``broker.ID``, ``topic.BROKER.NAME``, ``bridge.A.B`` as ``plan``
 shows them), every reason the reasoner has for it: a fact the plant asserts (and its file), or a
-rule that fired and the facts it fired on (:mod:`engine.explain`). No agent is asked.
+rule that fired and the facts it fired on (:mod:`engine.reasoning.explain`). No agent is asked.
 
 Exit codes, as ``grep`` and ``terraform state show`` / ``kubectl get`` on a missing address:
 0 the address is required (reasons printed), 1 it is not required (why, on stdout) or the plant
@@ -36,7 +36,7 @@ def explain_command(files: tuple[str, ...], address: str, fmt: str) -> int:
       plantkg explain ontology/examples/robot-cell.ttl bridge.mosquitto.kafka
     """
     from engine.cli.reconcile import print_violations  # noqa: PLC0415 - only when run
-    from engine.explain import explain, parse_address  # noqa: PLC0415
+    from engine.reasoning.explain import explain, parse_address  # noqa: PLC0415
 
     parse_address(address)  # a malformed address fails before the plant is loaded
     result, explanation = explain(files, address)

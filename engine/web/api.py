@@ -119,8 +119,8 @@ def refresh() -> Any:
 @bp.get("/explain")
 def explain_address() -> Any:
     """Why ``address`` (a broker, topic or bridge of the plan) must exist, as ``plantkg explain``
-    says it (engine.explain, on the plant's files; no agent asked); ``format=text``: its text."""
-    from engine.explain import AddressError, explain  # noqa: PLC0415 - only when asked
+    says it (engine.reasoning.explain, on the plant's files; no agent asked); ``format=text``: its text."""
+    from engine.reasoning.explain import AddressError, explain  # noqa: PLC0415 - only when asked
 
     address = request.args.get("address", "")
     try:

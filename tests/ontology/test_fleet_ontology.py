@@ -80,8 +80,8 @@ def test_resource_types_cannot_meet_a_plants_ids(module: Graph) -> None:
 
 
 def test_rules_are_dl_safe_and_read_by_the_fast_engine() -> None:
-    from engine.reason import input_graphs
-    from engine.rules_tbox import read_tbox
+    from engine.reasoning.reason import input_graphs
+    from engine.reasoning.rules_tbox import read_tbox
     from kg.load import load_plant
 
     plant = load_plant([EXAMPLE])

@@ -442,7 +442,7 @@ def test_protege_sees_the_rules_conclusions_in_each_example(hermit: Hermit, exam
     """Each example imports the rules module (the catalog resolves it offline), so HermiT with
     its SWRL rules — as Protégé runs it — concludes what plantkg's own engine concludes: which
     brokers must bridge to which, and which topics each broker must carry."""
-    from engine.reason import reason
+    from engine.reasoning.reason import reason
     from kg.load import load_plant
     from kg.namespaces import GRAPH_INFERRED
 

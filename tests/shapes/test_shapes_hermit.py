@@ -10,7 +10,7 @@ is not stricter than it claims.
 Speed: all conforming cases go to HermiT as one document (one JVM run, a few seconds), each case's
 IRIs renamed into a namespace of its own so they cannot meet; only if that run fails is each case
 run alone, to name the ones at fault. Consistency is monotonic, so one consistent union means every
-case is consistent. The plant is written as the reasoning stage writes it (engine/rules_owlready.py):
+case is consistent. The plant is written as the reasoning stage writes it (engine/reasoning/rules_owlready.py):
 the N-Triples Oxigraph holds after kg.load, every individual an owl:NamedIndividual and the
 individuals of one plant owl:AllDifferent (the unique-name assumption of unique pk:ids).
 """

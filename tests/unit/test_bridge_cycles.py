@@ -17,7 +17,7 @@ import pytest
 from engine.bridge_cycles import BridgeCycle, BridgeCycleError, find_cycle, find_cycles
 from engine.bridge_pairs import DirectedBridge
 from engine.derive import derive
-from engine.reason import reason
+from engine.reasoning.reason import reason
 from kg.errors import EXIT_UNUSABLE
 from kg.load import load_plant
 from kg.validate import validate

@@ -17,7 +17,7 @@ from engine.model import (
     BrokerSpec,
     TopicSpec,
 )
-from engine.reason import reason
+from engine.reasoning.reason import reason
 from kg.load import load_plant
 
 ROOT = Path(__file__).resolve().parents[2]

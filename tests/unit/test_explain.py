@@ -16,10 +16,10 @@ from pathlib import Path
 
 import pytest
 
-from engine import rules_fast
-from engine.explain import MAX_REASONS, AddressError, explain, parse_address
-from engine.reason import INFERRED, input_graphs
-from engine.rules_tbox import dataset_options, read_tbox
+from engine.reasoning import rules_fast
+from engine.reasoning.explain import MAX_REASONS, AddressError, explain, parse_address
+from engine.reasoning.reason import INFERRED, input_graphs
+from engine.reasoning.rules_tbox import dataset_options, read_tbox
 from kg.load import load_plant
 from kg.namespaces import PK
 

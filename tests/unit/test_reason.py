@@ -1,4 +1,4 @@
-"""engine.reason: the rules live in the graph, the inferred graph is what SPARQL reads, and the fast
+"""engine.reasoning.reason: the rules live in the graph, the inferred graph is what SPARQL reads, and the fast
 engine refuses — naming it — what it cannot translate (the engines' agreement is in
 test_reason_engines.py)."""
 
@@ -13,7 +13,7 @@ import pyoxigraph as ox
 import pytest
 
 from benchmarks import synthetic
-from engine.reason import (
+from engine.reasoning.reason import (
     InconsistentPlantError, ReasonerTimeoutError, ReasoningError, UnsupportedConstructError,
     is_reasoned, reason,
 )

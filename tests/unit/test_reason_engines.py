@@ -28,7 +28,7 @@ from typing import Callable, Iterator
 import pyoxigraph as ox
 import pytest
 
-from engine.reason import InconsistentPlantError, ReasoningError, UnsupportedConstructError, reason
+from engine.reasoning.reason import InconsistentPlantError, ReasoningError, UnsupportedConstructError, reason
 from kg.load import PlantGraph, load_plant
 from kg.namespaces import GRAPH_INFERRED, PK, RDF
 

@@ -267,7 +267,7 @@ def test_a_bad_description_is_refused_before_any_triple(monkeypatch: pytest.Monk
 
 @pytest.mark.skipif(shutil.which("java") is None, reason="HermiT needs Java")
 def test_both_engines_agree_on_discovered_vehicles(tmp_path: Path) -> None:
-    from engine.reason import reason
+    from engine.reasoning.reason import reason
     from kg.namespaces import GRAPH_INFERRED
 
     base = plant_without_vehicles(tmp_path)

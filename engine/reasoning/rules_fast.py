@@ -1,7 +1,7 @@
 """The fast reasoner: the TBox's OWL axioms and SWRL rules, compiled to SPARQL, run to a fixpoint.
 
 What it computes: the least set of facts over the plant's named individuals closed under every
-axiom and rule :mod:`engine.rules_tbox` reads — sub-classes and sub-properties, domains and ranges,
+axiom and rule :mod:`engine.reasoning.rules_tbox` reads — sub-classes and sub-properties, domains and ranges,
 both directions of every ``owl:equivalentClass`` definition, SWRL rules — and it checks that this
 set is a model of the ontology:
 
@@ -32,8 +32,8 @@ from typing import Callable, Iterable
 
 import pyoxigraph as ox
 
-from engine.rules_errors import InconsistentPlantError, UnsupportedConstructError
-from engine.rules_tbox import (
+from engine.reasoning.rules_errors import InconsistentPlantError, UnsupportedConstructError
+from engine.reasoning.rules_tbox import (
     DATATYPES, And, Datatype, Expr, HasValue, Named, OneOf, Or, Prop, Rule, Some, TBox, Thing, Var,
     dataset_options,
 )
@@ -178,7 +178,7 @@ class FastRule:
 
     def instances_query(self, fact: tuple[ox.NamedNode, ox.NamedNode, object]) -> str | None:
         """SPARQL: every binding of this rule's body that concludes ``fact`` (None when the head
-        cannot), without ``MINUS`` — the rule's own body, for provenance (engine.explain)."""
+        cannot), without ``MINUS`` — the rule's own body, for provenance (engine.reasoning.explain)."""
         bound: dict[str, object] = {}
         for slot, term in zip(self.head, fact):
             if isinstance(slot, str):

@@ -1,6 +1,6 @@
 """Read the TBox — OWL axioms and SWRL rules — out of a loaded plant, into plain Python values.
 
-The fast reasoner (:mod:`engine.rules_fast`) compiles these values to SPARQL; nothing about the
+The fast reasoner (:mod:`engine.reasoning.rules_fast`) compiles these values to SPARQL; nothing about the
 plant's rules is written in Python. The reader knows a fixed set of constructs (see
 ``SUPPORTED_PREDICATES`` / ``SUPPORTED_TYPES`` and the class-expression grammar below) and refuses
 every other OWL, RDFS or SWRL construct with :class:`UnsupportedConstructError`, naming it, so no
@@ -24,7 +24,7 @@ from typing import Callable, Iterable, Union
 
 import pyoxigraph as ox
 
-from engine.rules_errors import UnsupportedConstructError
+from engine.reasoning.rules_errors import UnsupportedConstructError
 from kg.namespaces import OWL, RDF, RDFS, SWRL, XSD
 
 RESERVED_NAMESPACES = (str(RDF), str(RDFS), str(OWL), str(SWRL), "http://www.w3.org/2003/11/swrlb#")

@@ -1,6 +1,6 @@
-"""Typed errors of reasoning (``engine.reason`` and its ``rules_*`` helpers).
+"""Typed errors of reasoning (``engine.reasoning.reason`` and its ``rules_*`` helpers).
 
-Kept apart from :mod:`engine.reason` so the helper modules can raise them without importing the
+Kept apart from :mod:`engine.reasoning.reason` so the helper modules can raise them without importing the
 module that imports them. Each says what to change: the construct, the individual, the file.
 """
 
@@ -10,7 +10,7 @@ from engine.errors import EngineError
 
 
 class ReasoningError(EngineError):
-    """Base of every error :func:`engine.reason.reason` raises on purpose."""
+    """Base of every error :func:`engine.reasoning.reason.reason` raises on purpose."""
 
 
 class UnsupportedConstructError(ReasoningError):

@@ -2,7 +2,7 @@
 
 Why a child process: HermiT runs in a JVM that owlready2 starts and waits for without a timeout,
 owlready2 keeps global state (its default world, Java settings) and leaves a temp file behind when
-the JVM fails. The child (``python -m engine.rules_owlready JOB``) gets its own session and temp
+the JVM fails. The child (``python -m engine.reasoning.rules_owlready JOB``) gets its own session and temp
 dir; on the deadline the whole session (Python and JVM) is killed and the temp dir removed.
 
 What the child is given: one N-Triples file holding the ontology graph (ontology and rules) and the
@@ -34,7 +34,7 @@ from typing import Iterable
 
 import pyoxigraph as ox
 
-from engine.rules_errors import InconsistentPlantError, ReasonerFailedError, ReasonerTimeoutError
+from engine.reasoning.rules_errors import InconsistentPlantError, ReasonerFailedError, ReasonerTimeoutError
 from kg.namespaces import OWL, PK, RDF
 
 _DOC_IRI = "urn:plantkg:reasoning"
@@ -95,7 +95,7 @@ def infer(store: ox.Store, graphs: list[ox.NamedNode], individuals: list[str], p
         (folder / "job.json").write_text(json.dumps(job))
         env = {**os.environ, "TMPDIR": tmp}
         remaining = max(0.1, timeout - (time.perf_counter() - start))
-        proc = subprocess.Popen([sys.executable, "-m", "engine.rules_owlready", str(folder / "job.json")],
+        proc = subprocess.Popen([sys.executable, "-m", "engine.reasoning.rules_owlready", str(folder / "job.json")],
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env,
                                 start_new_session=True)
         try:

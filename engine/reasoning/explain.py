@@ -1,7 +1,7 @@
 """Why must a broker, topic or bridge of the plan exist? The reasoner's own derivations, for people.
 
 ``explain(files, address)`` runs the pipeline up to the desired state with the fast reasoner, then
-asks the reasoner's compiled program (:mod:`engine.rules_fast`) which of its rules conclude the fact
+asks the reasoner's compiled program (:mod:`engine.reasoning.rules_fast`) which of its rules conclude the fact
 behind the address, and with which facts. Nothing here re-guesses the rules: each reason is one
 binding of one compiled rule's own body (``FastRule.instances_query``), evaluated on the fixpoint
 the reasoner reached, plus the plant's assertions. Every derivation is listed, not only the first
@@ -31,10 +31,10 @@ import pyoxigraph as ox
 from engine.errors import EngineError
 from engine.model import DesiredState
 from engine.pipeline import Pipeline, run_pipeline
-from engine.reason import INFERRED, input_graphs
-from engine.rules_errors import UnsupportedConstructError
-from engine.rules_fast import FastRule, compile_tbox, short_name
-from engine.rules_tbox import dataset_options, read_tbox
+from engine.reasoning.reason import INFERRED, input_graphs
+from engine.reasoning.rules_errors import UnsupportedConstructError
+from engine.reasoning.rules_fast import FastRule, compile_tbox, short_name
+from engine.reasoning.rules_tbox import dataset_options, read_tbox
 from kg.load import PlantGraph
 from kg.namespaces import PK, RDF
 

@@ -8,10 +8,10 @@ particular ``plantkg-rules.ttl``) do; Python only runs a reasoner and copies its
 Two engines, held to the same answer by ``tests/unit/test_reason_engines.py``:
 
 - ``owlready2`` (reference): HermiT through owlready2 in a child process with a deadline
-  (:mod:`engine.rules_owlready`). Complete OWL 2 DL + DL-safe SWRL, but a JVM start per call and a
+  (:mod:`engine.reasoning.rules_owlready`). Complete OWL 2 DL + DL-safe SWRL, but a JVM start per call and a
   cost that grows with the square of the plant (5 s at 1k resources, minutes at 10k).
-- ``fast``: the TBox read from the graph (:mod:`engine.rules_tbox`) and compiled to SPARQL run on
-  Oxigraph to a fixpoint (:mod:`engine.rules_fast`). It refuses, naming it, any construct it cannot
+- ``fast``: the TBox read from the graph (:mod:`engine.reasoning.rules_tbox`) and compiled to SPARQL run on
+  Oxigraph to a fixpoint (:mod:`engine.reasoning.rules_fast`). It refuses, naming it, any construct it cannot
   translate, and any plant where its answer could differ from HermiT's.
 - ``auto``: ``fast``, and ``owlready2`` when ``fast`` refuses.
 
@@ -32,12 +32,12 @@ from typing import Literal as Lit
 
 import pyoxigraph as ox
 
-from engine import rules_fast, rules_owlready
-from engine.rules_errors import (
+from engine.reasoning import rules_fast, rules_owlready
+from engine.reasoning.rules_errors import (
     InconsistentPlantError, ReasonerFailedError, ReasonerTimeoutError, ReasoningError,
     UnsupportedConstructError,
 )
-from engine.rules_tbox import RESERVED_NAMESPACES, read_tbox
+from engine.reasoning.rules_tbox import RESERVED_NAMESPACES, read_tbox
 from kg.load import PlantGraph
 from kg.namespaces import GRAPH_INFERRED, GRAPH_ONTOLOGY, OWL, PK, RDF, RDFS, SWRL
 
