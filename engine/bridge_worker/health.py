@@ -16,6 +16,10 @@ from engine.bridge_worker.stats import WorkerStats
 
 log = logging.getLogger("plantkg.bridge")
 
+# the counters of WorkerStats that add up over the bridge's life (connection flags do not)
+CUMULATIVE = ("forwarded_mqtt_to_kafka", "forwarded_kafka_to_mqtt", "forwarded_mqtt_to_ngsi",
+              "retried", "refused", "skipped")
+
 
 class Health:
     def __init__(self, bridge_id: str) -> None:
@@ -40,6 +44,19 @@ class Health:
         if moved:
             log.info("state: %s", ", ".join(f"{k}={v}" for k, v in moved.items()))
             self.changed.set()
+
+    def carry_on_from(self, previous: WorkerStats | None) -> None:
+        """Start the counters where the previous run of this bridge left them, so they count
+        since the bridge was created, not since this process started (a worker restarted by its
+        agent, after a crash, a kill -9 or a changed route, keeps counting). Only a snapshot of
+        the same bridge counts; what a killed worker forwarded after its last snapshot (at most
+        ``stats_interval`` s of traffic) is not in it."""
+        if previous is None or previous.bridge_id != self.bridge_id:
+            return
+        with self._lock:
+            for name in CUMULATIVE:
+                if hasattr(self, name):
+                    setattr(self, name, getattr(previous, name))
 
     def count(self, counter: str, n: int = 1) -> None:
         with self._lock:

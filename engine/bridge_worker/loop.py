@@ -1,5 +1,6 @@
 """What every bridge worker does around its forwarding halves: start them, write ``stats.json``
-when its health changes (and every ``stats_interval`` s), run a probe of the remote side in a
+when its health changes (and every ``stats_interval`` s) with counters that go on from the last
+run's file, run a probe of the remote side in a
 thread of its own, and on a stop let the halves finish what is in flight before the MQTT link
 disconnects.
 
@@ -19,7 +20,7 @@ from collections.abc import Sequence
 from typing import Any, Protocol
 
 from engine.bridge_worker.mqtt_link import MqttLink
-from engine.bridge_worker.stats import WorkerStats, write_stats
+from engine.bridge_worker.stats import WorkerStats, read_stats, write_stats
 
 log = logging.getLogger("plantkg.bridge")
 
@@ -76,6 +77,7 @@ class BridgeLoop(ABC):
     def run(self) -> None:
         """Forward until :attr:`stopping` is set, then stop cleanly."""
         self.cfg.state_dir.mkdir(parents=True, exist_ok=True)
+        self.health.carry_on_from(read_stats(self.cfg.state_dir))
         self._write_stats()
         for half in (*self.halves(), *self.watchers()):
             half.start()

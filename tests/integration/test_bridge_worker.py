@@ -395,3 +395,31 @@ def test_worker_comes_up_when_its_remote_does(tmp_path: Path, mosquitto: rig.Mos
     client.disconnect()
     client.loop_stop()
     assert read_kafka(own_kafka.bootstrap, "late", 1) == [payload("cell/a", 0)]
+
+
+def test_counters_go_on_after_a_restart(tmp_path: Path, mosquitto: rig.Mosquitto, kafka_broker: KafkaBroker,
+                                        workers: Workers) -> None:
+    """A worker stopped and started again (as its agent does after a crash or a changed route)
+    counts on from its last run: status shows what the bridge forwarded, not what this process did."""
+    rig.create_topics(kafka_broker.bootstrap_servers, ["counted"], PARTITIONS)
+    cfg = worker_config(tmp_path, "counted", mosquitto.port, kafka_broker.bootstrap_servers,
+                        Direction.MQTT_TO_KAFKA, "counted")
+
+    def send(first: int, count: int) -> None:
+        client = mqtt_client(mosquitto.port, f"counted-publisher-{first}")
+        for seq in range(first, first + count):
+            client.publish("cell/a", payload("cell/a", seq), qos=1).wait_for_publish(10)
+        client.disconnect()
+        client.loop_stop()
+
+    workers.start(cfg)
+    send(0, 30)
+    assert len(set(read_kafka(kafka_broker.bootstrap_servers, "counted", 30))) == 30
+    workers.stats_reaching(lambda s: s.forwarded_mqtt_to_kafka == 30)
+    workers.stop_clean()  # a clean stop: every message acknowledged, none sent again
+    again = workers.start(cfg)
+    stats = workers.stats()
+    assert stats is not None and stats.pid == again.pid and stats.forwarded_mqtt_to_kafka == 30
+    send(30, 20)
+    assert len(set(read_kafka(kafka_broker.bootstrap_servers, "counted", 50))) == 50
+    assert workers.stats_reaching(lambda s: s.forwarded_mqtt_to_kafka >= 50).forwarded_mqtt_to_kafka == 50
