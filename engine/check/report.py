@@ -21,7 +21,7 @@ def counts(check: CheckResult) -> dict[str, int]:
 def render_text(check: CheckResult, style: Any = None) -> str:
     """One block per flow: verdict and message, the brokers with what arrived, notes, warnings."""
     paint = style or (lambda text, **_: text)
-    unit = "probe" if check.probe else "messages"
+    unit = "probe arrivals" if check.probe else "messages"
     lines = []
     for result in check.results:
         label, colour = _LABELS[result.outcome]
@@ -29,7 +29,7 @@ def render_text(check: CheckResult, style: Any = None) -> str:
         lines.append(paint(f"{label:<5}", fg=colour, bold=True) + first)
         lines += [f"      {line}" for line in rest]
         for stop in result.stops:
-            shown = "not checked" if stop.arrived is None else f"{stop.arrived} {unit}"
+            shown = "not checked" if stop.arrived is None else f"{unit}: {stop.arrived}"
             via = ", ".join(link.bridge for link in stop.stop.via) or "source"
             lines.append(f"        {stop.stop.broker:<20} {stop.stop.kind:<10} {via:<32} {shown}")
             if stop.note and stop is not result.stops[0]:

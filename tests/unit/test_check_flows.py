@@ -7,6 +7,7 @@ stops as ``broker@hops<-bridge sources``. One case runs the real pipeline on the
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -157,3 +158,26 @@ def test_a_flow_from_a_context_broker_is_not_checked() -> None:
     result = judge(flow, {"a": 3}, probe_id=None, deadline=5)
     assert result.outcome is Outcome.NOT_CHECKED and not result.outcome.failed
     assert "ctx is a ngsi-v2 broker" in result.message
+
+
+def test_reports_text_and_typed_json() -> None:
+    from engine.check.report import render_json, render_text
+    from engine.check.run import CheckResult
+
+    flow = flow_of(CHAIN, Publication("r", "Robot", T, "a"))
+    assert flow is not None
+    failed = judge(flow, {"a": 5, "b": 5}, probe_id=None, deadline=10.0)
+    check = CheckResult((failed,), probe=False, deadline=10.0, elapsed=10.01234)
+    assert not check.passed
+    doc = json.loads(render_json(check))
+    assert doc["passed"] is False and doc["mode"] == "passive" and doc["elapsed_s"] == 10.012
+    assert doc["counts"] == {"pass": 0, "fail": 1, "no-traffic": 0, "not-checked": 0}
+    brokers = {b["broker"]: b for b in doc["flows"][0]["brokers"]}
+    assert brokers["a"]["arrived"] == 5 and brokers["k"]["arrived"] == 0 and brokers["k"]["hops"] == 2
+    assert brokers["ctx"]["arrived"] is None and brokers["ctx"]["checked"] is False
+    assert isinstance(brokers["a"]["port"], int)
+    assert brokers["k"]["via"] == [{"bridge": "bridge.b.k", "from": "b", "mechanism": "mqtt-kafka"}]
+    text = render_text(check)
+    assert text.splitlines()[0].startswith("FAIL Robot (r) on cell.position: 5 message(s) reached a")
+    assert "1 flow(s), passive, deadline 10 s: 0 passed, 1 failed, 0 not checked" in text
+    assert "not checked: ctx is a ngsi-v2 broker" in text

@@ -1,0 +1,189 @@
+"""``plantkg check`` against real agents and brokers: the paper's robot cell.
+
+Two ``plantkg agent`` processes serve 127.0.0.2 (Mosquitto) and 127.0.0.3 (Kafka); the plant is a
+copy of ontology/examples/robot-cell.ttl with free ports, applied once for the module. In file
+order: ``--probe`` passes (the exact probe reaches Mosquitto and, through the bridge worker, Kafka);
+passive passes while simulated resources publish (engine.simulate) and reports "no traffic" when
+none do; an unreachable broker or agent exits 2; then the Mosquitto -> Kafka bridge is deleted on
+its agent (nothing re-creates it: no reconcile loop runs) and both modes exit 1 naming the ROS
+machine, the robot's position topic, Kafka and the bridge. The fixture stops the sources, deletes
+what is left and checks that no broker process survived.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from engine import netutil, process
+from engine.cli import main
+from engine.demo import feeds
+from engine.model import BridgeStatus
+from engine.simulate import Source
+from tests.integration.agents import AgentFleet, _alive, plant_copy, set_port, start_agents
+
+pytestmark = pytest.mark.integration
+
+MQTT_HOST, KAFKA_HOST = "127.0.0.2", "127.0.0.3"
+POSITION, ENERGY = "robot.abb-irb120.position", "robot.abb-irb120.energy"
+PASS_DEADLINE = "30"   # generous: a passing check ends as soon as everything arrived
+FAIL_DEADLINE = "8"    # a failing check waits it out; a short one cannot make a failure pass
+
+
+@dataclass
+class Cell:
+    fleet: AgentFleet
+    plant: Path
+    ports: dict[str, int]
+    tmp: Path
+
+    def check(self, capsys: pytest.CaptureFixture[str], *args: str | Path,
+              plant: Path | None = None) -> tuple[int, str, str]:
+        code = main(["check", str(plant or self.plant), "--agents", str(self.fleet.agents_file),
+                     *(str(a) for a in args)])
+        out = capsys.readouterr()
+        return code, out.out, out.err
+
+
+@pytest.fixture(scope="module")
+def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Cell]:
+    tmp = tmp_path_factory.mktemp("check-cell")
+    fleet = start_agents([MQTT_HOST, KAFKA_HOST], tmp)
+    try:
+        plant, ports = plant_copy("robot-cell.ttl", tmp)
+        assert main(["apply", str(plant), "--agents", str(fleet.agents_file), "--yes"]) == 0
+        agent = fleet.client(MQTT_HOST)
+        # the worker subscribes at Mosquitto after apply returns: a probe published before would
+        # be lost to it, so wait for "running" (connected to both ends, subscriptions granted)
+        process.wait_until(lambda: [b for b in agent.list_bridges() if b.status is BridgeStatus.RUNNING],
+                           60.0, 0.2, what="the Mosquitto -> Kafka bridge running")
+        fleet.brokers()  # remember the broker pids for the final check
+        fleet.broker_pids |= {b.pid for b in agent.list_bridges() if b.pid}  # and the worker's
+        yield Cell(fleet, plant, ports, tmp)
+        assert main(["destroy", str(plant), "--agents", str(fleet.agents_file), "--yes"]) == 0
+    finally:
+        fleet.stop()
+
+
+@pytest.fixture
+def sources(cell: Cell) -> Iterator[list[Source]]:
+    """The plant's publishing resources, simulated (the ROS machine at 10 Hz, the Pi at 1 Hz)."""
+    stop = threading.Event()
+    running = [Source(feed, stop) for feed in feeds([str(cell.plant)])]
+    assert sorted(s.feed.resource for s in running) == ["ROS machine", "Raspberry Pi"]
+    for source in running:
+        source.start()
+    try:
+        process.wait_until(lambda: all(s.sent for s in running), 30.0, 0.05, what="every source publishing")
+        yield running
+    finally:
+        stop.set()
+        for source in running:
+            source.join(20)
+        assert not any(s.is_alive() for s in running)
+
+
+def _flows(out: str) -> dict[str, dict]:
+    doc = json.loads(out)
+    return {f["topic"]: f for f in doc["flows"]}
+
+
+# -------------------------------------------------------------------------------- the tests
+
+def test_probe_passes_on_the_applied_cell(cell: Cell, capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = cell.check(capsys, "--probe", "--deadline", PASS_DEADLINE, "--format", "json")
+    assert code == 0, out + err
+    doc = json.loads(out)
+    assert doc["passed"] is True and doc["mode"] == "probe" and doc["deadline_s"] == 30.0
+    assert doc["counts"] == {"pass": 2, "fail": 0, "no-traffic": 0, "not-checked": 0}
+    flows = _flows(out)
+    position = flows[POSITION]
+    assert position["resource"] == "ROS machine" and position["source"] == "mosquitto"
+    # exactly one probe at each broker: published at Mosquitto, carried by the worker to Kafka
+    assert [(b["broker"], b["arrived"], b["hops"]) for b in position["brokers"]] == [
+        ("mosquitto", 1, 0), ("kafka", 1, 1)]
+    assert position["brokers"][1]["via"] == [
+        {"bridge": "bridge.mosquitto.kafka", "from": "mosquitto", "mechanism": "mqtt-kafka"}]
+    assert position["brokers"][1]["port"] == cell.ports["kafka"]
+    assert [(b["broker"], b["arrived"]) for b in flows[ENERGY]["brokers"]] == [("kafka", 1)]
+    assert not position["warnings"] and isinstance(doc["elapsed_s"], float)
+
+
+def test_passive_passes_while_the_resources_publish(cell: Cell, sources: list[Source],
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = cell.check(capsys, "--deadline", PASS_DEADLINE)
+    assert code == 0, out + err
+    lines = out.splitlines()
+    assert any(line.startswith("ok") and "ROS machine (ros-machine) on robot.abb-irb120.position" in line
+               and "arrived at mosquitto, kafka" in line for line in lines), out
+    assert any(line.startswith("ok") and "Raspberry Pi" in line for line in lines), out
+    assert "2 flow(s), passive, deadline 30 s: 2 passed, 0 failed, 0 not checked" in out
+
+
+def test_passive_without_publishers_reports_no_traffic(cell: Cell, capsys: pytest.CaptureFixture[str]) -> None:
+    """Nobody publishes (probes of earlier runs are not plant traffic): each flow fails at its source."""
+    code, out, err = cell.check(capsys, "--deadline", "3", "--format", "json")
+    assert code == 1, out + err
+    flows = _flows(out)
+    assert flows[POSITION]["outcome"] == flows[ENERGY]["outcome"] == "no-traffic"
+    assert flows[POSITION]["message"] == (
+        "no traffic from ROS machine (ros-machine) on robot.abb-irb120.position at mosquitto within 3 s")
+    assert "no traffic from Raspberry Pi (raspberry-pi) on robot.abb-irb120.energy at kafka" in flows[ENERGY]["message"]
+
+
+def test_an_unreachable_broker_exits_2(cell: Cell, capsys: pytest.CaptureFixture[str]) -> None:
+    other = cell.tmp / "wrong-port.ttl"
+    other.write_text(cell.plant.read_text(encoding="utf-8"), encoding="utf-8")
+    set_port(other, "mosquitto", netutil.free_port(MQTT_HOST))  # nothing listens there
+    code, out, err = cell.check(capsys, "--deadline", "5", plant=other)
+    assert code == 2, out + err
+    assert "error: mosquitto (mosquitto at 127.0.0.2:" in err and "cannot connect" in err
+    assert "Traceback" not in out + err
+
+
+def test_an_unreachable_agent_exits_2(cell: Cell, capsys: pytest.CaptureFixture[str]) -> None:
+    agents = cell.tmp / "wrong-agents.toml"
+    port = netutil.free_port(MQTT_HOST)
+    text = cell.fleet.agents_file.read_text(encoding="utf-8")
+    url = cell.fleet.agents[MQTT_HOST].url
+    assert url in text
+    agents.write_text(text.replace(url, f"http://{MQTT_HOST}:{port}"), encoding="utf-8")
+    code = main(["check", str(cell.plant), "--agents", str(agents), "--deadline", "5"])
+    out = capsys.readouterr()
+    assert code == 2, out
+    assert "agents that did not answer: 127.0.0.2" in out.err and "Traceback" not in out.err
+
+
+def test_a_deleted_bridge_fails_the_flow_naming_resource_broker_and_bridge(
+        cell: Cell, sources: list[Source], capsys: pytest.CaptureFixture[str]) -> None:
+    agent = cell.fleet.client(MQTT_HOST)
+    (bridge,) = agent.list_bridges()
+    agent.delete_bridge("mosquitto", "kafka")
+    process.wait_until(lambda: not agent.list_bridges(), 30.0, 0.1, what="the bridge gone from its agent")
+    if bridge.pid:
+        process.wait_until(lambda: not _alive(bridge.pid), 30.0, 0.1, what="the bridge worker exited")
+
+    code, out, err = cell.check(capsys, "--probe", "--deadline", FAIL_DEADLINE)
+    assert code == 1, out + err
+    assert ("FAIL ROS machine (ros-machine) on robot.abb-irb120.position: the probe reached mosquitto but "
+            "nothing arrived at kafka within 8 s: bridge bridge.mosquitto.kafka from mosquitto "
+            "(mqtt-kafka, absent: no agent runs it)") in out
+    assert any(line.startswith("ok") and "Raspberry Pi" in line for line in out.splitlines()), out
+    assert "1 passed, 1 failed" in out
+
+    code, out, err = cell.check(capsys, "--deadline", FAIL_DEADLINE, "--format", "json")
+    assert code == 1, out + err
+    flows = _flows(out)
+    assert flows[ENERGY]["outcome"] == "pass"
+    position = flows[POSITION]
+    assert position["outcome"] == "fail" and position["resource"] == "ROS machine"
+    mosquitto, kafka = position["brokers"]
+    assert mosquitto["broker"] == "mosquitto" and mosquitto["arrived"] > 0  # the source kept publishing
+    assert kafka["broker"] == "kafka" and kafka["arrived"] == 0
+    assert "nothing arrived at kafka" in position["message"] and "bridge.mosquitto.kafka" in position["message"]
+
