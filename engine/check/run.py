@@ -4,8 +4,9 @@ until every flow arrived everywhere or the deadline passed, judge each flow.
 Taps get up to ``deadline`` seconds to connect and subscribe (a broker that does not answer in that
 time is unreachable: :class:`~engine.check.watch.BrokerUnreachableError`, exit 2); the watch then
 lasts up to ``deadline`` seconds more and ends early once every flow has arrived everywhere. With
-probes, a flow whose broker is fed by two bridges gets a short grace after its probe arrived, so
-that a second delivery through the other path is counted.
+probes, when a broker of some flow is fed by two bridges, the watch goes on for a grace (a tenth of
+the deadline, at least 1 s, never past it) after every probe arrived, so that a second delivery
+through the other path is counted.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from engine.check.flows import Flow
 from engine.check.verdict import FlowResult, judge
 from engine.check.watch import Endpoint, Tap, make_tap, probe_payload, publish_probe
 
-DUPLICATE_GRACE = 1.0  # seconds: how long a probe may lag through a second bridge path
+MIN_DUPLICATE_GRACE = 1.0  # seconds: how long a probe may lag through a second bridge path
 
 
 @dataclass(frozen=True)
@@ -80,7 +81,8 @@ def run_check(flows: tuple[Flow, ...], *, deadline: float, probe: bool,
         while time.monotonic() < end and not arrived_everywhere():
             stop.wait(0.05)
         if probe and any(len(s.via) > 1 for f in flows for s in f.stops):
-            stop.wait(max(min(DUPLICATE_GRACE, end - time.monotonic()), 0.0))
+            grace = max(MIN_DUPLICATE_GRACE, deadline / 10)
+            stop.wait(max(min(grace, end - time.monotonic()), 0.0))
         elapsed = time.monotonic() - started
         results = tuple(judge(f, counts(f), probe_id=probes.get(f), deadline=deadline,
                               bridge_status=bridge_status) for f in flows)

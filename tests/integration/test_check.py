@@ -187,3 +187,54 @@ def test_a_deleted_bridge_fails_the_flow_naming_resource_broker_and_bridge(
     assert kafka["broker"] == "kafka" and kafka["arrived"] == 0
     assert "nothing arrived at kafka" in position["message"] and "bridge.mosquitto.kafka" in position["message"]
 
+
+
+# ------------------------------------------------------------- two bridge paths into one broker
+
+DIAMOND = """\
+@prefix pk: <https://w3id.org/plantkg/ontology#> .
+@prefix : <http://example.org/check-diamond#> .
+
+:a a pk:Broker ; pk:id "a" ; pk:name "a" ; pk:brokerType "mosquitto" ; pk:ip "{host}" ; pk:port {a} ;
+    pk:hasTopic :t ; pk:bridgesTo :b , :c .
+:b a pk:Broker ; pk:id "b" ; pk:name "b" ; pk:brokerType "mosquitto" ; pk:ip "{host}" ; pk:port {b} ;
+    pk:hasTopic :t ; pk:bridgesTo :c .
+:c a pk:Broker ; pk:id "c" ; pk:name "c" ; pk:brokerType "mosquitto" ; pk:ip "{host}" ; pk:port {c} ;
+    pk:hasTopic :t .
+:t a pk:Topic ; pk:id "t" ; pk:name "line.t" ; pk:qos 1 .
+:sensor a pk:Resource ; pk:id "sensor" ; pk:name "Line sensor" ; pk:sendsTo :a ; pk:publishes :t .
+"""
+
+
+def test_a_probe_delivered_twice_through_two_bridge_paths_is_reported(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A -> B -> C and A -> C (Mosquitto bridges; no cycle, so the plant is valid): C gets each
+    message of A twice. The check passes (everything arrived) and warns, naming both bridges."""
+    fleet = start_agents([MQTT_HOST], tmp_path)
+    try:
+        ports: list[int] = []
+        while len(ports) < 3:
+            port = netutil.free_port(MQTT_HOST)
+            if port not in ports:
+                ports.append(port)
+        plant = tmp_path / "diamond.ttl"
+        plant.write_text(DIAMOND.format(host=MQTT_HOST, a=ports[0], b=ports[1], c=ports[2]), encoding="utf-8")
+        args = ["check", str(plant), "--agents", str(fleet.agents_file), "--probe", "--deadline", PASS_DEADLINE]
+        assert main(["apply", str(plant), "--agents", str(fleet.agents_file), "--yes"]) == 0
+        fleet.brokers()
+        # Mosquitto's bridges connect after apply returns: wait until a probe gets everywhere
+        process.wait_until(lambda: main([*args, "--format", "json"]) == 0, 120.0, 0.5,
+                           what="the diamond's bridges carrying a probe")
+        capsys.readouterr()
+        code = main([*args, "--format", "json"])
+        out = capsys.readouterr().out
+        assert code == 0, out
+        (flow,) = json.loads(out)["flows"]
+        assert flow["outcome"] == "pass"
+        assert {b["broker"]: b["arrived"] for b in flow["brokers"]} == {"a": 1, "b": 1, "c": 2}
+        (warning,) = flow["warnings"]
+        assert warning.startswith("the probe arrived 2 times at c: two bridge paths deliver the same messages twice")
+        assert "bridge.a.c from a" in warning and "bridge.b.c from b" in warning
+        assert main(["destroy", str(plant), "--agents", str(fleet.agents_file), "--yes"]) == 0
+    finally:
+        fleet.stop()
