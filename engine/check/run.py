@@ -1,8 +1,9 @@
 """One check: start a tap at every broker the flows cross, publish the probes (``--probe``), watch
 until every flow arrived everywhere or the deadline passed, judge each flow.
 
-Taps get up to ``deadline`` seconds to connect and subscribe (a broker that does not answer in that
-time is unreachable: :class:`~engine.check.watch.BrokerUnreachableError`, exit 2); the watch then
+Taps get up to ``deadline`` seconds (at least :data:`MIN_CONNECT` s) to connect and subscribe (a
+broker that does not answer in that time is unreachable:
+:class:`~engine.check.watch.BrokerUnreachableError`, exit 2); the watch then
 lasts up to ``deadline`` seconds more and ends early once every flow has arrived everywhere. With
 probes, when a broker of some flow is fed by two bridges, the watch goes on for a grace (a tenth of
 the deadline, at least 1 s, never past it) after every probe arrived, so that a second delivery
@@ -21,6 +22,7 @@ from engine.check.flows import Flow
 from engine.check.verdict import FlowResult, judge
 from engine.check.watch import Endpoint, Tap, make_tap, probe_payload, publish_probe
 
+MIN_CONNECT = 10.0  # seconds: a short --deadline must not turn a loaded Kafka's slow metadata into exit 2
 MIN_DUPLICATE_GRACE = 1.0  # seconds: how long a probe may lag through a second bridge path
 
 
@@ -54,7 +56,7 @@ def run_check(flows: tuple[Flow, ...], *, deadline: float, probe: bool,
     taps: dict[str, Tap] = {}
     stop = threading.Event()
     try:
-        setup_end = time.monotonic() + deadline
+        setup_end = time.monotonic() + max(deadline, MIN_CONNECT)
         for endpoint, topics in _endpoints(flows).items():
             tap = taps[endpoint.broker] = make_tap(endpoint, topics)
             tap.start(max(setup_end - time.monotonic(), 0.1))

@@ -30,6 +30,7 @@ from paho.mqtt.properties import Properties
 from paho.mqtt.subscribeoptions import SubscribeOptions
 
 from engine.errors import EngineError
+from engine.values import host_in_url
 
 PROBE_MARK = "plantkg-check"
 PROBE_NOTE = "plantkg check probe: a test message, not plant data"
@@ -49,9 +50,12 @@ class Endpoint:
     port: int
 
     @property
+    def address(self) -> str:
+        return f"{host_in_url(self.host)}:{self.port}"
+
+    @property
     def where(self) -> str:
-        host = f"[{self.host}]" if ":" in self.host else self.host
-        return f"{self.broker} ({self.kind} at {host}:{self.port})"
+        return f"{self.broker} ({self.kind} at {self.address})"
 
 
 def probe_payload(probe_id: str, resource: str, topic: str) -> bytes:
@@ -167,37 +171,48 @@ class KafkaTap(Tap):
 
     def __init__(self, endpoint: Endpoint, topics: tuple[str, ...]) -> None:
         super().__init__(endpoint, topics)
-        self._consumer = Consumer({"bootstrap.servers": f"{_host(endpoint.host)}:{endpoint.port}",
+        self._consumer = Consumer({"bootstrap.servers": endpoint.address,
                                    "group.id": f"plantkg-check-{uuid.uuid4().hex}",
                                    "enable.auto.commit": False, "log_level": 0})
-        self._stop = threading.Event()
+        self._stop, self._sleep = threading.Event(), threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"check-tap-{endpoint.broker}", daemon=True)
 
     def start(self, timeout: float) -> None:
         end = time.monotonic() + timeout
-        assignment = []
-        try:
-            meta = self._consumer.list_topics(timeout=max(end - time.monotonic(), 0.1))
-            for topic in self.topics:
-                found = meta.topics.get(topic)
-                if found is None or found.error is not None or not found.partitions:
-                    raise BrokerUnreachableError(
-                        f"{self.endpoint.where}: topic {topic!r} does not exist",
-                        hint="apply the plant first (`plantkg apply`); `plantkg plan` shows what is missing")
-                for partition in sorted(found.partitions):
-                    part = TopicPartition(topic, partition)
-                    _, high = self._consumer.get_watermark_offsets(
-                        part, timeout=max(end - time.monotonic(), 0.1), cached=False)
-                    assignment.append(TopicPartition(topic, partition, high))
-        except KafkaException as exc:
-            self._consumer.close()
-            raise BrokerUnreachableError(f"{self.endpoint.where}: {exc.args[0]}",
-                                         hint="is the broker running? `plantkg status` shows it") from None
-        except BrokerUnreachableError:
-            self._consumer.close()
-            raise
+        while True:  # a leader still being elected answers with an error: ask again until the end
+            try:
+                assignment = self._positions(end)
+                break
+            except KafkaException as exc:
+                if time.monotonic() + 0.2 < end:
+                    self._sleep.wait(0.2)
+                    continue
+                self._consumer.close()
+                raise BrokerUnreachableError(f"{self.endpoint.where}: {exc.args[0]}",
+                                             hint="is the broker running? `plantkg status` shows it") from None
+            except BrokerUnreachableError:
+                self._consumer.close()
+                raise
         self._consumer.assign(assignment)
         self._thread.start()
+
+    def _positions(self, end: float) -> list[TopicPartition]:
+        """Every partition of the tap's topics at its high-water mark (the next offset written)."""
+        assignment = []
+        meta = self._consumer.list_topics(timeout=max(end - time.monotonic(), 0.1))
+        for topic in self.topics:
+            found = meta.topics.get(topic)
+            if found is None or not found.partitions:
+                raise BrokerUnreachableError(
+                    f"{self.endpoint.where}: topic {topic!r} does not exist",
+                    hint="apply the plant first (`plantkg apply`); `plantkg plan` shows what is missing")
+            if found.error is not None:
+                raise KafkaException(found.error)
+            for partition in sorted(found.partitions):
+                _, high = self._consumer.get_watermark_offsets(
+                    TopicPartition(topic, partition), timeout=max(end - time.monotonic(), 0.1), cached=False)
+                assignment.append(TopicPartition(topic, partition, high))
+        return assignment
 
     def _run(self) -> None:
         try:
@@ -216,10 +231,6 @@ class KafkaTap(Tap):
             self._thread.join(10)
 
 
-def _host(host: str) -> str:
-    return f"[{host}]" if ":" in host else host
-
-
 def make_tap(endpoint: Endpoint, topics: tuple[str, ...]) -> Tap:
     return KafkaTap(endpoint, topics) if endpoint.kind == "kafka" else MqttTap(endpoint, topics)
 
@@ -234,7 +245,7 @@ def publish_probe(endpoint: Endpoint, topic: str, probe_id: str, payload: bytes,
 
 def _publish_kafka(endpoint: Endpoint, topic: str, probe_id: str, payload: bytes, timeout: float) -> None:
     outcome: list[object] = []
-    producer = Producer({"bootstrap.servers": f"{_host(endpoint.host)}:{endpoint.port}", "acks": "all",
+    producer = Producer({"bootstrap.servers": endpoint.address, "acks": "all",
                          "log_level": 0, "message.timeout.ms": max(int(timeout * 1000), 1000)})
     producer.produce(topic, payload, headers=[(PROBE_MARK, probe_id.encode())],
                      on_delivery=lambda err, _msg: outcome.append(err))

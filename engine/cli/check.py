@@ -29,7 +29,7 @@ EXIT_PASSED, EXIT_FAILED = 0, 1
 @agents_option
 @click.option("--deadline", type=click.FloatRange(min=0, min_open=True, max=3600), default=10.0,
               show_default=True, metavar="SECONDS",
-              help="how long to wait for messages (and, before that, for the taps to connect)")
+              help="how long to wait for messages (before that, taps get as long, at least 10 s, to connect)")
 @click.option("--probe", is_flag=True,
               help="publish one marked message per flow at its source and require it everywhere "
                    "(real consumers of the topic see it too)")
