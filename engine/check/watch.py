@@ -1,9 +1,10 @@
 """Taps and probes: what ``check`` subscribes to and publishes at real brokers.
 
 A tap subscribes to some topics on one broker and counts what arrives from the moment it is ready:
-MQTT with a v5 client (subscribed once the SUBACK came), Kafka with a consumer assigned to every
-partition at its high-water mark read before the watch starts — "from latest", without the race of
-a group subscription whose position is resolved after a message was already written.
+MQTT with a v5 client (subscribed once the SUBACK came; retained messages, old news, are not sent),
+Kafka with a consumer assigned to every partition at its high-water mark read before the watch
+starts — "from latest", without the race of a group subscription whose position is resolved after
+a message was already written.
 
 A probe is one message marked as a check: the MQTT v5 user property / Kafka header ``plantkg-check``
 holds a unique id, and so does the JSON payload, because bridges do not carry the mark over
@@ -148,7 +149,9 @@ class MqttTap(Tap):
                                          hint="is the broker running? `plantkg status` shows it") from None
         self._client.loop_start()
         _wait(self._connected, end - time.monotonic(), self.endpoint, "CONNACK")
-        self._client.subscribe([(t, SubscribeOptions(qos=1)) for t in self.topics])
+        # retained messages are old news: not sent at subscribe time, so they never pass a flow
+        options = SubscribeOptions(qos=1, retainHandling=SubscribeOptions.RETAIN_DO_NOT_SEND)
+        self._client.subscribe([(t, options) for t in self.topics])
         _wait(self._subscribed, end - time.monotonic(), self.endpoint, "SUBACK")
         if self._refused:
             raise BrokerUnreachableError(f"{self.endpoint.where}: {'; '.join(self._refused)}")

@@ -14,11 +14,14 @@ from __future__ import annotations
 
 import json
 import threading
+import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from paho.mqtt import client as mqtt
+from paho.mqtt.enums import CallbackAPIVersion
 
 from engine import netutil, process
 from engine.cli import main
@@ -125,9 +128,28 @@ def test_passive_passes_while_the_resources_publish(cell: Cell, sources: list[So
     assert "2 flow(s), passive, deadline 30 s: 2 passed, 0 failed, 0 not checked" in out
 
 
+def _publish_retained(port: int, payload: bytes) -> None:
+    client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"it-check-{uuid.uuid4().hex[:8]}")
+    client.connect(MQTT_HOST, port)
+    client.loop_start()
+    try:
+        process.wait_until(client.is_connected, 10.0, 0.01, what="MQTT CONNACK")
+        info = client.publish(POSITION, payload, qos=1, retain=True)
+        info.wait_for_publish(10)
+        assert info.is_published()
+    finally:
+        client.disconnect()
+        client.loop_stop()
+
+
 def test_passive_without_publishers_reports_no_traffic(cell: Cell, capsys: pytest.CaptureFixture[str]) -> None:
-    """Nobody publishes (probes of earlier runs are not plant traffic): each flow fails at its source."""
-    code, out, err = cell.check(capsys, "--deadline", "3", "--format", "json")
+    """Nobody publishes: each flow fails at its source. Neither the probes of earlier runs nor a
+    retained message (old news, sent to new subscribers) count as traffic."""
+    _publish_retained(cell.ports["mosquitto"], b'{"joints_deg": [0, 0, 0, 0, 0, 0]}')
+    try:
+        code, out, err = cell.check(capsys, "--deadline", "3", "--format", "json")
+    finally:
+        _publish_retained(cell.ports["mosquitto"], b"")  # an empty retained message clears it
     assert code == 1, out + err
     flows = _flows(out)
     assert flows[POSITION]["outcome"] == flows[ENERGY]["outcome"] == "no-traffic"
