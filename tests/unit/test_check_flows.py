@@ -181,3 +181,29 @@ def test_reports_text_and_typed_json() -> None:
     assert text.splitlines()[0].startswith("FAIL Robot (r) on cell.position: 5 message(s) reached a")
     assert "1 flow(s), passive, deadline 10 s: 0 passed, 1 failed, 0 not checked" in text
     assert "not checked: ctx is a ngsi-v2 broker" in text
+
+
+# ------------------------------------------------------------------- bad input: exit 2, no traceback
+
+BAD_INPUT = [
+    ("missing file", ["/nonexistent/plant.ttl"], "no such file"),
+    ("deadline not positive", ["{plant}", "--deadline", "0"], "--deadline"),
+    ("unknown format", ["{plant}", "--format", "yaml"], "--format"),
+    ("missing agents file", ["{plant}", "--agents", "{tmp}/none.toml"], "no such agents file"),
+    ("invalid plant", ["{invalid}"], "the plant has violations"),
+]
+
+
+@pytest.mark.parametrize(("args", "words"), [c[1:] for c in BAD_INPUT], ids=[c[0] for c in BAD_INPUT])
+def test_bad_input_exits_2_with_a_message(args: list[str], words: str, tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    from engine.cli import main
+
+    invalid = tmp_path / "invalid.ttl"
+    invalid.write_text('@prefix pk: <https://w3id.org/plantkg/ontology#> .\n'
+                       '<urn:b> a pk:Broker ; pk:id "b" ; pk:brokerType "mosquitto" .\n', encoding="utf-8")
+    plant = ROOT / "ontology" / "examples" / "robot-cell.ttl"
+    code = main(["check", *(a.format(plant=plant, tmp=tmp_path, invalid=invalid) for a in args)])
+    out = capsys.readouterr()
+    assert code == 2
+    assert words in out.out + out.err and "Traceback" not in out.out + out.err
