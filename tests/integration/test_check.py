@@ -260,3 +260,36 @@ def test_a_probe_delivered_twice_through_two_bridge_paths_is_reported(
         assert main(["destroy", str(plant), "--agents", str(fleet.agents_file), "--yes"]) == 0
     finally:
         fleet.stop()
+
+
+# ------------------------------------------------------------------- a context broker: not checked
+
+def test_flows_through_a_context_broker_are_listed_as_not_checked(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The AGV middleware: the AGV publishes on Mosquitto, bridged into the context broker; the task
+    planner writes entities that come back on MQTT. check watches the Mosquitto side, lists the
+    context broker as not checked and skips the flows published there — never a pass for them."""
+    plant, _ = plant_copy("agv-middleware.ttl", tmp_path)
+    fleet = start_agents([MQTT_HOST, KAFKA_HOST], tmp_path / "agents")
+    agents = ["--agents", str(fleet.agents_file)]
+    try:
+        assert main(["apply", str(plant), *agents, "--yes"]) == 0
+        fleet.brokers()
+        capsys.readouterr()
+        code = main(["check", str(plant), *agents, "--probe", "--deadline", PASS_DEADLINE, "--format", "json"])
+        out = capsys.readouterr().out
+        assert code == 0, out
+        doc = json.loads(out)
+        assert doc["counts"] == {"pass": 3, "fail": 0, "no-traffic": 0, "not-checked": 2}
+        for flow in doc["flows"]:
+            brokers = {b["broker"]: b for b in flow["brokers"]}
+            assert brokers["fleet-context"]["checked"] is False and brokers["fleet-context"]["arrived"] is None
+            assert "not checked: fleet-context is a ngsi-v2 broker" in brokers["fleet-context"]["note"]
+            if flow["source"] == "fleet-mqtt":
+                assert flow["outcome"] == "pass" and brokers["fleet-mqtt"]["arrived"] == 1
+            else:
+                assert flow["source"] == "fleet-context" and flow["outcome"] == "not-checked"
+                assert flow["resource"] == "Task planner" and flow["probe_id"] is None
+        assert main(["destroy", str(plant), *agents, "--yes"]) == 0
+    finally:
+        fleet.stop()
