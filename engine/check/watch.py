@@ -21,6 +21,7 @@ import json
 import threading
 import time
 import uuid
+from abc import ABC, abstractmethod
 from collections import Counter
 from dataclasses import dataclass
 
@@ -79,7 +80,7 @@ def probe_id_of(data: bytes, mark: str | None = None) -> str | None:
     return found if isinstance(found, str) else None
 
 
-class Tap:
+class Tap(ABC):
     """Counts messages per topic and arrivals per probe id at one broker (thread-safe)."""
 
     def __init__(self, endpoint: Endpoint, topics: tuple[str, ...]) -> None:
@@ -105,11 +106,13 @@ class Tap:
         with self._lock:
             return self._probes[probe_id]
 
+    @abstractmethod
     def start(self, timeout: float) -> None:
-        raise NotImplementedError
+        """Connect and subscribe within ``timeout`` s, or raise BrokerUnreachableError."""
 
+    @abstractmethod
     def close(self) -> None:
-        raise NotImplementedError
+        """Disconnect; safe after a failed start."""
 
 
 def _wait(event: threading.Event, timeout: float, endpoint: Endpoint, what: str) -> None:
