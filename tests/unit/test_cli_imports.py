@@ -56,7 +56,8 @@ def _loaded(modules: list[str], prefixes: tuple[str, ...]) -> list[str]:
     return [m for m in modules if any(m == p or m.startswith(p + ".") for p in prefixes)]
 
 
-@pytest.mark.parametrize("args", [["--help"], ["plan", "--help"], ["apply", "--help"], ["--version"]],
+@pytest.mark.parametrize("args", [["--help"], ["plan", "--help"], ["apply", "--help"], ["check", "--help"],
+                                  ["--version"]],
                          ids=lambda a: " ".join(a))
 def test_help_and_version_load_no_graph_library_and_no_server(tmp_path: Path, args: list[str]) -> None:
     code, modules = _probe(tmp_path, *args)
