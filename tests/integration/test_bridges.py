@@ -229,8 +229,8 @@ def test_target_killed_mid_stream_is_restarted_and_nothing_is_missing(
     it, the bridge reconnects, and the subscriber on dst has every message (duplicates allowed).
 
     Mosquitto keeps sessions and queues in memory between saves, so a SIGKILLed broker forgets
-    what it acknowledged since its last save (every 60 s by default: thousands of messages, see
-    docs/bridges.md). The plant therefore asks dst to save after every change (pk:persistEvery 1);
+    what it acknowledged since its last save (every 10 changes by default, see docs/bridges.md).
+    The plant asks dst to save after every change (pk:persistEvery 1), the narrowest window;
     changing that is a replacement of dst, which the plan says."""
     import os
     import signal
