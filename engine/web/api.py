@@ -17,6 +17,7 @@ from engine.render_plan import plan_dict, render_plan
 from engine.web.auth import login_required
 from engine.web.openapi import openapi_document
 from engine.web.plant_state import ApplyRefused, PlantState
+from engine.web.rates import disabled_document
 from kg.errors import PlantKGError
 
 bp = Blueprint("api", __name__, url_prefix="/api")
@@ -35,6 +36,17 @@ def status() -> Any:
         return Response(status=304, headers={"ETag": etag})
     return Response(snap.status_json, mimetype="application/json", headers={"ETag": etag,
                                                                                "Cache-Control": "no-cache"})
+
+
+@bp.get("/rates")
+def rates() -> Any:
+    """Messages per second per (broker, topic) over the last minute (engine.web.rates); a read,
+    open as ``/api/status`` is."""
+    monitor = current_app.extensions.get("plantkg_rates")
+    document = monitor.document() if monitor is not None else disabled_document()
+    response = jsonify(document)
+    response.headers["Cache-Control"] = "no-cache"
+    return response
 
 
 @bp.get("/plan")

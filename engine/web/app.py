@@ -16,6 +16,7 @@ from werkzeug.exceptions import HTTPException
 
 from engine.web import api, auth, dashboard, sparql
 from engine.web.plant_state import PlantState
+from engine.web.rates import RateMonitor
 from engine.web.sparql_protocol import Limits, QueryRunner
 
 
@@ -28,6 +29,7 @@ class WebConfig:
     limits: Limits = Limits()
     secret_key: bytes = field(default_factory=lambda: secrets.token_bytes(32))
     secure_cookies: bool = False  # True behind https
+    rates: RateMonitor | None = None  # live message rates (``plantkg serve`` with agents); None: off
 
 
 def create_app(config: WebConfig) -> Flask:
@@ -42,6 +44,7 @@ def create_app(config: WebConfig) -> Flask:
         MAX_CONTENT_LENGTH=1 << 20,  # a query or a form is small
     )
     app.extensions["plantkg_sparql"] = QueryRunner(config.limits)
+    app.extensions["plantkg_rates"] = config.rates
     auth.init_app(app)
     for blueprint in (dashboard.bp, sparql.bp, api.bp):
         app.register_blueprint(blueprint)

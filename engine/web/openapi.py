@@ -54,6 +54,17 @@ _SCHEMAS: dict[str, Any] = {
                     "context brokers: quads, brokers, unavailable (broker, why)"},
         "plan": {"type": ["object", "null"], "description": "summary and fingerprint of the pending plan"},
         "apply": {"type": "object", "description": "the last apply: state, progress, summary"}}},
+    "Rates": {"type": "object", "required": ["window_s", "enabled", "topics"], "properties": {
+        "window_s": {"type": "integer", "description": "seconds in per_s"},
+        "enabled": {"type": "boolean", "description": "false: this server watches no topic (no live state)"},
+        "topics": {"type": "array", "items": {
+            "type": "object", "required": ["broker", "topic", "per_s", "total", "watching"], "properties": {
+                "broker": {"type": "string"}, "topic": {"type": "string"},
+                "per_s": {"type": "array", "items": {"type": "integer"},
+                          "description": "messages in each of the last window_s complete seconds, oldest first"},
+                "total": {"type": "integer", "description": "messages counted since the topic was first watched"},
+                "watching": {"type": "boolean", "description": "subscribed at the broker now"},
+                "error": {"type": ["string", "null"], "description": "why the broker cannot be watched (retried)"}}}}}},
 }
 
 _WRITE = {"security": [{"session": [], "csrf": []}, {"bearer": []}]}
@@ -103,6 +114,9 @@ def openapi_document() -> dict[str, Any]:
             "/api/status": {"get": {"operationId": "status", "summary": "Brokers, bridges, topics, plan, apply",
                                     "responses": {"200": _json({"$ref": "#/components/schemas/Status"}, "Status"),
                                                   "304": {"description": "Unchanged (If-None-Match)"}}}},
+            "/api/rates": {"get": {
+                "operationId": "rates", "summary": "Messages per second per (broker, topic), the last minute",
+                "responses": {"200": _json({"$ref": "#/components/schemas/Rates"}, "The rates")}}},
             "/api/plan": {"get": {"operationId": "plan", "summary": "The pending plan with before/after",
                                   "responses": {"200": _json({"type": "object", "properties": {
                                       "plan": {"type": ["object", "null"]}, "fingerprint": {"type": ["string", "null"]},

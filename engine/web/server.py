@@ -21,8 +21,10 @@ from werkzeug.serving import BaseWSGIServer, make_server
 from engine.agent.server import ListenAddress, load_or_create_token, wait_for_signal
 from engine.agents_config import AgentDirectory
 from engine.errors import EngineError
+from engine.model import DesiredState, ObservedState
 from engine.web.app import WebConfig, create_app
 from engine.web.plant_state import PlantState
+from engine.web.rates import RateMonitor
 from engine.web.sparql_protocol import Limits
 
 log = logging.getLogger(__name__)
@@ -43,27 +45,40 @@ class RunningServer:
     thread: threading.Thread
     state: PlantState
     app: Flask
+    rates: RateMonitor | None = None
 
     def shutdown(self) -> None:
         self.server.shutdown()
         self.thread.join()
         self.server.server_close()
+        if self.rates is not None:
+            self.rates.stop()
         self.state.close()
         self.app.extensions["plantkg_sparql"].close()
 
 
-def start_server(listen: ListenAddress, state: PlantState, token: str, limits: Limits) -> RunningServer:
-    """Load the plant once, then serve the app in a thread and watch the files in another."""
-    app = create_app(WebConfig(state=state, token=token, limits=limits))
+def start_server(listen: ListenAddress, state: PlantState, token: str, limits: Limits, *,
+                 rates: bool = True) -> RunningServer:
+    """Load the plant once, then serve the app in a thread and watch the files in another; with
+    ``rates``, count the messages of the topics on running brokers (engine.web.rates)."""
+    monitor = RateMonitor(lambda: _desired_and_observed(state)) if rates else None
+    app = create_app(WebConfig(state=state, token=token, limits=limits, rates=monitor))
     try:
         server = make_server(listen.host, listen.port, app, threaded=True)
     except (OSError, SystemExit) as exc:  # werkzeug exits when the port is taken
         raise EngineError(f"cannot listen on {listen.url}: {exc}",
                           hint="pick another --listen port, or stop what uses it") from None
     state.start()
+    if monitor is not None:
+        monitor.start()
     thread = threading.Thread(target=server.serve_forever, name="plantkg-web-http", daemon=True)
     thread.start()
-    return RunningServer(ListenAddress(listen.host, server.server_port), server, thread, state, app)
+    return RunningServer(ListenAddress(listen.host, server.server_port), server, thread, state, app, monitor)
+
+
+def _desired_and_observed(state: PlantState) -> tuple[DesiredState | None, ObservedState | None]:
+    snap = state.snapshot  # one snapshot: the two halves agree
+    return snap.desired, snap.observed
 
 
 def run_server(files: list[str], listen: ListenAddress, *, agents_file: Path | None, token_file: Path | None,

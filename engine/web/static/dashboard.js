@@ -92,8 +92,12 @@
     });
     fill("topics", s.topics, function (t) {
       var settings = Object.keys(t.settings).map(function (k) { return k + "=" + t.settings[k]; }).join(" ");
-      return [t.broker_id, t.name, settings, statusCell(t.present ? "yes" : "no", null, t.present ? "running" : "absent")];
+      var rate = el("td", null, "rate");
+      rate.setAttribute("data-broker", t.broker_id);
+      rate.setAttribute("data-topic", t.name);
+      return [t.broker_id, t.name, settings, statusCell(t.present ? "yes" : "no", null, t.present ? "running" : "absent"), rate];
     });
+    renderRates();
     document.getElementById("topics-note").textContent =
       s.topics_total > s.topics.length ? "(first " + s.topics.length + " of " + s.topics_total + "; all of them through SPARQL)" : "";
   }
@@ -156,7 +160,47 @@
     renderGraph(s);
     document.body.setAttribute("data-version", s.version);
   }
+  // Live message rates (/api/rates): the last second's count and a sparkline of the last minute.
+  var rates = {};
+  var SVG = "http://www.w3.org/2000/svg";
+  function sparkline(perS) {
+    var w = 120, h = 18, max = Math.max.apply(null, perS.concat([1]));
+    var step = perS.length > 1 ? w / (perS.length - 1) : w;
+    var svg = document.createElementNS(SVG, "svg");
+    svg.setAttribute("class", "sparkline");
+    svg.setAttribute("width", w);
+    svg.setAttribute("height", h);
+    svg.setAttribute("viewBox", "0 0 " + w + " " + h);
+    var line = document.createElementNS(SVG, "polyline");
+    line.setAttribute("points", perS.map(function (v, i) {
+      return (i * step).toFixed(1) + "," + (h - 1 - (v / max) * (h - 2)).toFixed(1);
+    }).join(" "));
+    svg.appendChild(line);
+    return svg;
+  }
+  function renderRates() {
+    document.querySelectorAll("#topics td.rate").forEach(function (td) {
+      var r = rates[JSON.stringify([td.getAttribute("data-broker"), td.getAttribute("data-topic")])];
+      if (!r) { td.replaceChildren(el("span", "-", "muted")); td.removeAttribute("data-rate"); td.title = ""; return; }
+      var last = r.per_s.length ? r.per_s[r.per_s.length - 1] : 0;
+      td.setAttribute("data-rate", last);
+      td.title = r.error ? "not watched: " + r.error :
+        last + " msg/s in the last second, " + r.total + " since watched (" + r.per_s.length + " s shown)";
+      td.replaceChildren(el("span", last + "/s", "rate-value" + (r.watching ? "" : " muted")), sparkline(r.per_s));
+    });
+  }
+  function pollRates() {
+    fetch("api/rates", { credentials: "same-origin" }).then(function (r) {
+      if (r.status === 200) return r.json().then(function (doc) {
+        var next = {};
+        doc.topics.forEach(function (t) { next[JSON.stringify([t.broker, t.topic])] = t; });
+        rates = next;
+        renderRates();
+      });
+    }).catch(function () { /* the server restarts: try again next time */ });
+  }
   function poll() {
+    pollRates();
     var headers = etag ? { "If-None-Match": etag } : {};
     fetch("api/status", { headers: headers, credentials: "same-origin" }).then(function (r) {
       if (r.status === 200) { etag = r.headers.get("ETag"); return r.json().then(render); }
@@ -170,6 +214,7 @@
     });
   }, 1000);
   render(current);
+  pollRates();
   etag = '"' + current.version + '"';
   setTimeout(poll, POLL_MS);
 })();
