@@ -226,3 +226,53 @@ def test_the_dashboard_draws_a_sparkline_for_a_topic_with_traffic(plant: Plant) 
     finally:
         stop.set()
         publisher.join(30)
+
+
+KAFKA_POSITION, KAFKA_ENERGY = "robot.abb-irb120.position", "robot.abb-irb120.energy"
+
+
+@pytest.fixture
+def cell(tmp_path: Path) -> Iterator[Plant]:
+    """The paper's robot cell: Mosquitto on 127.0.0.2, Kafka on 127.0.0.3, the bridge worker."""
+    from engine.model import BridgeStatus
+    from tests.integration.agents import plant_copy
+
+    fleet = start_agents(list(MACHINES), tmp_path)
+    running = None
+    try:
+        path, ports = plant_copy("robot-cell.ttl", tmp_path)
+        assert main(["apply", str(path), "--agents", str(fleet.agents_file), "--yes"]) == 0
+        agent = fleet.client(MACHINES[0])
+        process.wait_until(lambda: [b for b in agent.list_bridges() if b.status is BridgeStatus.RUNNING],
+                           DEADLINE, 0.2, what="the Mosquitto -> Kafka bridge running")
+        fleet.broker_pids |= {b.pid for b in agent.list_bridges() if b.pid}  # the worker's too
+        state = PlantState([str(path)], fleet.agents_file, observe_interval=1.0)
+        running = start_server(ListenAddress("127.0.0.1", 0), state, "rates-test-token-0123456789", Limits())
+        yield Plant(running.address.url, fleet, running, ports)
+    finally:
+        if running is not None:
+            running.shutdown()
+        fleet.brokers()
+        assert main(["destroy", str(tmp_path / "plant.ttl"), "--agents", str(fleet.agents_file), "--yes"]) == 0
+        fleet.stop()
+
+
+def test_kafka_topics_are_counted_from_their_end(cell: Plant) -> None:
+    from confluent_kafka import Producer
+
+    for broker, topic in (("mosquitto", KAFKA_POSITION), ("kafka", KAFKA_POSITION), ("kafka", KAFKA_ENERGY)):
+        watching(cell, broker, topic)
+    before = {(b, t): cell.topic(b, t)["total"] for b, t in (("mosquitto", KAFKA_POSITION),
+                                                              ("kafka", KAFKA_POSITION), ("kafka", KAFKA_ENERGY))}
+    producer = Producer({"bootstrap.servers": f"{MACHINES[1]}:{cell.ports['kafka']}", "acks": "all",
+                         "log_level": 0})
+    delivered: list[object] = []
+    for i in range(25):
+        producer.produce(KAFKA_ENERGY, json.dumps({"i": i}).encode(), on_delivery=lambda err, _m: delivered.append(err))
+    assert producer.flush(30) == 0 and delivered == [None] * 25
+    publish(MACHINES[0], cell.ports["mosquitto"], KAFKA_POSITION, 30)
+    assert total_reaches(cell, "kafka", KAFKA_ENERGY, before[("kafka", KAFKA_ENERGY)] + 25)["total"] \
+        == before[("kafka", KAFKA_ENERGY)] + 25
+    assert total_reaches(cell, "mosquitto", KAFKA_POSITION, before[("mosquitto", KAFKA_POSITION)] + 30)["total"] \
+        == before[("mosquitto", KAFKA_POSITION)] + 30
+    total_reaches(cell, "kafka", KAFKA_POSITION, before[("kafka", KAFKA_POSITION)] + 30)  # through the worker
