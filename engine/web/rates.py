@@ -10,7 +10,8 @@ topic): one-second buckets, the last ``window`` seconds, so memory is bounded by
 topics, and the broker process's pid — a restarted broker gets a new tap, since an MQTT client's
 subscriptions do not survive it) with the taps it runs, starts what is new and stops what went.
 Each tap runs in a thread of its own that connects with a timeout and retries with a backoff, so
-an unreachable or slow broker never holds up the others. :meth:`RateMonitor.stop` stops and joins
+an unreachable or slow broker never holds up the others; an MQTT tap whose client reconnected by
+itself (its subscriptions lost with the old session) is renewed. :meth:`RateMonitor.stop` stops and joins
 every thread it started. Probes of ``plantkg check`` are real messages on the topic: counted too.
 """
 
@@ -134,20 +135,40 @@ class RateBook:
             return [(b, t, ring.series(last), ring.total) for (b, t), ring in self._rings.items()]
 
 
-def _counting(base: type[Tap]) -> type[Tap]:
-    """A tap of ``base`` whose every message is counted in a :class:`RateBook` (probes too)."""
+class _CountingMqttTap(MqttTap):
+    """An MQTT tap counting every message in a :class:`RateBook`; knows when it reconnected."""
 
-    class Counting(base):  # type: ignore[misc, valid-type]
-        book: RateBook
+    book: RateBook
+    connects = 0
 
-        def record(self, topic: str, data: bytes, mark: str | None = None) -> None:
-            self.book.count(self.endpoint.broker, topic)
+    def record(self, topic: str, data: bytes, mark: str | None = None) -> None:
+        self.book.count(self.endpoint.broker, topic)
 
-    Counting.__name__ = f"Counting{base.__name__}"
-    return Counting
+    def _on_connect(self, *args: Any) -> None:
+        super()._on_connect(*args)
+        self.connects += 1
+
+    def needs_renewal(self) -> bool:
+        """paho reconnected by itself: the new session has no subscriptions (clean start)."""
+        return self.connects > 1
 
 
-_TAPS: dict[str, type[Tap]] = {"kafka": _counting(KafkaTap), "mosquitto": _counting(MqttTap)}
+class _CountingKafkaTap(KafkaTap):
+    """A Kafka tap counting every message in a :class:`RateBook` (librdkafka reconnects and keeps
+    the assignment)."""
+
+    book: RateBook
+
+    def record(self, topic: str, data: bytes, mark: str | None = None) -> None:
+        self.book.count(self.endpoint.broker, topic)
+
+    def needs_renewal(self) -> bool:
+        return False
+
+
+_TAPS: dict[str, type[_CountingMqttTap] | type[_CountingKafkaTap]] = {
+    "kafka": _CountingKafkaTap, "mosquitto": _CountingMqttTap}
+RENEW_CHECK = 0.5   # seconds between two looks at whether a running tap must be renewed
 
 
 class _TapRunner:
@@ -157,6 +178,7 @@ class _TapRunner:
         self.target = target
         self.error: str | None = None
         self.watching = False
+        self.tap: Tap | None = None   # the tap now (renewed after a reconnect)
         self._book, self._timeout = book, connect_timeout
         self._stop = threading.Event()
         self.thread = threading.Thread(target=self._run, name=f"plantkg-rates-{target.endpoint.broker}",
@@ -165,8 +187,8 @@ class _TapRunner:
     def _run(self) -> None:
         backoff = 1.0
         while not self._stop.is_set():
-            tap = _TAPS[self.target.endpoint.kind](self.target.endpoint, self.target.topics)
-            tap.book = self._book  # type: ignore[attr-defined]
+            tap = self.tap = _TAPS[self.target.endpoint.kind](self.target.endpoint, self.target.topics)
+            tap.book = self._book
             try:
                 tap.start(self._timeout)
             except Exception as exc:  # noqa: BLE001 - an unreachable broker is shown, then retried
@@ -175,8 +197,9 @@ class _TapRunner:
                 self._stop.wait(backoff)
                 backoff = min(backoff * 2, MAX_BACKOFF)
                 continue
-            self.error, self.watching = None, True
-            self._stop.wait()
+            self.error, self.watching, backoff = None, True, 1.0
+            while not self._stop.wait(RENEW_CHECK) and not tap.needs_renewal():
+                pass
             self.watching = False
             _close(tap)
 

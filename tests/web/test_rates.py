@@ -142,6 +142,35 @@ def test_a_restarted_broker_is_watched_again(plant: Plant) -> None:
                        what="messages after the restart counted", ignore=(OSError,))
 
 
+def test_a_tap_kicked_off_its_broker_is_renewed(plant: Plant) -> None:
+    """Another client with the tap's client id takes its session over (MQTT's rule); paho then
+    reconnects the tap by itself, without its subscriptions: the monitor must make a new tap."""
+    monitor = RateMonitor(lambda: (plant.running.state.snapshot.desired, plant.running.state.snapshot.observed),
+                          interval=0.2).start()
+    try:
+        def runner():  # type: ignore[no-untyped-def]
+            return next(r for t, r in monitor._runners.items() if t.endpoint.broker == "mqtt-a")
+
+        process.wait_until(lambda: runner().watching, DEADLINE, 0.1, what="mqtt-a watched")
+        first = runner().tap
+        intruder = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, protocol=mqtt.MQTTv5,
+                               client_id=first._client._client_id.decode())
+        intruder.connect(MACHINES[0], plant.ports["mqtt-a"])
+        intruder.loop_start()
+        process.wait_until(intruder.is_connected, DEADLINE, 0.05, what="the intruder connected")
+        intruder.disconnect()
+        intruder.loop_stop()
+        process.wait_until(lambda: runner().tap is not first and runner().watching, DEADLINE, 0.1,
+                           what="a new tap after the reconnect")
+        before = monitor.book.rows()
+        total = next(n for b, t, _, n in before if (b, t) == ("mqtt-a", POSITION))
+        publish(MACHINES[0], plant.ports["mqtt-a"], POSITION, 7)
+        process.wait_until(lambda: [n for b, t, _, n in monitor.book.rows() if (b, t) == ("mqtt-a", POSITION)]
+                           == [total + 7], DEADLINE, 0.1, what="messages after the renewal counted")
+    finally:
+        monitor.stop()
+
+
 def _silent_broker() -> socket.socket:
     """A TCP port that accepts connections (the kernel's backlog) but never answers MQTT."""
     listener = socket.socket()
