@@ -70,7 +70,7 @@ def plant(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Plant]:
     ports = {"mqtt-a": netutil.free_port(MACHINES[0]), "mqtt-b": netutil.free_port(MACHINES[1])}
     path = write_mosquitto_plant(tmp / "plant.ttl", ports["mqtt-a"], ports["mqtt-b"])
     fleet = start_agents(list(MACHINES), tmp)
-    running = None
+    running, threads = None, set(threading.enumerate())
     try:
         assert main(["apply", str(path), "--agents", str(fleet.agents_file), "--yes"]) == 0
         state = PlantState([str(path)], fleet.agents_file, observe_interval=1.0)
@@ -82,6 +82,14 @@ def plant(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Plant]:
         fleet.brokers()  # remember their pids: fleet.stop checks none survives
         assert main(["destroy", str(path), "--agents", str(fleet.agents_file), "--yes"]) == 0
         fleet.stop()
+        assert not rate_threads(threads), f"threads left by the server's rate monitor: {rate_threads(threads)}"
+
+
+def rate_threads(before: set[threading.Thread]) -> list[str]:
+    """Threads of a rate monitor and its taps (paho's loop of a tap's client, a Kafka tap's poller)
+    started since ``before``."""
+    return [t.name for t in set(threading.enumerate()) - before if t.is_alive() and t.name.startswith(
+        ("plantkg-rates-", "plantkg-web-rates", "paho-mqtt-client-plantkg-check-", "check-tap-"))]
 
 
 def publish(host: str, port: int, topic: str, count: int) -> None:
@@ -209,8 +217,7 @@ def test_a_silent_broker_does_not_stop_the_others_and_stop_leaves_no_thread(plan
     finally:
         monitor.stop()
         silent.close()
-    ours = ("plantkg-rates-", "plantkg-web-rates", "paho-mqtt-client-", "check-tap-")
-    left = [t.name for t in set(threading.enumerate()) - threads_before if t.is_alive() and t.name.startswith(ours)]
+    left = rate_threads(threads_before)
     assert not left, f"threads left by the rate monitor: {left}"
     assert monitor.threads() == []
 
@@ -267,7 +274,7 @@ def cell(tmp_path: Path) -> Iterator[Plant]:
     from tests.integration.agents import plant_copy
 
     fleet = start_agents(list(MACHINES), tmp_path)
-    running = None
+    running, threads = None, set(threading.enumerate())
     try:
         path, ports = plant_copy("robot-cell.ttl", tmp_path)
         assert main(["apply", str(path), "--agents", str(fleet.agents_file), "--yes"]) == 0
@@ -284,6 +291,7 @@ def cell(tmp_path: Path) -> Iterator[Plant]:
         fleet.brokers()
         assert main(["destroy", str(tmp_path / "plant.ttl"), "--agents", str(fleet.agents_file), "--yes"]) == 0
         fleet.stop()
+        assert not rate_threads(threads), f"threads left by the server's rate monitor: {rate_threads(threads)}"
 
 
 def test_kafka_topics_are_counted_from_their_end(cell: Plant) -> None:
