@@ -222,7 +222,7 @@ def test_a_silent_broker_does_not_stop_the_others_and_stop_leaves_no_thread(plan
     assert monitor.threads() == []
 
 
-def test_the_dashboard_draws_a_sparkline_for_a_topic_with_traffic(plant: Plant) -> None:
+def test_the_dashboard_draws_a_sparkline_for_a_topic_with_traffic(plant: Plant, tmp_path: Path) -> None:
     if not Path(CHROMIUM).exists():
         pytest.fail(f"no Chromium at {CHROMIUM}: run `make setup` (it installs Debian's chromium)")
     from playwright.sync_api import sync_playwright
@@ -256,6 +256,8 @@ def test_the_dashboard_draws_a_sparkline_for_a_topic_with_traffic(plant: Plant) 
                 assert page.inner_text(cell).endswith("/s")
                 assert page.evaluate(f"""document.querySelector('{quiet} svg.sparkline polyline')
                     .getAttribute('points').split(' ').every(p => p.endsWith(',17.0'))""")
+                page.locator("#topics").screenshot(path=str(tmp_path / "rates.png"))
+                assert (tmp_path / "rates.png").stat().st_size > 1000
                 assert not errors, f"JavaScript errors: {errors}"
             finally:
                 browser.close()
