@@ -98,7 +98,7 @@ class MosquittoConfig:
     log_file: Path
     run_as: str | None = None
     data_dir: Path | None = None          # persistence on, in this folder; None: off
-    persist_every: int | None = None      # save after this many changes; None: every 60 s
+    persist_every: int | None = None      # save after this many changes; None: DEFAULT_PERSIST_EVERY
     bridges: tuple[MosquittoBridge, ...] = ()
 
     def __post_init__(self) -> None:
