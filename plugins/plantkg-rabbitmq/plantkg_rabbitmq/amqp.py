@@ -2,7 +2,7 @@
 
 A plantkg topic on a RabbitMQ broker is a durable queue of the same name, bound to the
 ``amq.topic`` exchange with the routing key the MQTT plugin gives that topic (MQTT's ``/`` is
-AMQP's ``.`` and back), so what an MQTT client (or a Mosquitto bridge) publishes to ``cell/pose``
+AMQP's ``.``), so what an MQTT client (or a Mosquitto bridge) publishes to ``cell/pose``
 waits in queue ``cell/pose`` for AMQP consumers. Everything goes through AMQP — no management
 plugin, no rabbitmqctl (a second Erlang VM per call). The node lets ``guest`` in over loopback only.
 """
@@ -33,8 +33,10 @@ logging.getLogger("pika").setLevel(logging.CRITICAL)
 
 
 def routing_key(topic: str) -> str:
-    """The routing key the MQTT plugin publishes ``topic`` with: ``/`` and ``.`` swapped."""
-    return topic.translate(str.maketrans({"/": ".", ".": "/"}))
+    """The routing key RabbitMQ 3.10's MQTT plugin publishes ``topic`` with: each ``/`` becomes
+    ``.`` (a ``.`` stays, so ``a/b`` and ``a.b`` share a key; seen on a real node, see
+    tests/test_rabbitmq_node.py)."""
+    return topic.replace("/", ".")
 
 
 def parameters(host: str, port: int, timeout: float) -> pika.ConnectionParameters:
