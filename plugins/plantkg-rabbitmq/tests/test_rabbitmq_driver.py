@@ -8,6 +8,8 @@ from pathlib import Path
 
 import pytest
 
+pytest.importorskip("plantkg_rabbitmq", reason="plugins/plantkg-rabbitmq is not installed (make setup)")
+
 from engine.drivers.base import Driver
 from engine.drivers.registry import DriverRegistry
 from engine.errors import ConfigValueError

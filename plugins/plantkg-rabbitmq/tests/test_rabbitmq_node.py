@@ -16,8 +16,11 @@ from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-import pika
 import pytest
+
+pytest.importorskip("plantkg_rabbitmq", reason="plugins/plantkg-rabbitmq is not installed (make setup)")
+
+import pika
 from paho.mqtt import client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
