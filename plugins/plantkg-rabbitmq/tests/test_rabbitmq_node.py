@@ -8,8 +8,6 @@ persistent messages; no process of the node survives its stop.
 
 from __future__ import annotations
 
-import getpass
-import os
 import secrets
 import time
 from collections.abc import Iterator
@@ -21,10 +19,9 @@ import pytest
 pytest.importorskip("plantkg_rabbitmq", reason="plugins/plantkg-rabbitmq is not installed (make setup)")
 
 import pika
-from paho.mqtt import client as mqtt
-from paho.mqtt.enums import CallbackAPIVersion
+from rabbitmq_test_helpers import get_message, processes_mentioning, publish, start_bridging_mosquitto
 
-from engine import mosquitto_runtime, netutil, parts, process
+from engine import netutil, process
 from engine.drivers.base import log_file
 from engine.model import BrokerSpec, TopicSpec
 from plantkg_rabbitmq import amqp, config
@@ -66,22 +63,6 @@ def start_node(driver: RabbitmqDriver, spec: BrokerSpec, broker_dir: Path) -> No
     return Node(spec, broker_dir, child, time.monotonic() - began)
 
 
-def processes_mentioning(text: str) -> list[str]:
-    """Command lines of live processes that contain ``text``."""
-    found = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit() or int(entry.name) == os.getpid():
-            continue
-        try:
-            cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
-        except OSError:
-            continue
-        if text in cmdline and state != "Z":
-            found.append(f"{entry.name}: {cmdline}")
-    return found
-
-
 def stop_node(node: Node) -> None:
     process.stop(node.child, RabbitmqDriver.stop_grace)
     ports = config.read_ports(node.broker_dir)
@@ -106,18 +87,6 @@ def node(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Node]:
         stop_node(running)
 
 
-def get_message(spec: BrokerSpec, queue: str, deadline: float) -> tuple | None:
-    """basic_get polled until a message arrives or ``deadline`` s pass: (method, props, body)."""
-    with amqp.channel(spec.host, spec.port) as ch:
-        def fetch():
-            method, props, body = ch.basic_get(queue=queue, auto_ack=True)
-            return (method, props, body) if method is not None else None
-        try:
-            return process.wait_until(fetch, deadline, 0.1, what=f"a message in queue {queue!r}")
-        except Exception:  # noqa: BLE001 - the caller asserts
-            return None
-
-
 def test_topics_are_durable_queues(node: Node) -> None:
     driver = RabbitmqDriver()
     topic = TopicSpec(broker_id="amqp1", name="cell/temp", iri="urn:t")
@@ -137,20 +106,8 @@ def test_health_speaks_amqp(node: Node) -> None:
 
 def test_mosquitto_bridges_mqtt_into_a_rabbitmq_queue(node: Node, tmp_path: Path) -> None:
     RabbitmqDriver().ensure_topic(node.spec, TopicSpec(broker_id="amqp1", name=TOPIC, iri="urn:t"))
-    port = netutil.free_port()
-    bridge = mosquitto_runtime.MosquittoBridge(
-        name="mqtt1-to-amqp1", remote_host="127.0.0.1", remote_port=node.mqtt_port,
-        topics=(mosquitto_runtime.MosquittoBridgeTopic(TOPIC, "out", 1),),
-        try_private=False)  # RabbitMQ refuses the bridge flag (protocol level 0x84) as corrupt
-    cfg = mosquitto_runtime.MosquittoConfig(
-        host="127.0.0.1", port=port, log_file=tmp_path / "mosquitto.log",
-        run_as=getpass.getuser() if os.geteuid() == 0 else None, bridges=(bridge,))
-    conf = tmp_path / "mosquitto.conf"
-    conf.write_text(mosquitto_runtime.render_mosquitto_conf(cfg), encoding="utf-8")
-    mosquitto = process.spawn(mosquitto_runtime.mosquitto_command(parts.mosquitto_binary(), conf),
-                              log_dir=tmp_path, name="mosquitto-stdout")
+    mosquitto, port = start_bridging_mosquitto(tmp_path, node.mqtt_port, TOPIC, "mqtt1-to-amqp1")
     try:
-        wait_bridge_connected(port, "mqtt1-to-amqp1", 20.0)
         payload = f"pose {secrets.token_hex(4)}".encode()
         publish(port, TOPIC, payload)
         got = get_message(node.spec, TOPIC, 20.0)
@@ -176,32 +133,3 @@ def test_a_stop_keeps_queues_and_persistent_messages(node: Node) -> None:
     print(f"RabbitMQ answered AMQP {again.ready_s:.1f} s after a restart")
     got = get_message(node.spec, "kept", 10.0)
     assert got is not None and got[2] == b"survives"
-
-
-def publish(port: int, topic: str, payload: bytes) -> None:
-    """One QoS 1 publish to Mosquitto, waited for (PUBACK)."""
-    client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"pub-{secrets.token_hex(4)}")
-    client.connect("127.0.0.1", port)
-    client.loop_start()
-    try:
-        client.publish(topic, payload, qos=1).wait_for_publish(timeout=10)
-    finally:
-        client.disconnect()
-        client.loop_stop()
-
-
-def wait_bridge_connected(port: int, name: str, deadline: float) -> None:
-    """Mosquitto's retained bridge state notification says 1 (connected) within ``deadline``."""
-    state: list[bytes] = []
-    client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"state-{secrets.token_hex(4)}")
-    client.on_message = lambda _c, _u, msg: state.append(msg.payload)
-    process.wait_until(lambda: netutil.port_open("127.0.0.1", port), 10.0, what="Mosquitto")
-    client.connect("127.0.0.1", port)
-    client.subscribe(mosquitto_runtime.bridge_state_topic(name), qos=1)
-    client.loop_start()
-    try:
-        process.wait_until(lambda: state and state[-1] == b"1", deadline, 0.05,
-                           what=f"bridge {name} to connect to RabbitMQ's MQTT port")
-    finally:
-        client.disconnect()
-        client.loop_stop()
