@@ -11,12 +11,16 @@ added to the project's shapes by :func:`kg.validate.load_default_shapes`.
 
 Only entry-point *names* and package resources are read here — no driver is imported, and kg never
 imports engine. With only the built-in drivers installed, the shapes are left exactly as written.
+The entry points are read once per process (scanning the installed packages took ~25 ms, paid by
+every validation otherwise): a package installed later counts after a restart, as for the agent's
+drivers, or after :func:`forget_entry_points`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable
-from importlib.metadata import entry_points
+from functools import lru_cache
+from importlib.metadata import EntryPoint, entry_points
 from importlib.resources import files as package_files
 from pathlib import Path
 
@@ -33,7 +37,7 @@ SHAPES_GROUP = "plantkg.shapes"
 
 def registered_broker_types(group: str = DRIVERS_GROUP) -> tuple[str, ...]:
     """The names of the installed driver entry points, sorted (no driver is loaded)."""
-    return tuple(sorted({ep.name for ep in entry_points(group=group)}))
+    return tuple(sorted({ep.name for ep in _entry_points(group)}))
 
 
 def plugin_shapes_files(group: str = SHAPES_GROUP) -> list[Path]:
@@ -45,7 +49,7 @@ def plugin_shapes_files(group: str = SHAPES_GROUP) -> list[Path]:
     unchecked.
     """
     out: list[Path] = []
-    for ep in sorted(entry_points(group=group), key=lambda e: e.name):
+    for ep in sorted(_entry_points(group), key=lambda e: e.name):
         where = f"entry point {ep.name!r} = {ep.value!r} of group {group!r}"
         hint = "reinstall the package that declares it, or uninstall it"
         if ep.attr:
@@ -60,6 +64,16 @@ def plugin_shapes_files(group: str = SHAPES_GROUP) -> list[Path]:
             raise ShapesError(f"{where}: no .ttl file in {folder}", hint=hint)
         out.extend(found)
     return out
+
+
+def forget_entry_points() -> None:
+    """Read the entry points again on next use (a package was installed or removed meanwhile)."""
+    _entry_points.cache_clear()
+
+
+@lru_cache(maxsize=8)
+def _entry_points(group: str) -> tuple[EntryPoint, ...]:
+    return tuple(entry_points(group=group))
 
 
 def with_broker_types(graph: Graph, kinds: Iterable[str]) -> Graph:

@@ -4,6 +4,7 @@ the test must not depend on which plugin packages this machine has installed."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from importlib.metadata import EntryPoint
 from pathlib import Path
 
@@ -33,11 +34,13 @@ def fake_entry_points(drivers: tuple[str, ...], shapes: dict[str, str] | None = 
 
 
 @pytest.fixture
-def installed(monkeypatch: pytest.MonkeyPatch):
+def installed(monkeypatch: pytest.MonkeyPatch) -> Iterator:
     """Call with the driver names (and shapes entry points) that count as installed."""
     def install(drivers: tuple[str, ...], shapes: dict[str, str] | None = None) -> None:
         monkeypatch.setattr(shape_plugins, "entry_points", fake_entry_points(drivers, shapes))
-    return install
+        shape_plugins.forget_entry_points()
+    yield install
+    shape_plugins.forget_entry_points()  # empty cache: the next read, unpatched, sees the real ones
 
 
 def broker_type_values(graph: Graph) -> list[str]:
