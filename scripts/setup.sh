@@ -127,7 +127,8 @@ for plugin in plugins/plantkg-rabbitmq; do
     PLUGIN_STAMP="$VENV/.$(basename "$plugin")-pyproject.sha256"
     PLUGIN_HASH="$(sha "$plugin/pyproject.toml")"
     if [ "$(cat "$PLUGIN_STAMP" 2>/dev/null || true)" != "$PLUGIN_HASH" ] \
-        || ! "$VENV/bin/python" -m pip show -q "$(basename "$plugin")" >/dev/null 2>&1; then
+        || ! "$VENV/bin/python" -c 'import importlib.metadata as m, sys; m.version(sys.argv[1])' \
+            "$(basename "$plugin")" >/dev/null 2>&1; then
         say "python: pip install -e $plugin (new, uninstalled or its pyproject.toml changed)"
         quietly "pip-install-$(basename "$plugin")" "$VENV/bin/python" -m pip install \
             --disable-pip-version-check -e "$plugin"
