@@ -37,7 +37,7 @@ class RabbitmqDriver:
 
     kind = "rabbitmq"
     implicit_topics = True
-    start_deadline = 60.0   # ~12 s for a first boot here (Mnesia created), less afterwards
+    start_deadline = 90.0   # a first boot took 12-20 s here (Mnesia created), a restart 7-9 s
     stop_grace = 20.0
 
     def validate(self, spec: BrokerSpec) -> None:

@@ -8,7 +8,9 @@ persistent messages; no process of the node survives its stop.
 
 from __future__ import annotations
 
+import os
 import secrets
+import signal
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
@@ -120,16 +122,34 @@ def test_mosquitto_bridges_mqtt_into_a_rabbitmq_queue(node: Node, tmp_path: Path
         process.stop(mosquitto, 5.0)
 
 
-def test_a_stop_keeps_queues_and_persistent_messages(node: Node) -> None:
-    """Runs last in the module: it restarts the node (ports and folder kept)."""
-    RabbitmqDriver().ensure_topic(node.spec, TopicSpec(broker_id="amqp1", name="kept", iri="urn:k"))
-    with amqp.channel(node.spec.host, node.spec.port) as ch:
+def publish_confirmed(spec: BrokerSpec, queue: str, body: bytes) -> None:
+    """A persistent AMQP publish the node confirmed (it is on disk then)."""
+    with amqp.channel(spec.host, spec.port) as ch:
         ch.confirm_delivery()
-        ch.basic_publish(exchange="", routing_key="kept", body=b"survives",
+        ch.basic_publish(exchange="", routing_key=queue, body=body,
                          properties=pika.BasicProperties(delivery_mode=2), mandatory=True)
+
+
+def test_a_stop_keeps_queues_and_persistent_messages(node: Node) -> None:
+    """Restarts the node (ports and folder kept); the tests after it use the new node."""
+    RabbitmqDriver().ensure_topic(node.spec, TopicSpec(broker_id="amqp1", name="kept", iri="urn:k"))
+    publish_confirmed(node.spec, "kept", b"survives a stop")
     stop_node(node)
     again = start_node(RabbitmqDriver(), node.spec, node.broker_dir)
     node.child = again.child
     print(f"RabbitMQ answered AMQP {again.ready_s:.1f} s after a restart")
     got = get_message(node.spec, "kept", 10.0)
-    assert got is not None and got[2] == b"survives"
+    assert got is not None and got[2] == b"survives a stop"
+
+
+def test_kill_9_loses_no_confirmed_message(node: Node) -> None:
+    """Safe by default: a confirmed persistent message survives SIGKILL of the node's group."""
+    RabbitmqDriver().ensure_topic(node.spec, TopicSpec(broker_id="amqp1", name="kept", iri="urn:k"))
+    publish_confirmed(node.spec, "kept", b"survives kill -9")
+    os.killpg(node.child.pid, signal.SIGKILL)
+    stop_node(node)  # reaps, and checks that nothing of the node is left
+    again = start_node(RabbitmqDriver(), node.spec, node.broker_dir)
+    node.child = again.child
+    print(f"RabbitMQ answered AMQP {again.ready_s:.1f} s after kill -9")
+    got = get_message(node.spec, "kept", 10.0)
+    assert got is not None and got[2] == b"survives kill -9"
