@@ -54,8 +54,10 @@ def deployment(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Deployment]
     try:
         yield Deployment(agents, plant, port, tmp)
     finally:
-        agents.delete_all()
-        agents.stop()
+        try:
+            agents.delete_all()  # a safety net: test_destroy... removes the broker itself
+        finally:
+            agents.stop()
 
 
 def run(capsys: pytest.CaptureFixture[str], *args: object) -> tuple[int, str]:
