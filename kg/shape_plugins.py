@@ -57,8 +57,8 @@ def plugin_shapes_files(group: str = SHAPES_GROUP) -> list[Path]:
                               hint=hint)
         try:
             folder = package_files(ep.module)
-        except (ImportError, TypeError, ValueError) as exc:
-            raise ShapesError(f"{where}: package not found ({type(exc).__name__}: {exc})", hint=hint) from None
+        except Exception as exc:  # noqa: BLE001 - importing a third-party package may fail in any way
+            raise ShapesError(f"{where}: cannot import the package ({type(exc).__name__}: {exc})", hint=hint) from None
         found = sorted(Path(str(f)) for f in folder.iterdir() if f.name.endswith(".ttl") and f.is_file())
         if not found:
             raise ShapesError(f"{where}: no .ttl file in {folder}", hint=hint)

@@ -120,7 +120,7 @@ def test_a_package_adds_its_shapes(installed, tmp_path: Path, monkeypatch: pytes
 
 
 @pytest.mark.parametrize(("value", "problem"), [
-    ("no_such_package_for_plantkg", "package not found"),
+    ("no_such_package_for_plantkg", "cannot import the package"),
     ("pk_empty_plugin", "no .ttl file"),
     ("pk_empty_plugin:attr", "names an attribute"),
 ])
