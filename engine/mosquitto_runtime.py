@@ -73,8 +73,13 @@ class MosquittoBridge:
     remote_host: str
     remote_port: int
     topics: tuple[MosquittoBridgeTopic, ...]
+    #: Mark the bridge as one (MQTT protocol level | 0x80) so a Mosquitto remote does not send back
+    #: what came from us; a remote that is not Mosquitto may refuse the flag as a corrupt header.
+    try_private: bool = True
 
     def __post_init__(self) -> None:
+        if not isinstance(self.try_private, bool):
+            raise ConfigValueError("try_private", self.try_private, "must be true or false")
         if not _NAME.fullmatch(self.name):
             raise ConfigValueError("name", self.name, "must be 1 to 300 of A-Z a-z 0-9 _ . -")
         host = check_host("remote_host", self.remote_host)
@@ -164,7 +169,7 @@ def _bridge_lines(bridge: MosquittoBridge) -> list[str]:
         f"remote_clientid {bridge.name}",
         f"local_clientid {bridge.name}.local",
         "cleansession false",
-        "try_private true",
+        f"try_private {'true' if bridge.try_private else 'false'}",
         "start_type automatic",
         f"restart_timeout {base} {cap}",
         "keepalive_interval 10",

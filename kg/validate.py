@@ -23,7 +23,7 @@ import rdflib
 from rdflib import BNode, Graph, Literal, URIRef
 from rdflib.term import Node
 
-from kg import resources
+from kg import resources, shape_plugins
 from kg.errors import ShapesError
 from kg.load import PlantGraph
 from kg.namespaces import SH
@@ -256,13 +256,18 @@ def load_default_shapes() -> ShapesGraph:
     Parsed (and compiled, on first use) once per process for as long as the files keep their
     size and modification time: re-reading them was two thirds of validating a small plant
     (``benchmarks/RESULTS.md``, deployment latency). The object is shared: read it, never change it.
+    Installed packages add to them (:mod:`kg.shape_plugins`): their own shapes files, and the
+    ``pk:brokerType`` values, which are the names of the registered drivers.
     """
-    files = [Path(f) for f in resources.shapes_files()]
-    return _shapes_once(tuple((str(f), f.stat().st_mtime_ns, f.stat().st_size) for f in files))
+    files = [Path(f) for f in (*resources.shapes_files(), *shape_plugins.plugin_shapes_files())]
+    return _shapes_once(tuple((str(f), f.stat().st_mtime_ns, f.stat().st_size) for f in files),
+                        shape_plugins.registered_broker_types())
 
 
 @lru_cache(maxsize=4)
-def _shapes_once(stamps: tuple[tuple[str, int, int], ...]) -> ShapesGraph:
-    return load_shapes(Path(name) for name, _, _ in stamps)
+def _shapes_once(stamps: tuple[tuple[str, int, int], ...], kinds: tuple[str, ...]) -> ShapesGraph:
+    shapes = load_shapes(Path(name) for name, _, _ in stamps)
+    shape_plugins.with_broker_types(shapes.graph, kinds)
+    return shapes
 
 

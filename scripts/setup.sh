@@ -1,9 +1,11 @@
 #!/usr/bin/env bash
 # Install the real parts plantkg runs against, idempotently; `make setup` calls this.
 #   1. Debian packages: mosquitto (the system service is stopped and disabled: tests and agents
-#      spawn their own brokers), a Java runtime and Maven, each only if its command is missing.
+#      spawn their own brokers), a Java runtime and Maven, each only if its command is missing;
+#      rabbitmq-server for the RabbitMQ plugin (its system service stopped and disabled too).
 #   2. Python: .venv with plantkg installed editable plus the test extra, redone only when
-#      pyproject.toml changed (stamp: .venv/.plantkg-pyproject.sha256).
+#      pyproject.toml changed (stamp: .venv/.plantkg-pyproject.sha256); then the broker-type plugin
+#      plugins/plantkg-rabbitmq, editable, redone only when its pyproject.toml changed.
 #   3. Kafka: broker jars resolved from Maven Central by third_party/kafka/pom.xml into
 #      .plantkg/kafka/<version>/libs, redone only when the pom changed (stamp beside libs/).
 # A second run installs nothing and takes about a second.
@@ -61,8 +63,24 @@ disable_system_mosquitto() {
     fi
 }
 
+# Other Debian services we install but never use system-wide (our agents spawn their own nodes).
+disable_system_service() { # name
+    if [ -d /run/systemd/system ] && have systemctl; then
+        as_root systemctl disable --now "$1.service" >/dev/null 2>&1 || true
+    else
+        if [ -x "/etc/init.d/$1" ]; then
+            as_root "/etc/init.d/$1" stop >/dev/null 2>&1 || true
+        fi
+        if have update-rc.d; then
+            as_root update-rc.d "$1" disable >/dev/null 2>&1 || true
+        fi
+    fi
+}
+
 APT_WANTED=()
 have_mosquitto || APT_WANTED+=(mosquitto)
+# RabbitMQ for plugins/plantkg-rabbitmq; the plugin runs the real script, not /usr/sbin's wrapper.
+[ -x /usr/lib/rabbitmq/bin/rabbitmq-server ] || APT_WANTED+=(rabbitmq-server)
 have java || APT_WANTED+=(default-jre-headless)
 have mvn || APT_WANTED+=(maven)
 # Debian's Chromium for the dashboard's browser tests (Playwright drives it; no browser download).
@@ -82,6 +100,10 @@ if [ "${#APT_WANTED[@]}" -gt 0 ]; then
         say "apt: stopping and disabling the system mosquitto service (plantkg spawns its own)"
         disable_system_mosquitto
     fi
+    if [[ " ${APT_WANTED[*]} " == *" rabbitmq-server "* ]]; then
+        say "apt: stopping and disabling the system rabbitmq-server service (plantkg spawns its own)"
+        disable_system_service rabbitmq-server
+    fi
 fi
 
 # --- 2. Python environment ----------------------------------------------------------------------
@@ -99,6 +121,20 @@ if [ "$(cat "$PY_STAMP" 2>/dev/null || true)" != "$PY_HASH" ]; then
     quietly pip-install "$VENV/bin/python" -m pip install --disable-pip-version-check -e '.[test]'
     printf '%s\n' "$PY_HASH" >"$PY_STAMP"
 fi
+
+# Broker types as plugins: a package of their own each, installed after plantkg (their dependency).
+for plugin in plugins/plantkg-rabbitmq; do
+    PLUGIN_STAMP="$VENV/.$(basename "$plugin")-pyproject.sha256"
+    PLUGIN_HASH="$(sha "$plugin/pyproject.toml")"
+    if [ "$(cat "$PLUGIN_STAMP" 2>/dev/null || true)" != "$PLUGIN_HASH" ] \
+        || ! "$VENV/bin/python" -c 'import importlib.metadata as m, sys; m.version(sys.argv[1])' \
+            "$(basename "$plugin")" >/dev/null 2>&1; then
+        say "python: pip install -e $plugin (new, uninstalled or its pyproject.toml changed)"
+        quietly "pip-install-$(basename "$plugin")" "$VENV/bin/python" -m pip install \
+            --disable-pip-version-check -e "$plugin"
+        printf '%s\n' "$PLUGIN_HASH" >"$PLUGIN_STAMP"
+    fi
+done
 
 # --- 3. Kafka jars ------------------------------------------------------------------------------
 

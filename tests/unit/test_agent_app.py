@@ -86,7 +86,9 @@ def test_health(client: FlaskClient) -> None:
     assert response.status_code == 200
     body = response.get_json()
     assert body["status"] == "ok" and body["agent"] == "test-agent"
-    assert body["drivers"] == ["kafka", "mosquitto", "ngsi-v2"] and body["driver_errors"] == {}
+    # The built-in drivers, sorted; an installed plugin package (plugins/) may add its own.
+    assert body["drivers"] == sorted(body["drivers"]) and body["driver_errors"] == {}
+    assert {"kafka", "mosquitto", "ngsi-v2"} <= set(body["drivers"])
     assert body["version"]
 
 
@@ -162,9 +164,9 @@ def test_a_bad_id_in_the_url_is_refused(client: FlaskClient) -> None:
 
 
 def test_an_unknown_kind_is_unprocessable(client: FlaskClient) -> None:
-    response = put(client, url("m1"), spec(kind="rabbitmq"))
+    response = put(client, url("m1"), spec(kind="activemq"))
     assert response.status_code == 422
-    assert "no driver for broker kind 'rabbitmq'" in error(response)["error"]
+    assert "no driver for broker kind 'activemq'" in error(response)["error"]
 
 
 def test_kafka_on_a_wildcard_address_is_refused_before_anything_starts(client: FlaskClient) -> None:

@@ -87,8 +87,8 @@ def test_a_wrong_token_is_an_auth_error(agent: RunningAgent) -> None:
 
 def test_a_refused_request_is_permanent_with_the_agent_message(client: AgentClient) -> None:
     with pytest.raises(PermanentDispatchError) as info:
-        client.put_broker(BrokerSpec("m1", "urn:m1", "MQTT", "rabbitmq", "127.0.0.1", 1883))
-    assert "422" in info.value.message and "no driver for broker kind 'rabbitmq'" in info.value.message
+        client.put_broker(BrokerSpec("m1", "urn:m1", "MQTT", "activemq", "127.0.0.1", 1883))
+    assert "422" in info.value.message and "no driver for broker kind 'activemq'" in info.value.message
     assert info.value.hint and not isinstance(info.value, AgentAuthError)
     with pytest.raises(PermanentDispatchError, match="port"):
         client.put_broker(BrokerSpec("m1", "urn:m1", "MQTT", "mosquitto", "127.0.0.1", 70000))

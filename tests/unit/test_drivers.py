@@ -274,18 +274,20 @@ def test_essence_ignores_names_and_follows_the_listener(driver: Driver) -> None:
 
 def test_registry_from_entry_points() -> None:
     registry = DriverRegistry.from_entry_points()
-    assert registry.kinds() == ["kafka", "mosquitto", "ngsi-v2"], registry.errors
+    # The built-in drivers; an installed plugin package (plugins/) may add its own.
+    assert {"kafka", "mosquitto", "ngsi-v2"} <= set(registry.kinds()), registry.errors
+    assert not registry.errors
     assert isinstance(registry.get("kafka"), KafkaDriver)
     assert isinstance(registry.get("mosquitto"), Driver)
-    assert "mosquitto" in registry and "rabbitmq" not in registry
+    assert "mosquitto" in registry and "activemq" not in registry
     with pytest.raises(UnknownDriverError, match="installed: kafka, mosquitto, ngsi-v2"):
-        registry.get("rabbitmq")
+        registry.get("activemq")
 
 
 def test_registries_are_independent() -> None:
     only = DriverRegistry([MosquittoDriver(run_as=None)])
     assert only.kinds() == ["mosquitto"]
-    assert DriverRegistry.from_entry_points().kinds() == ["kafka", "mosquitto", "ngsi-v2"]
+    assert {"kafka", "mosquitto", "ngsi-v2"} <= set(DriverRegistry.from_entry_points().kinds())
     with pytest.raises(ValueError, match="two drivers"):
         DriverRegistry([MosquittoDriver(), MosquittoDriver()])
     with pytest.raises(TypeError):

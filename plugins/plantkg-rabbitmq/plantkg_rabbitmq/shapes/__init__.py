@@ -1,0 +1,1 @@
+"""The SHACL shapes of the RabbitMQ broker type (entry point group ``plantkg.shapes``)."""
