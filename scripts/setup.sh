@@ -103,6 +103,11 @@ if [ "${#APT_WANTED[@]}" -gt 0 ]; then
     if [[ " ${APT_WANTED[*]} " == *" rabbitmq-server "* ]]; then
         say "apt: stopping and disabling the system rabbitmq-server service (plantkg spawns its own)"
         disable_system_service rabbitmq-server
+        # The package's own scripts start Erlang's port mapper as a daemon (port 4369), which
+        # outlives the service; our nodes run their own. -kill stops it only if no node uses it.
+        if have epmd; then
+            as_root epmd -kill >/dev/null 2>&1 || true
+        fi
     fi
 fi
 
