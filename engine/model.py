@@ -219,6 +219,7 @@ class ObservedBridge:
     last_error: str | None = None
     refused: int | None = None          # messages the remote refused (mqtt-ngsi: a 4xx), acknowledged
     owner: str | None = None            # the plant that owns it on its agent (None: nobody)
+    forwarded_per_s: float | None = None  # messages/s over the worker's last ~10 s (None: not counted)
 
 
 @dataclass(frozen=True)

@@ -165,6 +165,9 @@ _SCHEMAS: dict[str, Any] = {
                                        "acknowledged and not retried"},
             "last_error": {"type": ["string", "null"]},
             "owner": _NULLABLE_OWNER,
+            "forwarded_per_s": {"type": ["number", "null"], "minimum": 0,
+                                "description": "Messages forwarded per second over the worker's "
+                                               "last ~10 s (null: the mechanism does not count)"},
         },
     },
     "Health": {

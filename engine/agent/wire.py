@@ -238,6 +238,7 @@ def bridge_spec_from_json(data: Any, where: str = "", *, strict: bool = True) ->
 def observed_bridge_from_json(data: Any, where: str = "") -> ObservedBridge:
     data = _fields(data, ObservedBridge, where, strict=False)
     started = _typed(data, "started_at", (int, float), where, optional=True)
+    rate = _typed(data, "forwarded_per_s", (int, float), where, optional=True)
     return ObservedBridge(
         spec=bridge_spec_from_json(data["spec"], _join(where, "spec"), strict=False),
         status=_enum(data, "status", BridgeStatus, where),
@@ -249,4 +250,5 @@ def observed_bridge_from_json(data: Any, where: str = "") -> ObservedBridge:
         refused=_typed(data, "refused", (int,), where, optional=True),
         last_error=_typed(data, "last_error", (str,), where, optional=True),
         owner=_typed(data, "owner", (str,), where, optional=True),
+        forwarded_per_s=float(rate) if rate is not None else None,
     )
