@@ -9,7 +9,7 @@ A worker bridge lives in ``<state-dir>/bridges/<local>--<remote>/``::
     remote.token  mqtt-ngsi only: the context broker's write token (the token of the agent that
                   runs it), mode 0600, given with the PUT; absent for an open context broker
     pid.json      pid, start time, argv, restarts, config hash (as for brokers)
-    stats.json    what the worker reports: readiness, counters, last error
+    stats.json    what the worker reports: readiness, counters, forwarding rate, last error
     logs/bridge.log
 
 The rules are the broker manager's (:mod:`engine.agent.manager`), kept small: ``put`` is
@@ -346,8 +346,8 @@ class WorkerManager:
             restarts, last_error = w.restarts, w.last_error
         stats = read_stats(w.folder.path) if w.folder.path.exists() else None
         alive = proc is not None and proc.alive()
-        fresh = stats is not None and proc is not None and stats.pid == proc.pid \
-            and time.time() - stats.updated_at < STALE_STATS
+        mine = alive and stats is not None and proc is not None and stats.pid == proc.pid
+        fresh = mine and time.time() - stats.updated_at < STALE_STATS  # type: ignore[union-attr]
         if alive:
             status = BridgeStatus.RUNNING if fresh and stats.ready else BridgeStatus.CONNECTING  # type: ignore[union-attr]
         error = last_error or (stats.last_error if stats is not None else None)
@@ -360,6 +360,9 @@ class WorkerManager:
             last_error=error,
             refused=stats.refused if stats is not None and stats.mechanism == "mqtt-ngsi" else None,
             owner=w.record().owner,
+            # the last rate of the live worker (even a stale file's: a hung stats writer need not
+            # mean a quiet bridge); a worker that is gone forwards nothing
+            forwarded_per_s=None if stats is None else stats.forwarded_per_s if mine else 0.0,
         )
 
     # --- re-adoption and supervision ------------------------------------------------------

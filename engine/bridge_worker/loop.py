@@ -1,8 +1,8 @@
 """What every bridge worker does around its forwarding halves: start them, write ``stats.json``
 when its health changes (and every ``stats_interval`` s) with counters that go on from the last
-run's file, run a probe of the remote side in a
-thread of its own, and on a stop let the halves finish what is in flight before the MQTT link
-disconnects.
+run's file and the forwarding rate of the last ~10 s (:mod:`engine.bridge_worker.rate`), run a
+probe of the remote side in a thread of its own, and on a stop let the halves finish what is in
+flight before the MQTT link disconnects.
 
 A worker (:class:`engine.bridge_worker.worker.Worker` for Kafka,
 :class:`engine.bridge_worker.ngsi_worker.NgsiWorker` for NGSI-v2) says which halves it has, how
@@ -17,9 +17,11 @@ import threading
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any, Protocol
 
 from engine.bridge_worker.mqtt_link import MqttLink
+from engine.bridge_worker.rate import Sample, add_sample, rate
 from engine.bridge_worker.stats import WorkerStats, read_stats, write_stats
 
 log = logging.getLogger("plantkg.bridge")
@@ -48,6 +50,7 @@ class BridgeLoop(ABC):
     def __init__(self) -> None:
         self.stopping = threading.Event()
         self._probe = threading.Thread(target=self.probe, name="remote-probe", daemon=True)
+        self._samples: tuple[Sample, ...] = ()  # the forwarded counter over the last WINDOW s
 
     @abstractmethod
     def halves(self) -> Sequence[Half]:
@@ -104,7 +107,10 @@ class BridgeLoop(ABC):
         log.info("%s", self.stopped_line())
 
     def _write_stats(self) -> None:
+        stats = self.snapshot()
+        self._samples = add_sample(self._samples, time.monotonic(), stats.forwarded)
+        stats = replace(stats, forwarded_per_s=round(rate(self._samples), 3))
         try:
-            write_stats(self.cfg.state_dir, self.snapshot())
+            write_stats(self.cfg.state_dir, stats)
         except OSError as exc:
             log.warning("cannot write stats: %s", exc)

@@ -21,7 +21,9 @@ class WorkerStats:
     """One snapshot. ``kafka_connected`` is None before the first probe of the Kafka cluster.
     The fields with defaults are the MQTT <-> NGSI worker's (``mechanism`` "mqtt-ngsi"): messages
     upserted, ``refused`` by the context broker (acknowledged, not retried), notifications
-    ``skipped`` (the loop rule), and whether the context broker answers."""
+    ``skipped`` (the loop rule), and whether the context broker answers. ``forwarded_per_s``:
+    messages forwarded per second over the last ~10 s (:mod:`engine.bridge_worker.rate`; 0.0 in
+    a file written before the field existed)."""
 
     bridge_id: str
     pid: int
@@ -38,6 +40,7 @@ class WorkerStats:
     forwarded_mqtt_to_ngsi: int = 0
     refused: int = 0
     skipped: int = 0
+    forwarded_per_s: float = 0.0
 
     @property
     def forwarded(self) -> int:
