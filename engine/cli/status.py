@@ -2,14 +2,21 @@
 
 One row per broker: id, kind, host:port, status, pid, uptime, restarts, topics (present/asked);
 then, if the plant has bridges, one row per bridge: its address, mechanism, status, routes,
-messages forwarded and retried (Mosquitto's own bridges count nothing: "-"), last error.
+messages forwarded, its forwarding rate (``rate/s``: messages per second over the worker's last
+~10 s) and messages retried (Mosquitto's own bridges count nothing: "-"), last error.
 A broker no agent runs is ``absent``; one whose agent did not answer is ``unknown``; brokers the
 agents run that the plant does not name are listed after, marked ``not in plant``. The answer is
 also written into the observed graph (see docs/reconciliation.md). Read-only.
 
-Exit codes: 0 the plant has converged (every agent answered and a plan would change nothing);
-2 it has not (something to create, change or delete, or an agent that did not answer, whose
-brokers show ``unknown`` with ``?`` topics); 1 an error (an invalid plant, unusable input).
+A bridge forwarding more than ``--max-bridge-rate`` messages/s (default 10,000) gets a warning:
+defence in depth for what the plan cannot see (bridge rings are refused at plan time, see
+engine/bridge_cycles.py, but not a loop through a bridge set up outside the plant, nor a publisher
+flooding); a bridge loop once delivered one publish ~36,000 times per broker in 5 s.
+
+Exit codes: 0 the plant has converged (every agent answered, a plan would change nothing and no
+bridge runs away); 2 it has not (something to create, change or delete, an agent that did not
+answer, whose brokers show ``unknown`` with ``?`` topics, or a bridge above the rate limit);
+1 an error (an invalid plant, unusable input).
 ``--format json`` gives typed values: numbers as numbers, ``null`` where a table shows ``-``.
 """
 
@@ -17,6 +24,7 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -33,6 +41,8 @@ if TYPE_CHECKING:
 # `plantkg --help` (which lists this command) does not load them.
 
 EXIT_CONVERGED, EXIT_ERROR, EXIT_NOT_CONVERGED = 0, 1, 2
+#: Messages/s above which ``plantkg status`` says a bridge runs away (``--max-bridge-rate``).
+DEFAULT_MAX_BRIDGE_RATE = 10_000.0
 
 HEADERS = ("id", "kind", "host:port", "status", "pid", "uptime", "restarts", "topics")
 _COLOURS = {"running": "green", "starting": "yellow", "connecting": "yellow", "stopped": "yellow", "crashed": "red",
@@ -61,7 +71,12 @@ def status_rows(desired: DesiredState, observed: ObservedState, now: float) -> l
     return rows
 
 
-BRIDGE_HEADERS = ("bridge", "mechanism", "status", "routes", "forwarded", "retried", "error")
+BRIDGE_HEADERS = ("bridge", "mechanism", "status", "routes", "forwarded", "rate/s", "retried", "error")
+
+
+def show_rate(value: float | None) -> str:
+    """A forwarding rate for the table: one decimal, ``-`` where the mechanism does not count."""
+    return "-" if value is None else f"{value:.1f}"
 
 
 def bridge_rows(desired: DesiredState, observed: ObservedState) -> list[dict[str, str]]:
@@ -78,11 +93,12 @@ def bridge_rows(desired: DesiredState, observed: ObservedState) -> list[dict[str
             host = spec.local.host
             state = "unknown" if host in observed.unreachable else "absent"
             rows.append({"bridge": spec.address, "mechanism": spec.mechanism.value, "status": state,
-                         "routes": routes, "forwarded": "-", "retried": "-", "error": ""})
+                         "routes": routes, "forwarded": "-", "rate/s": "-", "retried": "-", "error": ""})
             continue
         rows.append({"bridge": spec.address, "mechanism": spec.mechanism.value,
                      "status": have.status.value, "routes": routes,
-                     "forwarded": show(have.forwarded), "retried": show(have.retried),
+                     "forwarded": show(have.forwarded), "rate/s": show_rate(have.forwarded_per_s),
+                     "retried": show(have.retried),
                      # a running bridge's last error is history (the worker keeps it): not shown;
                      # messages its remote refused (dropped, not retried) are shown while running
                      "error": (have.last_error.splitlines()[0][:60]
@@ -93,8 +109,36 @@ def bridge_rows(desired: DesiredState, observed: ObservedState) -> list[dict[str
             rows.append({"bridge": have.spec.address, "mechanism": have.spec.mechanism.value,
                          "status": f"{have.status.value} (not in plant)",
                          "routes": ", ".join(r.topic for r in have.spec.routes),
-                         "forwarded": show(have.forwarded), "retried": show(have.retried), "error": ""})
+                         "forwarded": show(have.forwarded), "rate/s": show_rate(have.forwarded_per_s),
+                         "retried": show(have.retried), "error": ""})
     return rows
+
+
+@dataclass(frozen=True)
+class RunawayBridge:
+    """A bridge forwarding more messages per second than ``limit``."""
+
+    address: str
+    rate: float
+    limit: float
+
+    @property
+    def warning(self) -> str:
+        return (f"bridge {self.address} forwards {self.rate:,.1f} messages/s, above the limit of "
+                f"{self.limit:,.1f} (--max-bridge-rate): look for a loop through a bridge set up "
+                f"outside the plant (a broker bridged by hand) or a publisher flooding its topics")
+
+
+def runaway_bridges(observed: ObservedState, limit: float) -> tuple[RunawayBridge, ...]:
+    """Every observed bridge (in the plant or not) whose forwarding rate is above ``limit``."""
+    return tuple(RunawayBridge(b.spec.address, b.forwarded_per_s, limit) for b in observed.bridges
+                 if b.forwarded_per_s is not None and b.forwarded_per_s > limit)
+
+
+def verdict(*, plan_empty: bool, unreachable: bool, runaway: bool) -> int:
+    """The exit code: converged only if every agent answered, nothing is pending and no bridge
+    runs away."""
+    return EXIT_CONVERGED if plan_empty and not unreachable and not runaway else EXIT_NOT_CONVERGED
 
 
 def _row(broker_id: str, kind: str, host: str, port: int, state: str, have: ObservedBroker | None,
@@ -135,7 +179,11 @@ def render_table(rows: list[dict[str, str]], headers: tuple[str, ...] = HEADERS)
 @agents_option
 @click.option("--format", "fmt", type=click.Choice(["table", "json"]), default="table",
               show_default=True)
-def status_command(files: tuple[str, ...], agents_file: Path | None, fmt: str) -> int:
+@click.option("--max-bridge-rate", "max_rate", type=click.FloatRange(min=0, min_open=True),
+              default=DEFAULT_MAX_BRIDGE_RATE, show_default=True, metavar="N",
+              help="Messages/s a bridge may forward (over its last ~10 s); above it status warns "
+                   "and exits 2.")
+def status_command(files: tuple[str, ...], agents_file: Path | None, fmt: str, max_rate: float) -> int:
     """Show what each broker of the plant in FILE(s) is doing, as its agent reports it.
 
     \b
@@ -154,12 +202,18 @@ def status_command(files: tuple[str, ...], agents_file: Path | None, fmt: str) -
         print_violations(result)
         return EXIT_VIOLATIONS
     assert result.desired is not None and result.observed is not None
-    converged = (not result.observed.unreachable and result.plan is not None and result.plan.empty)
-    code = EXIT_CONVERGED if converged else EXIT_NOT_CONVERGED
+    runaway = runaway_bridges(result.observed, max_rate)
+    code = verdict(plan_empty=result.plan is not None and result.plan.empty,
+                   unreachable=bool(result.observed.unreachable), runaway=bool(runaway))
+    converged = code == EXIT_CONVERGED
     if fmt == "json":
         click.echo(json.dumps({"converged": converged,
                                "brokers": typed_broker_rows(result.desired, result.observed, time.time()),
-                               "bridges": [_typed_bridge(r) for r in bridge_rows(result.desired, result.observed)],
+                               "bridges": [_typed_bridge(r, result.observed)
+                                           for r in bridge_rows(result.desired, result.observed)],
+                               "max_bridge_rate": max_rate,
+                               "runaway_bridges": [{"bridge": r.address, "forwarded_per_s": r.rate,
+                                                    "warning": r.warning} for r in runaway],
                                "unreachable": list(result.observed.unreachable),
                                "observed": to_dict(result.observed)}, indent=2))
         return code
@@ -168,10 +222,12 @@ def status_command(files: tuple[str, ...], agents_file: Path | None, fmt: str) -
     if bridges:
         click.echo("")
         click.echo(render_table(bridges, BRIDGE_HEADERS))
+    for r in runaway:
+        click.echo(click.style(f"warning: {r.warning}", fg="red"), err=True)
     if result.observed.unreachable:
         click.echo(click.style("agents that did not answer: " + ", ".join(result.observed.unreachable),
                                fg="red"), err=True)
-    if not converged and result.plan is not None and not result.plan.empty:
+    if result.plan is not None and not result.plan.empty:
         click.echo(click.style(f"not converged: {len(result.plan.pending)} change(s) pending (plantkg plan shows them)",
                                fg="yellow"), err=True)
     return code
@@ -197,7 +253,10 @@ def typed_broker_rows(desired: DesiredState, observed: ObservedState, now: float
     return out
 
 
-def _typed_bridge(row: dict[str, str]) -> dict[str, object]:
+def _typed_bridge(row: dict[str, str], observed: ObservedState) -> dict[str, object]:
     def number(text: str) -> int | None:
         return None if text == "-" else int(text)
-    return {**row, "forwarded": number(row["forwarded"]), "retried": number(row["retried"])}
+    have = observed.bridge(row["bridge"])
+    typed: dict[str, object] = {k: v for k, v in row.items() if k != "rate/s"}
+    return {**typed, "forwarded": number(row["forwarded"]), "retried": number(row["retried"]),
+            "forwarded_per_s": have.forwarded_per_s if have is not None else None}

@@ -182,7 +182,7 @@ class FakeClient:
             if (local.spec.host, local.spec.port) != (spec.local.host, spec.local.port):
                 raise PermanentDispatchError(f"409: {spec.address}: local end is not the broker here")
             new = ObservedBridge(spec=spec, status=BridgeStatus.RUNNING, forwarded=0, retried=0,
-                                 owner=owner)
+                                 owner=owner, forwarded_per_s=0.0)
             self.fleet.bridges[spec.address] = new
             return new
 

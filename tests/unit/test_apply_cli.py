@@ -135,9 +135,9 @@ def test_status_table_and_destroy(fleet: FakeFleet, capsys) -> None:  # type: ig
     brokers, bridges = out.split("\n\n")
     header, *rows = brokers.splitlines()
     assert bridges.splitlines()[0].split() == ["BRIDGE", "MECHANISM", "STATUS", "ROUTES", "FORWARDED",
-                                               "RETRIED", "ERROR"]
-    assert bridges.splitlines()[1].split()[:6] == [
-        "bridge.mosquitto.kafka", "mqtt-kafka", "running", "robot.abb-irb120.position", "out", "0"]
+                                               "RATE/S", "RETRIED", "ERROR"]
+    assert bridges.splitlines()[1].split()[:8] == [
+        "bridge.mosquitto.kafka", "mqtt-kafka", "running", "robot.abb-irb120.position", "out", "0", "0.0", "0"]
     assert header.split() == ["ID", "KIND", "HOST:PORT", "STATUS", "PID", "UPTIME", "RESTARTS", "TOPICS"]
     assert rows[0].split()[:4] == ["kafka", "kafka", "127.0.0.3:9092", "running"]
     assert rows[0].split()[-1] == "2/2"
