@@ -8,7 +8,11 @@ A -> C and C -> A on the same topic would hand each message back and forth forev
 messages); a worker bridging MQTT and Kafka both ways skips what it wrote itself.
 
 - Mechanism, from the brokers' inferred classes (the ontology decides what a broker is):
-  two ``pk:MqttBroker`` -> Mosquitto's own bridge; an MQTT and a ``pk:KafkaBroker`` -> a bridge
+  two ``pk:MqttBroker`` -> Mosquitto's own bridge, carried by a Mosquitto (an MQTT broker of
+  another type, a plugin's class declared a subclass of ``pk:MqttBroker``, is only ever its far
+  end: reached at its ``pk:mqttPort``, one way only, since without Mosquitto's bridge flag it
+  would send back what the bridge wrote; two such brokers are refused, and so is such a broker
+  with a Kafka or a context broker); an MQTT and a ``pk:KafkaBroker`` -> a bridge
   worker; an MQTT and a ``pk:ContextBroker`` -> an MQTT <-> NGSI worker. Two Kafka brokers would
   need MirrorMaker 2, which plantkg does not run; a context broker bridges to MQTT only (Kafka or
   another context broker: route the topic through an MQTT broker): refused, with what to do.
@@ -43,6 +47,8 @@ from engine.model import (
 MQTT_CLASS = "pk:MqttBroker"
 KAFKA_CLASS = "pk:KafkaBroker"
 NGSI_CLASS = "pk:ContextBroker"
+#: The driver whose own bridge the MOSQUITTO mechanism is: only such a broker carries one.
+MOSQUITTO_KIND = "mosquitto"
 DEFAULT_QOS = 1
 DEFAULT_KEY = "mqtt-topic"
 
@@ -115,7 +121,7 @@ def _pair(ds: list[DirectedBridge], brokers: Mapping[str, BrokerSpec],
         routes.append(BridgeRoute(topic, direction, qos, key,
                                   entity_id=opts.entity_id if ngsi else None,
                                   entity_type=opts.entity_type if ngsi else None))
-    return BridgeSpec(local=_end(brokers[local]), remote=_end(brokers[remote]), mechanism=mechanism,
+    return BridgeSpec(local=_end(brokers[local], classes), remote=_end(brokers[remote], classes), mechanism=mechanism,
                       routes=tuple(routes), asserted=any(d.asserted for d in ds))
 
 
@@ -126,6 +132,9 @@ def _mechanism_and_carrier(a: str, c: str, ds: list[DirectedBridge], classes: Ma
     kafka = {b for b in (a, c) if KAFKA_CLASS in classes.get(b, frozenset())}
     ngsi = {b for b in (a, c) if NGSI_CLASS in classes.get(b, frozenset())}
     if len(mqtt) == 2:
+        others = [b for b in (a, c) if brokers[b].kind != MOSQUITTO_KIND]
+        if others:
+            return BridgeMechanism.MOSQUITTO, _foreign_mqtt_carrier(a, c, ds, brokers, external, others)
         sources = sorted({d.source for d in ds})
         deployed = [s for s in sources if s not in external]
         if not deployed:
@@ -140,6 +149,12 @@ def _mechanism_and_carrier(a: str, c: str, ds: list[DirectedBridge], classes: Ma
         return BridgeMechanism.MOSQUITTO, carriers[0]
     if len(mqtt) == 1 and (len(kafka) == 1 or len(ngsi) == 1):
         carrier = next(iter(mqtt))
+        if brokers[carrier].kind != MOSQUITTO_KIND:
+            raise BridgeNotSupportedError(
+                a, c, f"the bridge worker runs beside a Mosquitto; {carrier!r} is a "
+                      f"{brokers[carrier].kind!r} broker",
+                hint="route the topic through a Mosquitto broker, bridged one way to "
+                     f"{carrier!r}, or remove the pk:bridgesTo")
         if carrier in external:
             raise _external_carrier(a, c, carrier)
         return (BridgeMechanism.WORKER if kafka else BridgeMechanism.NGSI), carrier
@@ -157,6 +172,32 @@ def _mechanism_and_carrier(a: str, c: str, ds: list[DirectedBridge], classes: Ma
                                   "context broker; these brokers are not both of such classes")
 
 
+def _foreign_mqtt_carrier(a: str, c: str, ds: list[DirectedBridge], brokers: Mapping[str, BrokerSpec],
+                          external: frozenset[str], others: list[str]) -> str:
+    """The Mosquitto that carries a bridge to an MQTT broker of another type (``others``): it
+    pushes to it (one way out) or pulls from it (one way in), never both."""
+    if len(others) == 2:
+        raise BridgeNotSupportedError(
+            a, c, f"neither broker is a Mosquitto (types {brokers[a].kind!r} and {brokers[c].kind!r}), "
+                  "and only Mosquitto's own bridge joins two MQTT brokers",
+            hint="put a Mosquitto broker between them, bridged one way to each, or remove the pk:bridgesTo")
+    carrier = c if others[0] == a else a
+    if len({d.source for d in ds}) == 2:
+        raise BridgeNotSupportedError(
+            a, c, f"a two-way bridge needs Mosquitto's bridge flag (try_private) on both ends, and "
+                  f"{others[0]!r} is a {brokers[others[0]].kind!r} broker: it would send every "
+                  "message the bridge wrote back to it",
+            hint="bridge one way only: keep the pk:bridgesTo (or the publisher/subscriber) of one "
+                 "direction, and route the other through another Mosquitto")
+    if carrier in external:
+        raise _external_carrier(a, c, carrier)
+    if _ipv6(brokers[others[0]].host):
+        raise BridgeNotSupportedError(a, c, f"Mosquitto's bridge cannot connect to broker "
+                                      f"{others[0]!r} at the IPv6 address {brokers[others[0]].host} "
+                                      "(its 'address' takes no IPv6 literal); give it an IPv4 address")
+    return carrier
+
+
 def _external_carrier(a: str, c: str, carrier: str) -> BridgeNotSupportedError:
     return BridgeNotSupportedError(
         a, c, f"the bridge would run beside broker {carrier!r}, which is pk:external (plantkg does "
@@ -169,5 +210,9 @@ def _ipv6(host: str) -> bool:
     return ":" in host
 
 
-def _end(spec: BrokerSpec) -> BridgeEnd:
-    return BridgeEnd(id=spec.id, kind=spec.kind, host=spec.host, port=spec.port)
+def _end(spec: BrokerSpec, classes: Mapping[str, frozenset[str]]) -> BridgeEnd:
+    """Where a bridge reaches ``spec``: an MQTT broker at its ``pk:mqttPort`` if it has one (its
+    ``pk:port`` speaks another protocol), every other broker at its ``pk:port``."""
+    mqtt = MQTT_CLASS in classes.get(spec.id, frozenset()) and spec.mqtt_port is not None
+    return BridgeEnd(id=spec.id, kind=spec.kind, host=spec.host,
+                     port=spec.mqtt_port if mqtt else spec.port)  # type: ignore[arg-type]

@@ -5,7 +5,9 @@ run), only what the ontology concluded:
 
 - a :class:`BrokerSpec` for every ``pk:DeployedBroker`` (kind = ``pk:brokerType``, host =
   ``pk:ip``, port = ``pk:port``; ``allow_anonymous`` = ``pk:allowAnonymous``, false on a
-  ``pk:ContextBroker`` that does not say, so a plan shows that writes need the token). A broker
+  ``pk:ContextBroker`` that does not say, so a plan shows that writes need the token;
+  ``mqtt_port`` = ``pk:mqttPort``, the MQTT listener of a broker type that speaks MQTT beside its
+  own protocol, which bridges from MQTT brokers connect to). A broker
   marked ``pk:external`` runs outside plantkg: it is left out of the brokers (and topics) to
   deploy, but can be the far end of a bridge;
 - a :class:`TopicSpec` for every ``pk:mustCarry(broker, topic)``, with the topic settings that
@@ -60,11 +62,12 @@ _INTEGERS = {str(XSD[t]) for t in ("integer", "int", "long", "short", "byte", "n
                                     "unsignedByte", "negativeInteger", "nonPositiveInteger")}
 
 BROKERS = """
-SELECT ?b ?id ?name ?kind ?ip ?port ?persist ?anonymous ?external WHERE {
+SELECT ?b ?id ?name ?kind ?ip ?port ?mqtt ?persist ?anonymous ?external WHERE {
     ?b a pk:DeployedBroker .
     OPTIONAL { ?b pk:id ?id } OPTIONAL { ?b pk:name ?name } OPTIONAL { ?b pk:brokerType ?kind }
     OPTIONAL { ?b pk:ip ?ip } OPTIONAL { ?b pk:port ?port } OPTIONAL { ?b pk:persistEvery ?persist }
     OPTIONAL { ?b pk:allowAnonymous ?anonymous } OPTIONAL { ?b pk:external ?external }
+    OPTIONAL { ?b pk:mqttPort ?mqtt }
 }"""
 
 TOPICS = """
@@ -224,7 +227,7 @@ def _brokers(plant: PlantGraph, rows: Iterable[ox.QuerySolution],
     values: dict[ox.NamedNode, dict[str, set[object]]] = defaultdict(lambda: defaultdict(set))
     for row in rows:
         slot = values[row["b"]]
-        for var in ("id", "name", "kind", "ip", "port", "persist", "anonymous", "external"):
+        for var in ("id", "name", "kind", "ip", "port", "mqtt", "persist", "anonymous", "external"):
             if row[var] is not None:
                 slot[var].add(row[var])
     out = []
@@ -233,6 +236,8 @@ def _brokers(plant: PlantGraph, rows: Iterable[ox.QuerySolution],
     for node, slot in values.items():
         got = {var: _one(plant, node, prop, slot[var]) for var, prop in props.items()}
         port = _integer(plant, node, "port", got["port"])
+        mqtt = (_integer(plant, node, "mqttPort", _one(plant, node, "mqttPort", slot["mqtt"]))
+                if slot["mqtt"] else None)
         persist = (_integer(plant, node, "persistEvery", _one(plant, node, "persistEvery", slot["persist"]))
                    if slot["persist"] else None)
         anonymous = (_boolean(plant, node, "allowAnonymous", _one(plant, node, "allowAnonymous", slot["anonymous"]))
@@ -241,7 +246,7 @@ def _brokers(plant: PlantGraph, rows: Iterable[ox.QuerySolution],
             external.add(node.value)
         out.append(BrokerSpec(id=got["id"].value, iri=node.value, name=got["name"].value,
                               kind=got["kind"].value, host=got["ip"].value, port=port,
-                              persist_every=persist, allow_anonymous=anonymous))
+                              persist_every=persist, allow_anonymous=anonymous, mqtt_port=mqtt))
     return _unique(out, "broker"), external
 
 

@@ -61,7 +61,7 @@ class DesiredCache:
     def key(self, files: Iterable[Path | str], *, reason_engine: str, validate_engine: str) -> str:
         """The hash of everything load/validate/reason/derive read for ``files``."""
         h = hashlib.sha256(f"plantkg {_version()} cache {FORMAT} {reason_engine} {validate_engine}\n".encode())
-        inputs = [*resources.ontology_files(), *resources.shapes_files(), *shape_plugins.plugin_shapes_files()]
+        inputs = [*resources.tbox_files(), *resources.shapes_files(), *shape_plugins.plugin_shapes_files()]
         h.update(" ".join(shape_plugins.registered_broker_types()).encode() + b"\0")  # the shapes' brokerType values
         for path in [*sorted(inputs), *(Path(f) for f in files)]:
             h.update(str(Path(path).resolve()).encode() + b"\0")

@@ -52,6 +52,8 @@ class BrokerSpec:
     persist_every: int | None = None  # pk:persistEvery — Mosquitto saves after this many changes
     allow_anonymous: bool | None = None  # pk:allowAnonymous — a context broker takes writes without
                                          # its agent's token (derive: false for a context broker)
+    mqtt_port: int | None = None  # pk:mqttPort — the MQTT listener of a broker whose pk:port speaks
+                                  # another protocol (a plugin's broker type); bridges connect to it
 
     @property
     def address(self) -> str:

@@ -182,7 +182,8 @@ def _uses_plantkg_terms(store: ox.Store, graph: ox.NamedNode) -> bool:
 def load_plant(paths: Iterable[Path | str], *, ontology: Path | None = None) -> PlantGraph:
     """Parse ``paths`` (and the ontology) into one :class:`PlantGraph`.
 
-    ``ontology`` replaces the TBox files (``ontology/*.ttl``) with that one file.
+    ``ontology`` replaces the TBox files (``ontology/*.ttl`` and those of plugin packages,
+    :func:`kg.resources.tbox_files`) with that one file.
 
     Raises :class:`InputError` (or its :class:`RdfSyntaxError`) naming the file, line and column
     for a file that cannot be used, and :class:`NotAPlantError` when nothing describes a plant.
@@ -191,7 +192,7 @@ def load_plant(paths: Iterable[Path | str], *, ontology: Path | None = None) -> 
     if not files:
         raise InputError("(no files)", "no plant file given", hint="pass one or more .ttl files")
     store = ox.Store()
-    onto_paths = [ontology] if ontology is not None else resources.ontology_files()
+    onto_paths = [ontology] if ontology is not None else resources.tbox_files()
     onto_graph = ox.NamedNode(GRAPH_ONTOLOGY)
     tbox = tuple(
         Source(path, format_for(path).name, GRAPH_ONTOLOGY, _parse_into(store, path, onto_graph),

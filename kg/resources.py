@@ -11,6 +11,7 @@ import os
 from pathlib import Path
 
 from kg.errors import PlantKGError
+from kg.shape_plugins import plugin_ontology_files
 
 
 def project_root() -> Path:
@@ -36,6 +37,12 @@ def ontology_files() -> list[Path]:
     main = ontology_file()
     others = sorted(p for p in main.parent.glob("*.ttl") if p != main)
     return [main, *others]
+
+
+def tbox_files() -> list[Path]:
+    """What the reasoner reads as the TBox: :func:`ontology_files`, then the ontology files of
+    installed plugin packages (entry-point group ``plantkg.ontology``, :mod:`kg.shape_plugins`)."""
+    return [*ontology_files(), *plugin_ontology_files()]
 
 
 def shapes_files() -> list[Path]:

@@ -1,4 +1,4 @@
-"""Shapes that installed packages bring, and the broker types the installed drivers allow.
+"""Shapes and ontology terms that installed packages bring, and the broker types the installed drivers allow.
 
 A broker type is a driver package (entry-point group ``plantkg.drivers``, name = the
 ``pk:brokerType`` value; see docs/drivers.md). So that a plant may ask for it without an edit of
@@ -7,7 +7,10 @@ plantkg, the shapes accept every *registered* driver name, not a list written in
 property shape on ``pk:brokerType`` to the registered names, and its message to name them. A package
 may also bring shapes of its own (its topic settings, say) through the entry-point group
 ``plantkg.shapes``: name = anything unique, value = a package whose ``*.ttl`` files are shapes,
-added to the project's shapes by :func:`kg.validate.load_default_shapes`.
+added to the project's shapes by :func:`kg.validate.load_default_shapes`. Ontology terms come the
+same way, through ``plantkg.ontology`` (value = a package whose ``*.ttl`` files are TBox files,
+loaded beside ``ontology/*.ttl`` by :func:`kg.resources.tbox_files`): a broker type's own class,
+say, declared a subclass of ``pk:MqttBroker`` so the rules and the bridge planner treat it as one.
 
 Only entry-point *names* and package resources are read here — no driver is imported, and kg never
 imports engine. With only the built-in drivers installed, the shapes are left exactly as written.
@@ -33,6 +36,7 @@ from kg.namespaces import PK, SH
 
 DRIVERS_GROUP = "plantkg.drivers"
 SHAPES_GROUP = "plantkg.shapes"
+ONTOLOGY_GROUP = "plantkg.ontology"
 
 
 def registered_broker_types(group: str = DRIVERS_GROUP) -> tuple[str, ...]:
@@ -48,6 +52,17 @@ def plugin_shapes_files(group: str = SHAPES_GROUP) -> list[Path]:
     naming the entry point: validating without a plugin's shapes would let its plants through
     unchecked.
     """
+    return _package_ttl_files(group)
+
+
+def plugin_ontology_files(group: str = ONTOLOGY_GROUP) -> list[Path]:
+    """The TBox files installed packages declare (group ``plantkg.ontology``), found and ordered as
+    :func:`plugin_shapes_files`; a package that cannot be read is a :class:`~kg.errors.ShapesError`
+    too: reasoning without a plugin's terms would misclassify its brokers."""
+    return _package_ttl_files(group)
+
+
+def _package_ttl_files(group: str) -> list[Path]:
     out: list[Path] = []
     for ep in sorted(_entry_points(group), key=lambda e: e.name):
         where = f"entry point {ep.name!r} = {ep.value!r} of group {group!r}"

@@ -75,6 +75,9 @@ _SCHEMAS: dict[str, Any] = {
                               "description": "mosquitto: save after this many changes"},
             "allow_anonymous": {"type": ["boolean", "null"],
                                 "description": "ngsi-v2: writes need no token (restarts the broker)"},
+            "mqtt_port": {"type": ["integer", "null"], "minimum": 1, "maximum": 65535,
+                          "description": "the MQTT listener of a broker type whose port speaks "
+                                         "another protocol (pk:mqttPort); bridges connect to it"},
         },
     },
     "TopicSpec": {

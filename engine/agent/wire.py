@@ -117,8 +117,11 @@ def broker_spec_from_json(data: Any, where: str = "", *, strict: bool = True) ->
     if persist is not None and not 1 <= persist <= 1_000_000:
         raise WireError(_join(where, "persist_every"), "must be in 1..1000000")
     anonymous = _typed(data, "allow_anonymous", (bool,), where, optional=True)
+    mqtt_port = _typed(data, "mqtt_port", (int,), where, optional=True)
+    if mqtt_port is not None:
+        _checked(where, check_port, "mqtt_port", mqtt_port)
     return BrokerSpec(id=broker_id, iri=iri, name=name, kind=kind, host=host, port=port,
-                      persist_every=persist, allow_anonymous=anonymous)
+                      persist_every=persist, allow_anonymous=anonymous, mqtt_port=mqtt_port)
 
 
 def topic_spec_from_json(data: Any, where: str = "") -> TopicSpec:

@@ -167,6 +167,9 @@ def native_bridge(spec: BrokerSpec, bridge: BridgeSpec) -> mosquitto_runtime.Mos
         remote_port=bridge.remote.port,
         topics=tuple(mosquitto_runtime.MosquittoBridgeTopic(r.topic, r.direction.value, r.qos)
                      for r in bridge.routes),
+        # the bridge flag is Mosquitto's own: another MQTT broker (RabbitMQ's plugin, say) may
+        # refuse it as a corrupt header (engine.bridge_pairs keeps such bridges one-way)
+        try_private=bridge.remote.kind == MosquittoDriver.kind,
     )
 
 

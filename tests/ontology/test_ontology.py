@@ -42,7 +42,9 @@ Hermit = Callable[..., Reasoned]
 # --- what docs/conventions.md fixes -----------------------------------------------------------
 
 CLASSES = {"Resource", "ResourceType", "Property", "Skill", "Broker", "Topic"}
-DEFINED_CLASSES = {"MqttBroker": "mosquitto", "KafkaBroker": "kafka", "ContextBroker": "ngsi-v2"}
+DEFINED_CLASSES = {"KafkaBroker": "kafka", "ContextBroker": "ngsi-v2"}
+#: Classes a broker type implies one way (a general class axiom): other types may be members too.
+IMPLIED_CLASSES = {"MqttBroker": "mosquitto"}
 OBJECT_PROPERTIES = {  # name: (domain, range)
     "executes": ("Resource", "Skill"),
     "isType": ("Resource", "ResourceType"),
@@ -65,6 +67,7 @@ DATA_PROPERTIES = {  # name: (domain or None for all classes, range or None for 
     "brokerType": ("Broker", ns.XSD.string, True),
     "ip": ("Broker", ns.XSD.string, True),
     "port": ("Broker", ns.XSD.integer, True),
+    "mqttPort": ("Broker", ns.XSD.integer, True),
     "persistEvery": ("Broker", ns.XSD.integer, True),
     "allowAnonymous": ("Broker", ns.XSD.boolean, True),
     "external": ("Broker", ns.XSD.boolean, True),
@@ -174,7 +177,7 @@ def test_header(tbox: Graph) -> None:
 
 
 def test_terms_of_the_conventions_are_declared_with_their_kind(tbox: Graph) -> None:
-    for name in CLASSES | set(DEFINED_CLASSES):
+    for name in CLASSES | set(DEFINED_CLASSES) | set(IMPLIED_CLASSES):
         assert (pk(name), ns.RDF.type, ns.OWL.Class) in tbox, name
     for name in OBJECT_PROPERTIES:
         assert (pk(name), ns.RDF.type, ns.OWL.ObjectProperty) in tbox, name
@@ -186,7 +189,8 @@ def test_terms_of_the_conventions_are_declared_with_their_kind(tbox: Graph) -> N
 
 def test_no_term_beyond_the_conventions(tbox: Graph) -> None:
     declared = {s for s in tbox.subjects() if isinstance(s, URIRef) and str(s).startswith(str(PK))}
-    expected = {pk(n) for n in CLASSES | set(DEFINED_CLASSES) | set(OBJECT_PROPERTIES) | set(DATA_PROPERTIES)
+    expected = {pk(n) for n in CLASSES | set(DEFINED_CLASSES) | set(IMPLIED_CLASSES) | set(OBJECT_PROPERTIES)
+                | set(DATA_PROPERTIES)
                 | ANNOTATION_PROPERTIES}
     assert declared == expected
 
@@ -252,6 +256,19 @@ def test_defined_broker_classes(tbox: Graph, name: str) -> None:
     (restriction,) = [m for m in members if isinstance(m, BNode)]
     assert tbox.value(restriction, ns.OWL.onProperty) == pk("brokerType")
     assert tbox.value(restriction, ns.OWL.hasValue) == Literal(DEFINED_CLASSES[name])
+
+
+@pytest.mark.parametrize("name", sorted(IMPLIED_CLASSES))
+def test_implied_broker_classes(tbox: Graph, name: str) -> None:
+    """pk:Broker ⊓ ∃pk:brokerType.{"..."} ⊑ pk:X, and nothing more: a plugin's broker type may be
+    a pk:X too (its class a subclass), which an equivalence would make inconsistent."""
+    assert not list(tbox.objects(pk(name), ns.OWL.equivalentClass))
+    (general,) = [s for s in tbox.subjects(ns.RDFS.subClassOf, pk(name)) if isinstance(s, BNode)]
+    members = list(Collection(tbox, tbox.value(general, ns.OWL.intersectionOf)))
+    assert pk("Broker") in members and len(members) == 2
+    (restriction,) = [m for m in members if isinstance(m, BNode)]
+    assert tbox.value(restriction, ns.OWL.onProperty) == pk("brokerType")
+    assert tbox.value(restriction, ns.OWL.hasValue) == Literal(IMPLIED_CLASSES[name])
 
 
 # =============================================================================================

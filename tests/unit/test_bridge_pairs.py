@@ -139,3 +139,47 @@ def test_an_external_broker_is_a_far_end_but_never_a_carrier() -> None:
         pair_bridges([d("a", "cb", "status")], CB, CB_CLASSES, ENTITY, external=frozenset({"a"}))
     with pytest.raises(BridgeNotSupportedError, match="'a', which is pk:external"):
         pair_bridges([d("a", "b", "t")], CB, CB_CLASSES, {}, external=frozenset({"a"}))
+
+
+# --- an MQTT broker of another type (a plugin's class, a subclass of pk:MqttBroker) ------------
+
+OTHER = {**BROKERS,
+         "r": BrokerSpec("r", "urn:r", "R", "othermq", "127.0.0.6", 5672, mqtt_port=1885),
+         "r2": BrokerSpec("r2", "urn:r2", "R2", "othermq", "127.0.0.7", 5672, mqtt_port=1886),
+         "r6": BrokerSpec("r6", "urn:r6", "R6", "othermq", "::1", 5672, mqtt_port=1887)}
+OTHER_CLASSES = {**CLASSES, "r": MQTT, "r2": MQTT, "r6": MQTT}
+
+
+@pytest.mark.parametrize(("directed", "local", "remote", "direction"), [
+    ([("a", "r")], "a", "r", "out"),   # Mosquitto pushes to it
+    ([("r", "a")], "a", "r", "in"),    # Mosquitto pulls from it: the other type carries nothing
+])
+def test_a_bridge_to_another_mqtt_type_is_carried_by_the_mosquitto(directed, local, remote, direction) -> None:
+    [spec] = pair_bridges([d(s, t, "t") for s, t in directed], OTHER, OTHER_CLASSES, {})
+    assert (spec.local.id, spec.remote.id, spec.mechanism) == (local, remote, BridgeMechanism.MOSQUITTO)
+    assert routes(spec) == [("t", direction, 1, "mqtt-topic")]
+    # reached at its MQTT port, not at pk:port (AMQP's, say); a Mosquitto end keeps its port
+    assert (spec.remote.kind, spec.remote.port, spec.local.port) == ("othermq", 1885, 1883)
+
+
+@pytest.mark.parametrize(("directed", "match"), [
+    ([("a", "r"), ("r", "a")], "two-way bridge needs Mosquitto's bridge flag"),
+    ([("r", "r2")], "neither broker is a Mosquitto"),
+    ([("a", "r6")], "'r6' at the IPv6 address ::1"),
+    ([("r", "k")], "the bridge worker runs beside a Mosquitto"),
+])
+def test_bridges_to_another_mqtt_type_that_cannot_run_are_refused(directed, match) -> None:
+    with pytest.raises(BridgeNotSupportedError, match=match):
+        pair_bridges([d(s, t, "t") for s, t in directed], OTHER, OTHER_CLASSES, {})
+
+
+def test_an_external_mosquitto_cannot_carry_a_bridge_to_another_mqtt_type() -> None:
+    with pytest.raises(BridgeNotSupportedError, match="pk:external"):
+        pair_bridges([d("a", "r", "t")], OTHER, OTHER_CLASSES, {}, external=frozenset({"a"}))
+
+
+def test_the_mqtt_port_is_used_only_for_an_mqtt_class() -> None:
+    """A Kafka broker with an mqtt_port (the wire allows it) is still reached at its pk:port."""
+    brokers = {**BROKERS, "k": BrokerSpec("k", "urn:k", "K", "kafka", "127.0.0.4", 9092, mqtt_port=1999)}
+    [spec] = pair_bridges([d("a", "k", "t")], brokers, CLASSES, {})
+    assert spec.remote.port == 9092

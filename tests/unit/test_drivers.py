@@ -92,6 +92,14 @@ def test_mosquitto_golden_with_a_bridge(tmp_path: Path) -> None:
     check_golden("mosquitto-bridge.conf", files["mosquitto.conf"], tmp_path)
 
 
+@pytest.mark.parametrize(("kind", "flag"), [("mosquitto", "try_private true"), ("othermq", "try_private false")])
+def test_mosquitto_sets_its_bridge_flag_only_towards_a_mosquitto(tmp_path: Path, kind: str, flag: str) -> None:
+    """The flag (protocol level | 0x80) is Mosquitto's own: another MQTT broker may refuse it."""
+    remote = BridgeEnd("m2", kind, "127.0.0.3", 18831)
+    conf = MosquittoDriver(run_as=None).render_config(mqtt_spec(), tmp_path, (two_way_bridge(remote=remote),))
+    assert flag in conf["mosquitto.conf"].splitlines()
+
+
 @pytest.mark.parametrize("bridge, field", [
     (two_way_bridge(local=BridgeEnd("other", "mosquitto", "127.0.0.9", 1883)), "bridges"),
     (two_way_bridge(mechanism=BridgeMechanism.WORKER), "bridges"),

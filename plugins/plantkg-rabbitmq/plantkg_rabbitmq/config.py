@@ -5,17 +5,18 @@ the node reads or writes, so several nodes run side by side and nothing of the s
 installation is used (the Debian package's ``/etc/rabbitmq`` and ``/var/lib/rabbitmq`` are
 shadowed by the environment below):
 
-- ``rabbitmq.conf``: the AMQP listener on the broker's address and port, the MQTT listener on the
-  same address and a port of its own, ``guest`` only from loopback (RabbitMQ's default, written out);
+- ``rabbitmq.conf``: the AMQP listener on the broker's address and port (``pk:port``), the MQTT
+  listener on the same address and ``pk:mqttPort``, ``guest`` only from loopback (RabbitMQ's
+  default, written out): every port clients reach is one the plant declares;
 - ``enabled_plugins``: ``[rabbitmq_mqtt].``;
 - ``rabbitmq-env.conf``: empty, so ``/etc/rabbitmq/rabbitmq-env.conf`` is not read;
 - ``launch.json``: the environment :mod:`plantkg_rabbitmq.launch` starts the node with —
   ``RABBITMQ_NODENAME``, ``RABBITMQ_CONFIG_FILE``, ``RABBITMQ_MNESIA_BASE``, ``RABBITMQ_LOG_BASE``,
   ``RABBITMQ_DIST_PORT``, ``ERL_EPMD_PORT`` (a port-mapper of its own), ``HOME`` (the Erlang cookie).
 
-The MQTT, distribution and port-mapper ports are picked free once, by :func:`ensure_ports`, and
-kept in ``ports.json``: rendering is then pure given the folder (as Kafka's controller port).
-Distribution and the port-mapper listen on 127.0.0.1 only.
+The distribution and port-mapper ports, internal to the node, are picked free on 127.0.0.1 once,
+by :func:`ensure_ports`, and kept in ``ports.json``: rendering is then pure given the folder (as
+Kafka's controller port).
 """
 
 from __future__ import annotations
@@ -47,14 +48,13 @@ SERVER_CANDIDATES = (Path("/usr/lib/rabbitmq/bin/rabbitmq-server"),
 
 @dataclass(frozen=True)
 class NodePorts:
-    """The ports of one node besides AMQP (the broker's pk:port)."""
+    """The node's internal ports (on 127.0.0.1), besides AMQP and MQTT (the plant's)."""
 
-    mqtt: int
     dist: int
     epmd: int
 
     def __post_init__(self) -> None:
-        for field in ("mqtt", "dist", "epmd"):
+        for field in ("dist", "epmd"):
             check_port(f"ports.{field}", getattr(self, field))
 
 
@@ -71,9 +71,8 @@ def ensure_ports(broker_dir: Path, host: str) -> NodePorts:
     path = broker_dir / PORTS_FILE
     if path.is_file():
         return read_ports(broker_dir)
-    mqtt = netutil.free_port(host)
-    dist, epmd = [p for p in netutil.free_ports(3, LOOPBACK) if p != mqtt][:2]
-    ports = NodePorts(mqtt=mqtt, dist=dist, epmd=epmd)
+    dist, epmd = netutil.free_ports(2, LOOPBACK)
+    ports = NodePorts(dist=dist, epmd=epmd)
     broker_dir.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(asdict(ports)), encoding="utf-8")
@@ -86,7 +85,7 @@ def read_ports(broker_dir: Path) -> NodePorts:
     path = broker_dir / PORTS_FILE
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-        return NodePorts(mqtt=data["mqtt"], dist=data["dist"], epmd=data["epmd"])
+        return NodePorts(dist=data["dist"], epmd=data["epmd"])
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise ConfigValueError("ports", str(path), f"unreadable ({exc}); delete the broker folder "
                                "or let the agent prepare it again") from None
@@ -98,17 +97,18 @@ def node_name(broker_dir: Path) -> str:
     return f"plantkg-{digest}@localhost"
 
 
-def render_files(host: str, port: int, broker_dir: Path, ports: NodePorts) -> dict[str, str]:
+def render_files(host: str, port: int, mqtt_port: int, broker_dir: Path, ports: NodePorts) -> dict[str, str]:
     """File name -> text for one node; every value checked first."""
     host = check_node_host(host)
     check_port("port", port)
+    check_port("mqtt_port", mqtt_port)
     folder = check_path("broker_dir", broker_dir, forbid="\t\"'\\ ")
-    if len({port, ports.mqtt}) != 2:
-        raise ConfigValueError("port", port, f"clashes with the node's MQTT port {ports.mqtt}")
+    if port == mqtt_port:
+        raise ConfigValueError("mqtt_port", mqtt_port, "is the broker's AMQP port too; give MQTT a port of its own")
     conf = "\n".join([
         "# Rendered by plantkg_rabbitmq; edits are overwritten.",
         f"listeners.tcp.default = {host}:{port}",
-        f"mqtt.listeners.tcp.default = {host}:{ports.mqtt}",
+        f"mqtt.listeners.tcp.default = {host}:{mqtt_port}",
         "loopback_users.guest = true",
         "mqtt.allow_anonymous = true",
         "",

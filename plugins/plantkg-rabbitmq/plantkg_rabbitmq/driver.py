@@ -23,7 +23,14 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from engine.drivers.base import DATA_DIR, check_text, check_topic_fields, refuse_bridges, spec_essence
+from engine.drivers.base import (
+    DATA_DIR,
+    MQTT_TOPIC_FIELDS,
+    check_text,
+    check_topic_fields,
+    refuse_bridges,
+    spec_essence,
+)
 from engine.errors import ConfigValueError
 from engine.model import BridgeSpec, BrokerSpec, ObservedTopic, TopicSpec
 from plantkg_rabbitmq import amqp, config
@@ -46,14 +53,15 @@ class RabbitmqDriver:
             raise ConfigValueError("host", spec.host, "the rabbitmq driver manages its node as "
                                    "guest, whom RabbitMQ admits over loopback only; give the broker "
                                    "a 127.x.x.x address")
-        placeholder = config.NodePorts(mqtt=1 if spec.port != 1 else 2, dist=3, epmd=4)
-        config.render_files(host, spec.port, Path("/nonexistent/plantkg/broker"), placeholder)
+        config.render_files(host, spec.port, self._mqtt_port(spec), Path("/nonexistent/plantkg/broker"),
+                            config.NodePorts(dist=3, epmd=4))
 
     def render_config(self, spec: BrokerSpec, broker_dir: Path,
                       bridges: tuple[BridgeSpec, ...] = ()) -> dict[str, str]:
         refuse_bridges(self.kind, bridges)
         self.validate(spec)
-        return config.render_files(spec.host, spec.port, broker_dir, config.read_ports(broker_dir))
+        return config.render_files(spec.host, spec.port, self._mqtt_port(spec), broker_dir,
+                                   config.read_ports(broker_dir))
 
     def command(self, spec: BrokerSpec, broker_dir: Path) -> list[str]:
         config.server_binary()  # a missing install is reported here, not in the node's log
@@ -72,9 +80,11 @@ class RabbitmqDriver:
 
     def ensure_topic(self, spec: BrokerSpec, topic: TopicSpec) -> ObservedTopic:
         check_queue_name(topic.name)
-        check_topic_fields(topic, self.kind, ())
+        check_topic_fields(topic, self.kind, MQTT_TOPIC_FIELDS)  # MQTT clients publish to it
         amqp.declare_topic(spec.host, spec.port, topic.name)
-        return ObservedTopic(name=topic.name)
+        # the agent keeps the record (implicit_topics): the MQTT settings are the bridges' and
+        # clients', not the queue's, so they are recorded as given
+        return ObservedTopic(name=topic.name, qos=topic.qos, retain=topic.retain)
 
     def delete_topic(self, spec: BrokerSpec, name: str) -> None:
         check_queue_name(name)
@@ -84,12 +94,14 @@ class RabbitmqDriver:
         return []
 
     def essence(self, spec: BrokerSpec) -> dict[str, Any]:
-        return spec_essence(spec)
+        return {**spec_essence(spec), "mqtt_port": spec.mqtt_port}
 
     @staticmethod
-    def mqtt_port(broker_dir: Path) -> int:
-        """The node's MQTT port (chosen by :meth:`prepare`), e.g. for a Mosquitto bridge."""
-        return config.read_ports(broker_dir).mqtt
+    def _mqtt_port(spec: BrokerSpec) -> int:
+        if spec.mqtt_port is None:
+            raise ConfigValueError("mqtt_port", None, "a rabbitmq broker needs pk:mqttPort, the port "
+                                   "of its MQTT listener (pk:port is AMQP's)")
+        return spec.mqtt_port
 
 
 def check_queue_name(name: object) -> str:

@@ -22,7 +22,7 @@ from plantkg_rabbitmq.driver import RabbitmqDriver
 
 PLANT = Path(__file__).resolve().parent / "plants" / "rabbitmq-cell.ttl"
 SPEC = BrokerSpec(id="amqp1", iri="urn:amqp1", name="cell-amqp", kind="rabbitmq",
-                  host="127.0.0.1", port=5672)
+                  host="127.0.0.1", port=5672, mqtt_port=1884)
 
 
 def test_the_entry_points_register_driver_and_shapes() -> None:
@@ -31,6 +31,7 @@ def test_the_entry_points_register_driver_and_shapes() -> None:
     assert isinstance(registry.get("rabbitmq"), Driver)
     assert "rabbitmq" in shape_plugins.registered_broker_types()
     assert [p.name for p in shape_plugins.plugin_shapes_files()] == ["rabbitmq-shapes.ttl"]
+    assert [p.name for p in shape_plugins.plugin_ontology_files()] == ["rabbitmq.ttl"]
 
 
 @pytest.mark.parametrize("engine", ["oxigraph", "pyshacl"])
@@ -59,9 +60,35 @@ def test_an_unknown_type_names_rabbitmq_among_the_allowed(tmp_path: Path) -> Non
     assert "rabbitmq-shapes.ttl" in " ".join(map(str, load_default_shapes().files))
 
 
+@pytest.mark.parametrize("engine", ["oxigraph", "pyshacl"])
+@pytest.mark.parametrize(("edit", "value"), [
+    (("pk:mqttPort 1884 ;", ""), None),                      # no MQTT port declared
+    (("pk:mqttPort 1884 ;", "pk:mqttPort 5672 ;"), 5672),    # the AMQP port again
+])
+def test_the_plugin_shapes_ask_for_an_mqtt_port_of_its_own(tmp_path: Path, engine: str, edit: tuple,
+                                                           value: int | None) -> None:
+    plant = tmp_path / "plant.ttl"
+    text = PLANT.read_text()
+    assert edit[0] in text
+    plant.write_text(text.replace(*edit))
+    report = validate(load_plant([plant]), engine=engine)  # type: ignore[arg-type]
+    [result] = report.violations
+    assert result.path.endswith("mqttPort") and "needs pk:mqttPort" in result.message
+    if value is not None:  # (without a value, SHACL reports the focus node as the value)
+        assert int(result.value) == value
+
+
+@pytest.mark.parametrize("kind", ["mosquitto", "kafka"])
+def test_the_core_shapes_refuse_an_mqtt_port_on_a_built_in_type(tmp_path: Path, kind: str) -> None:
+    plant = tmp_path / "plant.ttl"
+    plant.write_text(PLANT.read_text().replace('"rabbitmq"', f'"{kind}"'))
+    messages = [r.message for r in validate(load_plant([plant])).violations if r.path.endswith("mqttPort")]
+    assert messages and "does not apply to a mosquitto, kafka or ngsi-v2 broker" in messages[0]
+
+
 def test_render_config(tmp_path: Path) -> None:
-    ports = config.NodePorts(mqtt=21883, dist=21884, epmd=21885)
-    files = config.render_files("127.0.0.1", 5672, tmp_path, ports)
+    ports = config.NodePorts(dist=21884, epmd=21885)
+    files = config.render_files("127.0.0.1", 5672, 21883, tmp_path, ports)
     assert sorted(files) == ["enabled_plugins", "launch.json", "rabbitmq-env.conf", "rabbitmq.conf"]
     conf = files["rabbitmq.conf"].splitlines()
     assert "listeners.tcp.default = 127.0.0.1:5672" in conf
@@ -86,8 +113,8 @@ def test_prepare_picks_ports_once(tmp_path: Path) -> None:
     driver.prepare(SPEC, tmp_path)
     first = config.read_ports(tmp_path)
     driver.prepare(SPEC, tmp_path)
-    assert config.read_ports(tmp_path) == first and driver.mqtt_port(tmp_path) == first.mqtt
-    assert len({first.mqtt, first.dist, first.epmd}) == 3
+    assert config.read_ports(tmp_path) == first
+    assert first.dist != first.epmd
     assert driver.render_config(SPEC, tmp_path) == driver.render_config(SPEC, tmp_path)
     assert (tmp_path / "data").is_dir()
 
@@ -102,6 +129,9 @@ def test_node_names_differ_by_folder(tmp_path: Path) -> None:
     ({"host": "localhost"}, "host"),
     ({"port": 0}, "port"),
     ({"port": 70000}, "port"),
+    ({"mqtt_port": None}, "mqtt_port"),
+    ({"mqtt_port": 5672}, "mqtt_port"),
+    ({"mqtt_port": 70000}, "mqtt_port"),
 ])
 def test_validate_refuses_naming_the_field(change: dict, field: str) -> None:
     with pytest.raises(ConfigValueError) as info:
@@ -110,16 +140,17 @@ def test_validate_refuses_naming_the_field(change: dict, field: str) -> None:
 
 
 def test_a_folder_with_quotes_or_spaces_is_refused(tmp_path: Path) -> None:
-    ports = config.NodePorts(mqtt=21883, dist=21884, epmd=21885)
+    ports = config.NodePorts(dist=21884, epmd=21885)
     for bad in ("a b", "a'b", 'a"b'):
         with pytest.raises(ConfigValueError) as info:
-            config.render_files("127.0.0.1", 5672, tmp_path / bad, ports)
+            config.render_files("127.0.0.1", 5672, 21883, tmp_path / bad, ports)
         assert info.value.field == "broker_dir"
 
 
 def test_the_amqp_port_may_not_be_the_mqtt_port(tmp_path: Path) -> None:
-    with pytest.raises(ConfigValueError, match="MQTT port"):
-        config.render_files("127.0.0.1", 21883, tmp_path, config.NodePorts(21883, 21884, 21885))
+    with pytest.raises(ConfigValueError, match="AMQP port") as info:
+        config.render_files("127.0.0.1", 21883, 21883, tmp_path, config.NodePorts(21884, 21885))
+    assert info.value.field == "mqtt_port"
 
 
 @pytest.mark.parametrize(("name", "problem"), [
@@ -133,11 +164,13 @@ def test_bad_topic_names_are_refused_before_the_broker_is_asked(name: str, probl
     assert info.value.field == "name"
 
 
-def test_topic_fields_of_other_kinds_are_refused() -> None:
-    topic = TopicSpec(broker_id="amqp1", name="cell/pose", iri="urn:t", partitions=3)
+@pytest.mark.parametrize(("field", "value"), [("partitions", 3), ("entity_id", "urn:x"), ("qos", 3)])
+def test_topic_fields_of_other_kinds_are_refused(field: str, value: object) -> None:
+    """Kafka's and NGSI's settings do not apply; MQTT's do (clients publish over MQTT), in range."""
+    topic = TopicSpec(broker_id="amqp1", name="cell/pose", iri="urn:t", **{field: value})
     with pytest.raises(ConfigValueError) as info:
         RabbitmqDriver().ensure_topic(replace(SPEC, port=1), topic)
-    assert info.value.field == "partitions"
+    assert info.value.field == field
 
 
 def test_no_native_bridges(tmp_path: Path) -> None:
@@ -160,5 +193,6 @@ def test_health_is_false_when_nothing_listens() -> None:
     assert RabbitmqDriver().health(replace(SPEC, port=1), 0.5) is False
 
 
-def test_essence_is_kind_host_port() -> None:
-    assert RabbitmqDriver().essence(SPEC) == {"kind": "rabbitmq", "host": "127.0.0.1", "port": 5672}
+def test_essence_is_kind_host_ports() -> None:
+    assert RabbitmqDriver().essence(SPEC) == {"kind": "rabbitmq", "host": "127.0.0.1", "port": 5672,
+                                              "mqtt_port": 1884}

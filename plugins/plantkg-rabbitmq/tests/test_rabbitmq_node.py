@@ -43,7 +43,8 @@ class Node:
 
     @property
     def mqtt_port(self) -> int:
-        return RabbitmqDriver.mqtt_port(self.broker_dir)
+        assert self.spec.mqtt_port is not None
+        return self.spec.mqtt_port
 
 
 def start_node(driver: RabbitmqDriver, spec: BrokerSpec, broker_dir: Path) -> Node:
@@ -71,7 +72,7 @@ def stop_node(node: Node) -> None:
     assert not node.child.group_alive()
     assert processes_mentioning(str(node.broker_dir)) == []
     assert processes_mentioning(f"-port {ports.epmd}") == []  # its own port mapper
-    for port in (node.spec.port, ports.mqtt, ports.dist, ports.epmd):
+    for port in (node.spec.port, node.mqtt_port, ports.dist, ports.epmd):
         assert not netutil.port_open("127.0.0.1", port), f"port {port} still open"
 
 
@@ -79,8 +80,9 @@ def stop_node(node: Node) -> None:
 def node(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Node]:
     broker_dir = tmp_path_factory.mktemp("rabbitmq") / "brokers" / "amqp1"
     broker_dir.mkdir(parents=True)
+    amqp_port, mqtt_port = netutil.free_ports(2, "127.0.0.1")
     spec = BrokerSpec(id="amqp1", iri="urn:amqp1", name="cell-amqp", kind="rabbitmq",
-                      host="127.0.0.1", port=netutil.free_port())
+                      host="127.0.0.1", port=amqp_port, mqtt_port=mqtt_port)
     running = start_node(RabbitmqDriver(), spec, broker_dir)
     print(f"RabbitMQ answered AMQP {running.ready_s:.1f} s after spawn")
     try:

@@ -1,0 +1,1 @@
+"""The ontology terms of the RabbitMQ broker type (entry point group ``plantkg.ontology``)."""
