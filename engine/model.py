@@ -40,6 +40,21 @@ class Action(str, enum.Enum):
 
 
 @dataclass(frozen=True)
+class BrokerUser:
+    """A client the broker admits, with what it may do: a resource of the plant that sends to the
+    broker and has a ``pk:secretRef`` (derive). ``secret_ref`` says where its password is on the
+    broker's machine — ``env:NAME`` or ``file:/absolute/path`` — never the password itself; the
+    broker's agent reads it when it renders the broker's files. ``write``/``read``: the topic names
+    it may publish / subscribe to on this broker (``pk:mayWrite``/``pk:mayRead``, which
+    ``pk:publishes``/``pk:subscribes`` imply), sorted."""
+
+    name: str                     # the resource's pk:id: its user name on the broker
+    secret_ref: str
+    write: tuple[str, ...] = ()
+    read: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
 class BrokerSpec:
     """A broker that must exist: what the ontology says of it (its essence)."""
 
@@ -54,6 +69,9 @@ class BrokerSpec:
                                          # its agent's token (derive: false for a context broker)
     mqtt_port: int | None = None  # pk:mqttPort — the MQTT listener of a broker whose pk:port speaks
                                   # another protocol (a plugin's broker type); bridges connect to it
+    users: tuple[BrokerUser, ...] = ()  # the clients it admits and their ACLs (sorted by name); a
+                                        # broker with users is closed to anonymous clients unless
+                                        # the plant says pk:allowAnonymous true
 
     @property
     def address(self) -> str:

@@ -86,3 +86,27 @@ def check_ngsi_id(field: str, value: object) -> str:
         raise ConfigValueError(field, value, f"an NGSI identifier must not contain {bad!r} (only "
                                "printable ASCII without blanks and < > \" ' = ; ( ) & ? / #)")
     return value
+
+
+#: Where a secret is, never the secret: an environment variable or an absolute file path of the
+#: machine that reads it (docs/security.md).
+SECRET_REF = re.compile(r"env:[A-Za-z_][A-Za-z0-9_]{0,127}|file:/[^\s\x00-\x1f\x7f\\]{1,4095}")
+#: A broker user name: a resource's pk:id (one word of a password or ACL file: no ':' or blank).
+BROKER_USER = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,127}")
+
+
+def check_secret_ref(field: str, value: object) -> str:
+    """``env:NAME`` or ``file:/absolute/path``: a reference to a secret, not a secret."""
+    if not isinstance(value, str) or not SECRET_REF.fullmatch(value):
+        shown = value if isinstance(value, str) and value[:4] in ("env:", "file") else "(not shown)"
+        raise ConfigValueError(field, shown, "must be env:NAME or file:/absolute/path, where the "
+                               "secret is on the broker's machine; never the secret itself")
+    return value
+
+
+def check_broker_user(field: str, value: object) -> str:
+    """A user name for a broker's password and ACL files."""
+    if not isinstance(value, str) or not BROKER_USER.fullmatch(value):
+        raise ConfigValueError(field, value, "a user name is 1 to 128 of A-Z a-z 0-9 _ . - "
+                               "starting with a letter, a digit or _")
+    return value

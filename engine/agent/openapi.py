@@ -78,6 +78,24 @@ _SCHEMAS: dict[str, Any] = {
             "mqtt_port": {"type": ["integer", "null"], "minimum": 1, "maximum": 65535,
                           "description": "the MQTT listener of a broker type whose port speaks "
                                          "another protocol (pk:mqttPort); bridges connect to it"},
+            "users": {"type": "array", "items": {"$ref": "#/components/schemas/BrokerUser"},
+                      "description": "the clients the broker admits and their ACLs (pk:secretRef); "
+                                     "with users, a broker is closed to anonymous clients unless "
+                                     "allow_anonymous is true"},
+        },
+    },
+    "BrokerUser": {
+        "type": "object", "additionalProperties": False,
+        "required": ["name", "secret_ref"],
+        "properties": {
+            "name": {"type": "string", "pattern": "^[A-Za-z0-9_][A-Za-z0-9_.-]{0,127}$"},
+            "secret_ref": {"type": "string", "pattern": "^(env:[A-Za-z_][A-Za-z0-9_]{0,127}|file:/\\S{1,4095})$",
+                           "description": "where the password is on the agent's machine: env:NAME "
+                                          "or file:/absolute/path (never the password)"},
+            "write": {"type": "array", "items": {"type": "string", "minLength": 1},
+                      "description": "topic names the user may publish"},
+            "read": {"type": "array", "items": {"type": "string", "minLength": 1},
+                     "description": "topic names the user may subscribe to"},
         },
     },
     "TopicSpec": {

@@ -25,12 +25,13 @@ from engine.model import (
     BridgeStatus,
     BrokerSpec,
     BrokerStatus,
+    BrokerUser,
     ObservedBridge,
     ObservedBroker,
     ObservedTopic,
     TopicSpec,
 )
-from engine.values import check_host, check_ngsi_id, check_port
+from engine.values import check_broker_user, check_host, check_ngsi_id, check_port, check_secret_ref
 
 #: pk:id as the shapes allow it (pks:PlantElement-idValue); ids name folders on the agent.
 BROKER_ID = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,127}")
@@ -120,8 +121,33 @@ def broker_spec_from_json(data: Any, where: str = "", *, strict: bool = True) ->
     mqtt_port = _typed(data, "mqtt_port", (int,), where, optional=True)
     if mqtt_port is not None:
         _checked(where, check_port, "mqtt_port", mqtt_port)
+    users = _typed(data, "users", (list,), where, optional=True) or []
     return BrokerSpec(id=broker_id, iri=iri, name=name, kind=kind, host=host, port=port,
-                      persist_every=persist, allow_anonymous=anonymous, mqtt_port=mqtt_port)
+                      persist_every=persist, allow_anonymous=anonymous, mqtt_port=mqtt_port,
+                      users=_users(users, _join(where, "users")))
+
+
+def _users(items: list[Any], where: str) -> tuple[BrokerUser, ...]:
+    """A broker's users: names unique, secret references (never secrets), topic-name lists."""
+    out = []
+    for i, item in enumerate(items):
+        at = f"{where}[{i}]"
+        data = _fields(item, BrokerUser, at)
+        name = _checked(at, check_broker_user, "name", _typed(data, "name", (str,), at))
+        ref = _checked(at, check_secret_ref, "secret_ref", _typed(data, "secret_ref", (str,), at))
+        lists = {}
+        for field in ("write", "read"):
+            topics = _typed(data, field, (list,), at, optional=True) or []
+            for j, topic in enumerate(topics):
+                if not isinstance(topic, str):
+                    raise WireError(_join(at, f"{field}[{j}]"), "must be a topic name (a string)")
+                _checked(at, check_text, f"{field}[{j}]", topic)
+            lists[field] = tuple(topics)
+        out.append(BrokerUser(name=name, secret_ref=ref, **lists))
+    names = [u.name for u in out]
+    if len(set(names)) != len(names):
+        raise WireError(where, "two users with the same name")
+    return tuple(out)
 
 
 def topic_spec_from_json(data: Any, where: str = "") -> TopicSpec:

@@ -92,3 +92,41 @@ def test_allow_anonymous_must_be_a_boolean() -> None:
     with pytest.raises(WireError) as info:
         broker_spec_from_json({**to_dict(NGSI), "allow_anonymous": "yes"})
     assert info.value.field == "allow_anonymous"
+
+
+# --- broker users: references to secrets, never secrets ----------------------------------------
+
+USER_BASE = {"id": "m1", "iri": "urn:m1", "name": "m1", "kind": "mosquitto", "host": "127.0.0.1", "port": 1883}
+
+
+def test_broker_users_round_trip() -> None:
+    body = {**USER_BASE, "users": [{"name": "robot1", "secret_ref": "env:ROBOT1_PASSWORD",
+                                    "write": ["cell/pose"], "read": ["cell/cmd"]},
+                                   {"name": "hmi", "secret_ref": "file:/etc/plantkg/hmi.pw"}]}
+    spec = broker_spec_from_json(body)
+    assert [(u.name, u.secret_ref, u.write, u.read) for u in spec.users] == [
+        ("robot1", "env:ROBOT1_PASSWORD", ("cell/pose",), ("cell/cmd",)),
+        ("hmi", "file:/etc/plantkg/hmi.pw", (), ())]
+    assert broker_spec_from_json(to_dict(spec)) == spec
+
+
+@pytest.mark.parametrize(("user", "field", "shown"), [
+    ({"name": "robot1", "secret_ref": "hunter2"}, "users[0].secret_ref", False),      # a secret itself
+    ({"name": "robot1", "secret_ref": "file:relative/pw"}, "users[0].secret_ref", True),
+    ({"name": "robot1", "secret_ref": "env:1BAD"}, "users[0].secret_ref", True),
+    ({"name": "a:b", "secret_ref": "env:X"}, "users[0].name", True),                 # ':' splits a password file line
+    ({"name": "robot1", "secret_ref": "env:X", "write": ["a\nb"]}, "users[0].write[0]", True),
+    ({"name": "robot1", "secret_ref": "env:X", "password": "x"}, "users[0].password", True),
+])
+def test_bad_broker_users_are_refused_naming_the_field(user: dict, field: str, shown: bool) -> None:
+    with pytest.raises(WireError) as info:
+        broker_spec_from_json({**USER_BASE, "users": [user]})
+    assert str(info.value).startswith(field)
+    if not shown:  # what looks like a secret is never echoed back
+        assert "hunter2" not in str(info.value) and "hunter2" not in (info.value.hint or "")
+
+
+def test_two_users_of_one_name_are_refused() -> None:
+    user = {"name": "robot1", "secret_ref": "env:X"}
+    with pytest.raises(WireError, match="two users with the same name"):
+        broker_spec_from_json({**USER_BASE, "users": [user, user]})
