@@ -29,13 +29,21 @@ DEFAULT_PORT = 8080
 @click.option("--observe-interval", type=click.FloatRange(0.2, 3600), default=5.0, show_default=True,
               help="Seconds between two questions to the agents.")
 @click.option("--query-timeout", type=click.FloatRange(0.1, 3600), default=10.0, show_default=True,
-              help="Seconds a SPARQL query may run.")
+              help="Seconds a SPARQL query may run; then its worker process is killed and the "
+                   "answer is 503.")
+@click.option("--max-queries", type=click.IntRange(1, 64), default=4, show_default=True,
+              help="SPARQL queries that may run at once, each in a worker process of its own "
+                   "(holding a copy of the plant); more get 503 with Retry-After.")
+@click.option("--max-client-queries", type=click.IntRange(1, 64), default=2, show_default=True,
+              help="SPARQL queries one client (the logged-in user, else the remote address) may run "
+                   "at once; more get 429 with Retry-After. See docs/security.md.")
 @click.option("--max-results", type=click.IntRange(1), default=10_000, show_default=True,
               help="Rows (or triples) a SPARQL answer may hold.")
 @click.option("-v", "--verbose", is_flag=True, help="Log every request.")
 def serve_command(files: tuple[str, ...], listen: str, agents_file: Path | None, auto_apply: bool,
                   owner: str | None, token_file: Path | None, allow_remote: bool, observe_interval: float,
-                  query_timeout: float, max_results: int, verbose: bool) -> int:
+                  query_timeout: float, max_results: int, max_queries: int, max_client_queries: int,
+                  verbose: bool) -> int:
     """Serve a dashboard, a SPARQL endpoint and a JSON API for the plant in FILE(s).
 
     The files are re-read when they change (validate, then plan); a FILE may be a folder (every
@@ -56,6 +64,7 @@ def serve_command(files: tuple[str, ...], listen: str, agents_file: Path | None,
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     logging.getLogger("werkzeug").setLevel(logging.INFO if verbose else logging.WARNING)
     address = parse_listen(listen, allow_remote=allow_remote)
+    limits = Limits(timeout_s=query_timeout, max_rows=max_results, workers=max_queries,
+                    per_client=max_client_queries)
     return run_server(list(files), address, agents_file=agents_file, token_file=token_file,
-                      auto_apply=auto_apply, limits=Limits(timeout_s=query_timeout, max_rows=max_results),
-                      observe_interval=observe_interval, owner=owner)
+                      auto_apply=auto_apply, limits=limits, observe_interval=observe_interval, owner=owner)

@@ -4,17 +4,23 @@ Query by GET (``?query=``), by POST form-encoded (``query=``) or by POST with th
 ``application/sparql-query`` body; ``default-graph-uri`` / ``named-graph-uri`` choose the dataset
 (default: the union of every graph). Status codes: 400 no or malformed query, 403 an update,
 406 no acceptable result format, 413 an answer over the result limit, 415 a POST of another
-content type, 503 the timeout (or too many queries at once). Errors are plain text: the message,
-then a hint.
+content type, 429 this client runs too many queries at once, 503 the timeout (or too many queries
+in all). Errors are plain text: the message, then a hint; 429 and 503 for load carry Retry-After.
+
+The client of the per-client limit is the logged-in user (a session or the bearer token), else the
+remote address (behind a reverse proxy every request has the proxy's address: limit there).
+Limits, timeouts and why queries run in worker processes: engine.web.sparql_protocol,
+docs/security.md.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from flask import Blueprint, Response, current_app, redirect, request, url_for
+from flask import Blueprint, Response, current_app, redirect, request, session, url_for
 from werkzeug.datastructures import MultiDict
 
+from engine.web import auth
 from engine.web.sparql_protocol import Dataset, QueryRunner, SparqlError, negotiate, offered_types, serialize
 
 bp = Blueprint("sparql", __name__)
@@ -23,9 +29,19 @@ _QUERY = "application/sparql-query"
 _UPDATE = "application/sparql-update"
 
 
-def _error(status: int, message: str, hint: str | None = None) -> Response:
+def _error(status: int, message: str, hint: str | None = None, retry_after_s: int | None = None) -> Response:
     body = message + (f"\nhint: {hint}" if hint else "") + "\n"
-    return Response(body, status=status, mimetype="text/plain")
+    response = Response(body, status=status, mimetype="text/plain")
+    if retry_after_s is not None:
+        response.headers["Retry-After"] = str(retry_after_s)
+    return response
+
+
+def client_of_request() -> str:
+    """Who the per-client query limit counts this request for: the user, else the address."""
+    if auth.authenticated():
+        return f"user {session.get('user') or 'operator'}"
+    return f"address {request.remote_addr or 'unknown'}"
 
 
 def _read_request() -> tuple[str, MultiDict[str, str]]:
@@ -68,9 +84,10 @@ def endpoint() -> Any:
             raise SparqlError(503, "no plant is loaded yet", "see the dashboard for the load error")
         runner: QueryRunner = current_app.extensions["plantkg_sparql"]
         answer = runner.execute(snap.plant.store, text, dataset,
-                                guard=current_app.config["PLANTKG_STATE"].store_lock.reading)
+                                guard=current_app.config["PLANTKG_STATE"].store_lock.reading,
+                                version=snap.version, client=client_of_request())
     except SparqlError as exc:
-        return _error(exc.status, exc.message, exc.hint)
+        return _error(exc.status, exc.message, exc.hint, exc.retry_after_s)
     except ValueError as exc:  # a dataset parameter that is no IRI
         return _error(400, f"bad default-graph-uri or named-graph-uri: {exc}")
     chosen = negotiate(request.accept_mimetypes, answer.kind)

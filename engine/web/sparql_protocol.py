@@ -1,10 +1,12 @@
-"""The SPARQL 1.1 Protocol's query operation, without the web framework: run, limit, serialise.
+"""The SPARQL 1.1 Protocol's query operation, without the web framework: admit, run, serialise.
 
-- :func:`execute` runs a read-only query on a store in a worker thread with a deadline and a
-  result-size limit. Rows are read lazily, so a query that streams (most joins) is stopped when its
-  time is up; one that must compute everything before its first row (ORDER BY over a huge join) is
-  abandoned after the deadline — its answer is refused on time, its thread finishes in the
-  background (a small pool bounds how many can). Updates are refused (:class:`SparqlError` 403).
+- :class:`QueryRunner` admits a query (engine.web.sparql_limiter: at most ``Limits.per_client``
+  running queries per client, 429; at most ``Limits.workers`` in all, 503), then runs it in a
+  worker process (engine.web.sparql_pool) on a copy of the store (engine.web.sparql_image), with
+  a deadline and a result-size limit. A query past its deadline is stopped for real: a streaming
+  one by the worker between rows, one that computes before its first row (an aggregate or ORDER
+  BY over a huge join) by killing the worker, whose slot is free again at once. Updates are
+  refused (:class:`SparqlError` 403).
 - :func:`negotiate` picks a result format from the Accept header; :func:`serialize` writes it:
   SPARQL JSON, XML, CSV, TSV for SELECT/ASK, Turtle, JSON-LD, N-Triples, RDF/XML for CONSTRUCT and
   DESCRIBE (W3C "SPARQL 1.1 Query Results JSON/XML/CSV and TSV Formats").
@@ -15,27 +17,24 @@ from __future__ import annotations
 import csv
 import io
 import json
-import re
-import threading
-import time
-from concurrent.futures import ThreadPoolExecutor
-from concurrent.futures import TimeoutError as FutureTimeout
 from collections.abc import Callable
 from contextlib import AbstractContextManager, nullcontext
-from dataclasses import dataclass
-from typing import Any, Literal as Lit
 from xml.sax.saxutils import escape, quoteattr
 
 import pyoxigraph as ox
 from werkzeug.datastructures import MIMEAccept
 
-from kg.errors import QueryError
+from engine.web.sparql_eval import is_update
+from engine.web.sparql_image import ImageCache
+from engine.web.sparql_limiter import QueryLimiter, Verdict
+from engine.web.sparql_pool import WorkerPool
+from engine.web.sparql_types import Answer, Dataset, Limits, SparqlError, Term, timeout_error
 from kg.namespaces import PREFIXES, XSD
-from kg.query import run_query
 
-Term = ox.NamedNode | ox.BlankNode | ox.Literal
+__all__ = ["Answer", "Dataset", "Limits", "QueryRunner", "SparqlError", "Term", "is_update", "negotiate",
+           "offered_types", "serialize", "timeout_error"]
+
 _XSD_STRING = str(XSD.string)
-_CHECK_EVERY = 64  # rows between two looks at the clock
 
 #: Result media types → format name, for SELECT/ASK and for CONSTRUCT/DESCRIBE.
 SOLUTION_TYPES: dict[str, str] = {
@@ -54,152 +53,51 @@ GRAPH_TYPES: dict[str, ox.RdfFormat] = {
 }
 
 
-class SparqlError(Exception):
-    """A query the endpoint will not answer: ``status`` is the HTTP status to send."""
-
-    def __init__(self, status: int, message: str, hint: str | None = None) -> None:
-        super().__init__(message)
-        self.status, self.message, self.hint = status, message, hint
-
-
-@dataclass(frozen=True)
-class Limits:
-    """How long a query may run and how many rows (or triples) its answer may hold."""
-
-    timeout_s: float = 10.0
-    max_rows: int = 10_000
-    workers: int = 4
-
-
-@dataclass(frozen=True)
-class Answer:
-    """A finished query: ``kind`` says which of the other fields are set."""
-
-    kind: Lit["select", "ask", "graph"]
-    variables: tuple[str, ...] = ()
-    rows: tuple[tuple[Term | None, ...], ...] = ()
-    boolean: bool | None = None
-    triples: tuple[ox.Triple, ...] = ()
-
-
-@dataclass(frozen=True)
-class Dataset:
-    """The protocol's ``default-graph-uri`` / ``named-graph-uri``; empty: the store's union."""
-
-    default_graphs: tuple[str, ...] = ()
-    named_graphs: tuple[str, ...] = ()
-
-
 class QueryRunner:
-    """Runs queries in a bounded pool of threads, each with the deadline of ``limits``."""
+    """Admits queries per client and runs them in worker processes with the deadline of ``limits``."""
 
     def __init__(self, limits: Limits) -> None:
         self.limits = limits
-        self._pool = ThreadPoolExecutor(max_workers=limits.workers, thread_name_prefix="sparql")
-        self._slots = threading.BoundedSemaphore(limits.workers * 2)
+        self.limiter = QueryLimiter(per_client=limits.per_client, total=limits.workers)
+        self.pool = WorkerPool(limits.workers)
+        self._images = ImageCache()
 
     def close(self) -> None:
-        self._pool.shutdown(wait=False, cancel_futures=True)
+        """Stop every worker process (the server is shutting down)."""
+        self.pool.close()
 
     def execute(self, store: ox.Store, query: str, dataset: Dataset = Dataset(),
-                guard: Callable[[], AbstractContextManager[object]] = nullcontext) -> Answer:
-        """Run ``query`` (inside ``guard``, e.g. a read lock); raises :class:`SparqlError`
-        (400 malformed, 403 update, 413 too large, 503 timeout or too many queries running)."""
-        if not self._slots.acquire(blocking=False):
-            raise SparqlError(503, "too many queries are running; try again in a moment")
-        cancel = threading.Event()
-        future = self._pool.submit(_guarded, guard, store, query, dataset, self.limits, cancel)
-        future.add_done_callback(lambda _f: self._slots.release())
+                guard: Callable[[], AbstractContextManager[object]] = nullcontext, *,
+                version: object = None, client: str = "anonymous") -> Answer:
+        """Run ``query`` for ``client`` on ``store`` as of snapshot ``version`` (``guard``, e.g. a
+        read lock, is held only while the store is copied); raises :class:`SparqlError` (400
+        malformed, 403 update, 413 too large, 429 ``client`` runs too many queries, 503 timeout or
+        too many queries in all)."""
+        verdict = self.limiter.acquire(client)
+        if verdict is not Verdict.ADMIT:
+            raise refusal(verdict, client, self.limits)
         try:
-            return future.result(timeout=self.limits.timeout_s)
-        except FutureTimeout:
-            cancel.set()
-            raise _timeout(self.limits) from None
+            image = self._images.image(store, version, guard)
+            return self.pool.run(image, query, dataset, max_rows=self.limits.max_rows,
+                                 timeout_s=self.limits.timeout_s)
+        finally:
+            self.limiter.release(client)
 
 
-def _timeout(limits: Limits) -> SparqlError:
-    return SparqlError(503, f"the query ran longer than the endpoint's timeout of {limits.timeout_s:g} s",
-                       hint="make it more selective (bind a variable, add a LIMIT) or ask the operator "
-                            "for a longer --query-timeout")
-
-
-def _guarded(guard: Callable[[], AbstractContextManager[object]], *args: Any) -> Answer:
-    with guard():
-        return _run(*args)
-
-
-def _run(store: ox.Store, query: str, dataset: Dataset, limits: Limits, cancel: threading.Event) -> Answer:
-    deadline = time.monotonic() + limits.timeout_s
-    options: dict[str, object] = {"prefixes": PREFIXES}
-    if dataset.default_graphs:
-        options["default_graph"] = [ox.NamedNode(g) for g in dataset.default_graphs]
-    else:
-        options["use_default_graph_as_union"] = True
-    if dataset.named_graphs:
-        options["named_graphs"] = [ox.NamedNode(g) for g in dataset.named_graphs]
-    try:
-        answer = store.query(query, **options)  # type: ignore[arg-type]
-    except SyntaxError as exc:
-        raise _syntax_error(query, exc) from None
-    except (OSError, ValueError) as exc:
-        raise SparqlError(500, f"the query failed while running: {exc}") from None
-    if isinstance(answer, ox.QueryBoolean):
-        return Answer("ask", boolean=bool(answer))
-    failure = None
-    try:
-        result = _collect(answer, limits, deadline, cancel)
-    except SparqlError as exc:
-        failure = (exc.status, exc.message, exc.hint)
-    # Oxigraph's iterators must be dropped by the thread that made them: drop it here, before an
-    # error (whose traceback would hold it) travels to the request's thread.
-    del answer
-    if failure:
-        raise SparqlError(*failure)
-    return result
-
-
-def _collect(answer: ox.QuerySolutions | ox.QueryTriples, limits: Limits, deadline: float,
-             cancel: threading.Event) -> Answer:
-    if isinstance(answer, ox.QueryTriples):
-        return Answer("graph", triples=tuple(_bounded(answer, limits, deadline, cancel)))
-    variables = tuple(v.value for v in answer.variables)
-    rows = tuple(tuple(sol[v] for v in variables) for sol in _bounded(answer, limits, deadline, cancel))
-    return Answer("select", variables=variables, rows=rows)
-
-
-def _bounded(items, limits: Limits, deadline: float, cancel: threading.Event):  # type: ignore[no-untyped-def]
-    try:
-        for i, item in enumerate(items):
-            if i >= limits.max_rows:
-                raise SparqlError(413, f"the answer has more than {limits.max_rows} results, the endpoint's limit",
-                                  hint="add a LIMIT (and OFFSET to page), or aggregate with COUNT")
-            if i % _CHECK_EVERY == 0 and (cancel.is_set() or time.monotonic() > deadline):
-                raise _timeout(limits)
-            yield item
-    except OSError as exc:
-        raise SparqlError(500, f"the query failed while running: {exc}") from None
-
-
-_PROLOGUE = re.compile(r"(?is)^(?:\s+|#[^\n]*\n?|PREFIX\s+[\w.-]*:\s*<[^>]*>|BASE\s*<[^>]*>)*")
-_UPDATE_VERBS = re.compile(r"(?i)(INSERT|DELETE|LOAD|CLEAR|DROP|CREATE|ADD|MOVE|COPY|WITH)\b")
-
-
-def is_update(text: str) -> bool:
-    """Whether ``text`` is a SPARQL Update request (its first keyword after the prologue)."""
-    return bool(_UPDATE_VERBS.match(text, _PROLOGUE.match(text).end()))  # type: ignore[union-attr]
-
-
-def _syntax_error(query: str, exc: SyntaxError) -> SparqlError:
-    """An update is refused (403); else kg.query words the parse error (position and caret)."""
-    if is_update(query):
-        return SparqlError(403, "SPARQL updates are not allowed: this endpoint is read-only",
-                           "edit the plant's Turtle files instead; the server re-reads them")
-    try:
-        run_query(ox.Store(), query)
-    except QueryError as error:
-        if "updates are not allowed" not in error.message:
-            return SparqlError(400, error.message, error.hint)
-    return SparqlError(400, f"malformed SPARQL query: {exc.msg or exc}", "check the query syntax")
+def refusal(verdict: Verdict, client: str, limits: Limits) -> SparqlError:
+    """The error for a query the limiter refused (429 over the client's limit, 503 over the total)."""
+    wait = limits.retry_after_s
+    if verdict is Verdict.CLIENT_LIMIT:
+        return SparqlError(
+            429, f"too many queries at once from {client}: the endpoint runs at most {limits.per_client} "
+                 "per client at a time (plantkg serve --max-client-queries)",
+            f"wait until one of your queries has answered (each ends within {limits.timeout_s:g} s, the "
+            f"query timeout) and retry after {wait} s; send queries one after another, not in parallel",
+            retry_after_s=wait)
+    return SparqlError(
+        503, f"the endpoint is busy: {limits.workers} queries are running, its limit "
+             "(plantkg serve --max-queries)",
+        f"retry after {wait} s", retry_after_s=wait)
 
 
 # --------------------------------------------------------------------------- content negotiation
