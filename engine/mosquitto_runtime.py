@@ -1,8 +1,9 @@
 """Mosquitto: render ``mosquitto.conf`` from validated values, and its command line.
 
 Pure functions over frozen dataclasses, reused by the Mosquitto driver. The broker listens on one
-address and port and logs to a file. Anonymous clients are allowed for now (credentials come with
-the security issue). Settings that make bridges lose nothing:
+address and port and logs to a file. Anonymous clients are allowed unless the config closes the
+broker (``allow_anonymous false``, with a password file and an ACL file: see "Users and ACLs"
+below). Settings that make bridges lose nothing:
 
 - persistence on (with a ``data_dir``): queued messages and sessions survive a clean restart;
   the state is saved after every ``persist_every`` changes (``pk:persistEvery``; default
@@ -19,14 +20,28 @@ the security issue). Settings that make bridges lose nothing:
 Each :class:`MosquittoBridge` is one ``connection`` section: Mosquitto's own bridge with a
 persistent session (``cleansession false``), notifications of its state on the local broker
 (retained ``$SYS/broker/connection/<client id>/state``: 1 up, 0 down) and a restart backoff.
+
+Users and ACLs: :func:`render_password_file` writes Mosquitto 2.x's own hashed format
+(``name:$7$101$<salt>$<hash>``: PBKDF2-HMAC-SHA512, 101 iterations, a 12-byte random salt, both in
+base64, as ``mosquitto_passwd`` writes it) with :mod:`hashlib`, so no password ever reaches a
+command line; a line of the previous file whose hash still matches the password is kept, so the
+same passwords render the same file (the agent restarts a broker whose rendered files changed).
+:func:`render_acl_file` writes one ``user`` section per user with its ``topic read|write|readwrite``
+lines. Both refuse names and topics that would break a line of those files.
 """
 
 from __future__ import annotations
 
+import base64
+import binascii
 import getpass
+import hashlib
+import hmac
 import ipaddress
+import os
 import re
 import unicodedata
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,6 +60,13 @@ DEFAULT_PERSIST_EVERY = 10
 #: Bridge reconnection backoff: first delay and cap, in seconds.
 BRIDGE_RESTART_TIMEOUT = (1, 10)
 BRIDGE_DIRECTIONS = ("out", "in", "both")
+#: Mosquitto 2.x's password hash: type 7 (PBKDF2-HMAC-SHA512), its default iteration count and
+#: salt length (mosquitto_passwd's output_new_password; password_mosq.h).
+PW_HASH_TYPE = 7
+PW_ITERATIONS = 101
+PW_SALT_BYTES = 12
+#: MQTT 3.1.1 section 3.1.3.5: a password is at most 65535 bytes.
+MAX_PASSWORD_BYTES = 65_535
 
 
 @dataclass(frozen=True)
@@ -105,6 +127,9 @@ class MosquittoConfig:
     data_dir: Path | None = None          # persistence on, in this folder; None: off
     persist_every: int | None = None      # save after this many changes; None: DEFAULT_PERSIST_EVERY
     bridges: tuple[MosquittoBridge, ...] = ()
+    allow_anonymous: bool = True          # False: only clients of the password file connect
+    password_file: Path | None = None     # render_password_file's output
+    acl_file: Path | None = None          # render_acl_file's output
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "host", check_host("host", self.host))
@@ -123,6 +148,12 @@ class MosquittoConfig:
         names = [b.name for b in self.bridges]
         if len(set(names)) != len(names):
             raise ConfigValueError("bridges", names, "two bridges with the same name")
+        if not isinstance(self.allow_anonymous, bool):
+            raise ConfigValueError("allow_anonymous", self.allow_anonymous, "must be true or false")
+        for name in ("password_file", "acl_file"):
+            value = getattr(self, name)
+            if value is not None:
+                object.__setattr__(self, name, check_path(name, value, forbid="\t "))
 
 
 def render_mosquitto_conf(cfg: MosquittoConfig) -> str:
@@ -131,7 +162,9 @@ def render_mosquitto_conf(cfg: MosquittoConfig) -> str:
         "# Rendered by plantkg; edits are overwritten.",
         "per_listener_settings false",
         f"listener {cfg.port} {cfg.host}",
-        "allow_anonymous true",
+        f"allow_anonymous {'true' if cfg.allow_anonymous else 'false'}",
+        *([] if cfg.password_file is None else [f"password_file {cfg.password_file}"]),
+        *([] if cfg.acl_file is None else [f"acl_file {cfg.acl_file}"]),
         f"max_queued_messages {MAX_QUEUED_MESSAGES}",
         f"max_inflight_messages {MAX_INFLIGHT_MESSAGES}",
         "set_tcp_nodelay true",
@@ -195,6 +228,129 @@ def _check_token(field: str, value: object) -> str:
         raise ConfigValueError(field, value, "must not contain whitespace, quotes or control "
                                              "characters (it is one word of mosquitto.conf)")
     return value
+
+
+@dataclass(frozen=True)
+class MosquittoUser:
+    """A user of the ACL file: the topic names it may publish (``write``) and subscribe to
+    (``read``). Names only, no filter: a plant grants topics, not patterns."""
+
+    name: str
+    write: tuple[str, ...] = ()
+    read: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        check_user_name(self.name)
+        for field in ("write", "read"):
+            topics = getattr(self, field)
+            if not isinstance(topics, tuple):
+                raise ConfigValueError(f"users[{self.name}].{field}", topics, "must be a tuple of topic names")
+            for topic in topics:
+                _check_token(f"users[{self.name}].{field}", topic)
+                if "+" in topic or "#" in topic:
+                    raise ConfigValueError(f"users[{self.name}].{field}", topic,
+                                           "an ACL grants topic names, not filters: no + or #")
+
+
+def check_user_name(name: object) -> str:
+    """One word of the password and ACL files: no whitespace, quote, control character or ':'."""
+    _check_token("users.name", name)
+    assert isinstance(name, str)
+    if ":" in name:
+        raise ConfigValueError("users.name", name, "must not contain ':' (the password file's separator)")
+    return name
+
+
+def render_acl_file(users: Sequence[MosquittoUser], *, anonymous: bool = False) -> str:
+    """The ``acl_file`` text: a ``user`` section per user (sorted), a topic both written and read
+    as ``readwrite``. ``anonymous``: anonymous clients (a broker that still admits them) keep what
+    they could do without an ACL file, every topic and the ``$SYS`` tree (bridge states); else the
+    file grants them nothing."""
+    names = [u.name for u in users]
+    if len(set(names)) != len(names):
+        raise ConfigValueError("users", names, "two users with the same name")
+    lines = ["# Rendered by plantkg; edits are overwritten."]
+    if anonymous:
+        lines += ["# anonymous clients: every topic, as on a broker without users",
+                  "topic readwrite #", "topic read $SYS/#"]
+    for user in sorted(users, key=lambda u: u.name):
+        write, read = set(user.write), set(user.read)
+        lines += ["", f"user {user.name}"]
+        lines += [f"topic {_ACCESS[(t in write, t in read)]} {t}" for t in sorted(write | read)]
+    return "\n".join(lines) + "\n"
+
+
+_ACCESS = {(True, True): "readwrite", (True, False): "write", (False, True): "read"}
+
+
+def render_password_file(users: Sequence[tuple[str, str]], previous: str = "",
+                         salt: Callable[[], bytes] = lambda: os.urandom(PW_SALT_BYTES)) -> str:
+    """The ``password_file`` text for ``(name, password)`` pairs, sorted by name. A line of
+    ``previous`` (the file rendered last time) for the same name whose hash matches the password is
+    kept as it is; other users get a new ``salt()``. Errors never show a password."""
+    names = [name for name, _ in users]
+    if len(set(names)) != len(names):
+        raise ConfigValueError("users", names, "two users with the same name")
+    kept = _password_lines(previous)
+    lines = []
+    for name, password in sorted(users):
+        check_user_name(name)
+        _check_password(name, password)
+        old = kept.get(name)
+        lines.append(old if old is not None and password_matches(old, password)
+                     else password_line(name, password, salt()))
+    return "".join(f"{line}\n" for line in lines)
+
+
+def password_line(name: str, password: str, salt: bytes) -> str:
+    """``name:$7$101$<base64 salt>$<base64 PBKDF2-HMAC-SHA512 hash>`` (Mosquitto 2.x)."""
+    if len(salt) != PW_SALT_BYTES:
+        raise ConfigValueError("salt", len(salt), f"must be {PW_SALT_BYTES} bytes")
+    digest = hashlib.pbkdf2_hmac("sha512", password.encode("utf-8"), salt, PW_ITERATIONS)
+    return (f"{name}:${PW_HASH_TYPE}${PW_ITERATIONS}$"
+            f"{base64.b64encode(salt).decode()}${base64.b64encode(digest).decode()}")
+
+
+def password_matches(line: str, password: str) -> bool:
+    """True if ``line`` (a password file line of type 7) holds the hash of ``password``."""
+    _, _, encoded = line.partition(":")
+    parts = encoded.split("$")
+    if len(parts) != 5 or parts[0] or parts[1] != str(PW_HASH_TYPE) or not parts[2].isdigit():
+        return False
+    try:
+        salt = base64.b64decode(parts[3], validate=True)
+        expected = base64.b64decode(parts[4], validate=True)
+    except (binascii.Error, ValueError):
+        return False
+    iterations = int(parts[2])
+    if not 1 <= iterations <= 1_000_000:
+        return False
+    digest = hashlib.pbkdf2_hmac("sha512", password.encode("utf-8"), salt, iterations)
+    return hmac.compare_digest(digest, expected)
+
+
+def _password_lines(text: str) -> dict[str, str]:
+    """name -> line of a password file (unparsable lines are ignored: they get a new hash)."""
+    out: dict[str, str] = {}
+    for line in text.splitlines():
+        name, sep, _ = line.partition(":")
+        if sep and name and not line.startswith("#"):
+            out[name] = line
+    return out
+
+
+def _check_password(name: str, password: object) -> None:
+    field = f"users[{name}].password"
+    if not isinstance(password, str) or not password:
+        raise ConfigValueError(field, "(not shown)", "must be a non-empty string")
+    if "\0" in password:
+        raise ConfigValueError(field, "(not shown)", "must not contain a NUL character")
+    try:
+        size = len(password.encode("utf-8"))
+    except UnicodeEncodeError:
+        raise ConfigValueError(field, "(not shown)", "must be UTF-8 text") from None
+    if size > MAX_PASSWORD_BYTES:
+        raise ConfigValueError(field, "(not shown)", f"is at most {MAX_PASSWORD_BYTES} bytes in MQTT")
 
 
 def default_run_as() -> str:

@@ -11,6 +11,7 @@
     logs/<kind>.log  the broker's stdout and stderr (and Mosquitto's own log)
 
 Files are written atomically (temporary file + rename), so a crash never leaves half a JSON file.
+Rendered files are mode 0600 (:data:`RENDERED_MODE`): they may hold password hashes.
 """
 
 from __future__ import annotations
@@ -38,6 +39,9 @@ SPEC_FILE = "spec.json"
 PID_FILE = "pid.json"
 TOPICS_FILE = "topics.json"
 BRIDGES_FILE = "bridges.json"
+#: Rendered files hold hashes of broker passwords (Mosquitto's password file): only the agent's
+#: user reads them, and the broker it starts, which runs as that user (Mosquitto's ``user`` line).
+RENDERED_MODE = 0o600
 
 
 @dataclass(frozen=True)
@@ -150,4 +154,4 @@ class BrokerFolder:
             if target.parent != self.path.resolve() or name in (SPEC_FILE, PID_FILE, TOPICS_FILE, BRIDGES_FILE):
                 raise EngineError(f"driver tried to write {name!r} outside its config files",
                                   hint="fix the driver's render_config")
-            write_atomic(target, text)
+            write_atomic(target, text, RENDERED_MODE)

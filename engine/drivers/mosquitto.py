@@ -7,6 +7,15 @@ from the retained notifications Mosquitto publishes on the broker. MQTT has no t
 exists as soon as someone publishes to it, so :meth:`MosquittoDriver.ensure_topic` only validates
 the name and settings and the agent records them (``implicit_topics``). Health is a real MQTT
 CONNECT/CONNACK with paho, not just an open port.
+
+Users (``BrokerSpec.users``): each user's ``secret_ref`` is resolved here, on the broker's machine
+(``env:NAME``, the agent's environment; ``file:/path``, the file's text without one trailing
+newline), and only hashes reach the broker folder: ``passwords`` (Mosquitto's hashed format) and
+``acl`` (what each user may publish and subscribe to), mode 0600 like every rendered file. A broker
+with users is closed (``allow_anonymous false``) unless the spec says ``allow_anonymous`` true; a
+spec with ``allow_anonymous`` false is closed even without users. A closed broker answers the
+agent's anonymous health check with a refusing CONNACK, which still proves it speaks MQTT; it
+carries no bridge (they connect, and their states are read, anonymously).
 """
 
 from __future__ import annotations
@@ -15,6 +24,7 @@ import getpass
 import os
 import secrets
 import time
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -31,9 +41,16 @@ from engine.drivers.base import (
     spec_essence,
 )
 from engine.errors import ConfigValueError
-from engine.model import BridgeMechanism, BridgeSpec, BrokerSpec, ObservedTopic, TopicSpec
+from engine.model import BridgeMechanism, BridgeSpec, BrokerSpec, BrokerUser, ObservedTopic, TopicSpec
+from engine.values import check_secret_ref
 
 CONF_FILE = "mosquitto.conf"
+#: The hashed password file and the ACL file of a broker with users (in its broker folder).
+PASSWORD_FILE = "passwords"
+ACL_FILE = "acl"
+#: CONNACKs that prove the broker answers MQTT: accepted, and the refusals of a closed broker to
+#: the agent's anonymous health check (MQTT 3.1.1 return codes 4 and 5, paho's names).
+ANSWERING_CONNACKS = ("Success", "Bad user name or password", "Not authorized")
 #: MQTT 3.1.1 section 1.5.3: a topic name is at most 65535 bytes of UTF-8.
 MAX_TOPIC_BYTES = 65_535
 
@@ -61,6 +78,22 @@ class MosquittoDriver:
 
     def render_config(self, spec: BrokerSpec, broker_dir: Path,
                       bridges: tuple[BridgeSpec, ...] = ()) -> dict[str, str]:
+        """``mosquitto.conf``, and for a broker with users its password and ACL files (reading
+        each user's secret, and the previous password file so unchanged passwords keep their
+        hash: the same inputs render the same files)."""
+        closed = is_closed(spec)
+        if closed and bridges:
+            raise ConfigValueError("bridges", [b.address for b in bridges],
+                                   f"broker {spec.id!r} is closed to anonymous clients: bridges "
+                                   "with closed brokers are not supported yet")
+        files: dict[str, str] = {}
+        if spec.users:
+            acl_users = tuple(mosquitto_runtime.MosquittoUser(u.name, tuple(u.write), tuple(u.read))
+                              for u in spec.users)
+            passwords = [(u.name, resolve_secret(u)) for u in spec.users]
+            files[PASSWORD_FILE] = mosquitto_runtime.render_password_file(
+                passwords, _previous(broker_dir / PASSWORD_FILE))
+            files[ACL_FILE] = mosquitto_runtime.render_acl_file(acl_users, anonymous=not closed)
         cfg = mosquitto_runtime.MosquittoConfig(
             host=spec.host,
             port=spec.port,
@@ -69,37 +102,48 @@ class MosquittoDriver:
             data_dir=broker_dir / DATA_DIR,
             persist_every=spec.persist_every,
             bridges=tuple(native_bridge(spec, b) for b in bridges),
+            allow_anonymous=not closed,
+            password_file=broker_dir / PASSWORD_FILE if spec.users else None,
+            acl_file=broker_dir / ACL_FILE if spec.users else None,
         )
-        return {CONF_FILE: mosquitto_runtime.render_mosquitto_conf(cfg)}
+        return {CONF_FILE: mosquitto_runtime.render_mosquitto_conf(cfg), **files}
 
     def command(self, spec: BrokerSpec, broker_dir: Path) -> list[str]:
         binary = self._binary or parts.mosquitto_binary()
         return mosquitto_runtime.mosquitto_command(binary, broker_dir / CONF_FILE)
 
     def prepare(self, spec: BrokerSpec, broker_dir: Path) -> None:
-        """The persistence folder (Mosquitto does not create it)."""
+        """The persistence folder (Mosquitto does not create it); the password and ACL files of
+        a broker that no longer has users are removed (no stale hashes left in the folder)."""
         (broker_dir / DATA_DIR).mkdir(parents=True, exist_ok=True)
+        if not spec.users:
+            for name in (PASSWORD_FILE, ACL_FILE):
+                (broker_dir / name).unlink(missing_ok=True)
 
     def health(self, spec: BrokerSpec, timeout: float) -> bool:
-        """An MQTT CONNECT answered by a successful CONNACK within ``timeout`` s. A closed port
-        answers False at once, before an MQTT client is built: a start polls this every 2 ms, and
-        100 brokers starting together would otherwise spend the CPU building clients."""
+        """An MQTT CONNECT answered by a CONNACK within ``timeout`` s: accepted, or refused as a
+        closed broker refuses the agent, which has no credentials (:data:`ANSWERING_CONNACKS`).
+        A closed port answers False at once, before an MQTT client is built: a start polls this
+        every 2 ms, and 100 brokers starting together would otherwise spend the CPU building
+        clients."""
         if not netutil.port_open(spec.host, spec.port, timeout=min(timeout, 0.5)):
             return False
         client = mqtt.Client(
             CallbackAPIVersion.VERSION2, client_id=f"plantkg-health-{secrets.token_hex(4)}"
         )
+        answers: list[str] = []
+        client.on_connect = lambda _c, _u, _f, reason, _p: answers.append(str(reason))
         client.connect_timeout = max(timeout, 0.05)
         end = time.monotonic() + timeout
         try:
             client.connect(spec.host, spec.port, keepalive=max(5, int(timeout) + 1))
-            while not client.is_connected():
+            while not answers:
                 remaining = end - time.monotonic()
                 if remaining <= 0:
                     return False
                 if client.loop(timeout=min(remaining, 0.05)) != mqtt.MQTT_ERR_SUCCESS:
-                    return False
-            return True
+                    break
+            return connack_answers(answers[0]) if answers else False
         except OSError:
             return False
         finally:
@@ -119,7 +163,13 @@ class MosquittoDriver:
         return []
 
     def essence(self, spec: BrokerSpec) -> dict[str, Any]:
-        return {**spec_essence(spec), "persist_every": spec.persist_every}
+        """Address, persistence, whether the broker is closed and its users (JSON values: the
+        essence is kept in pid.json). A password's new content is not here: it shows in the
+        rendered password file, whose change restarts the broker at the next PUT."""
+        return {**spec_essence(spec), "persist_every": spec.persist_every,
+                "closed": is_closed(spec),
+                "users": [{"name": u.name, "secret_ref": u.secret_ref, "write": sorted(u.write),
+                           "read": sorted(u.read)} for u in sorted(spec.users, key=lambda u: u.name)]}
 
     def bridge_states(self, spec: BrokerSpec, bridges: tuple[BridgeSpec, ...],
                       timeout: float) -> dict[str, bool]:
@@ -149,6 +199,56 @@ class MosquittoDriver:
         finally:
             _close(client)
         return found
+
+
+def is_closed(spec: BrokerSpec) -> bool:
+    """Closed to anonymous clients: users and no ``allow_anonymous`` true, or ``allow_anonymous``
+    false."""
+    return spec.allow_anonymous is False or (bool(spec.users) and spec.allow_anonymous is not True)
+
+
+def connack_answers(reason: str) -> bool:
+    """True if a CONNACK with this reason (paho's name) shows a broker answering MQTT."""
+    return reason in ANSWERING_CONNACKS
+
+
+def resolve_secret(user: BrokerUser, environ: Mapping[str, str] | None = None) -> str:
+    """The password ``user.secret_ref`` points to on this machine: an environment variable of
+    this process, or a file's text without one trailing newline. A missing, empty or unreadable
+    secret is a ConfigValueError naming the user and the reference, never the secret."""
+    field = f"users[{user.name}].secret_ref"
+    ref = check_secret_ref(field, user.secret_ref)
+    kind, _, where = ref.partition(":")
+    if kind == "env":
+        value = (os.environ if environ is None else environ).get(where)
+        if value is None:
+            raise ConfigValueError(field, ref, f"the environment variable {where} is not set for "
+                                   "the agent on this machine; set it where the agent starts")
+    else:
+        try:
+            raw = Path(where).read_bytes()
+        except OSError as exc:
+            raise ConfigValueError(field, ref, f"cannot read the file ({exc.strerror}); create "
+                                   "it on the broker's machine, readable by the agent") from None
+        try:
+            value = raw.decode("utf-8")
+        except UnicodeDecodeError:
+            raise ConfigValueError(field, ref, "the file is not UTF-8 text") from None
+        value = value[:-2] if value.endswith("\r\n") else value.removesuffix("\n")
+    if not value:
+        raise ConfigValueError(field, ref, "the secret is empty; put the user's password there")
+    if "\0" in value or "\n" in value or "\r" in value:
+        raise ConfigValueError(field, ref, "the secret holds a NUL or a line break; a password "
+                               "is one line of text")
+    return value
+
+
+def _previous(path: Path) -> str:
+    """The password file rendered last time ('' if absent or unreadable: new salts)."""
+    try:
+        return path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError):
+        return ""
 
 
 def bridge_name(bridge: BridgeSpec) -> str:

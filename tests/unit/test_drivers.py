@@ -273,8 +273,8 @@ def test_essence_ignores_names_and_follows_the_listener(driver: Driver) -> None:
     moved = BrokerSpec(**{**spec.__dict__, "port": spec.port + 1})
     assert driver.essence(renamed) == driver.essence(spec)
     assert driver.essence(moved) != driver.essence(spec)
-    # Mosquitto restarts for its save policy too (pk:persistEvery); Kafka ignores it
-    extra = {"persist_every"} if driver.kind == "mosquitto" else set()
+    # Mosquitto restarts for its save policy too (pk:persistEvery), and its users; Kafka ignores them
+    extra = {"persist_every", "closed", "users"} if driver.kind == "mosquitto" else set()
     assert set(driver.essence(spec)) == {"kind", "host", "port"} | extra
 
 
