@@ -79,6 +79,8 @@ disable_system_service() { # name
 
 APT_WANTED=()
 have_mosquitto || APT_WANTED+=(mosquitto)
+# mosquitto_pub/mosquitto_sub: independent clients of the broker-users tests (issue 13).
+have mosquitto_pub || APT_WANTED+=(mosquitto-clients)
 # RabbitMQ for plugins/plantkg-rabbitmq; the plugin runs the real script, not /usr/sbin's wrapper.
 [ -x /usr/lib/rabbitmq/bin/rabbitmq-server ] || APT_WANTED+=(rabbitmq-server)
 have java || APT_WANTED+=(default-jre-headless)
