@@ -100,8 +100,12 @@ class WorkerPool:
         with self._lock:
             if self._closed:
                 raise SparqlError(503, "the server is shutting down")
-            if self._idle:
-                return self._idle.pop()
+            while self._idle:
+                worker = self._idle.pop()
+                if worker.proc.poll() is None:
+                    return worker
+                self._all.remove(worker)  # died while idle (OOM killer, a stray kill): replace it
+                worker.conn.close()
             if len(self._all) + self._starting >= self.size:  # the limiter keeps this from happening
                 raise SparqlError(503, f"all {self.size} query workers are busy", "retry in a moment")
             self._starting += 1
