@@ -88,8 +88,8 @@ class MosquittoDriver:
                                    "with closed brokers are not supported yet")
         files: dict[str, str] = {}
         if spec.users:
-            acl_users = tuple(mosquitto_runtime.MosquittoUser(u.name, tuple(u.write), tuple(u.read))
-                              for u in spec.users)
+            acl_users = tuple(mosquitto_runtime.MosquittoUser(u.name, u.write, u.read)
+                              for u in spec.users)  # names and topics checked before any secret
             passwords = [(u.name, resolve_secret(u)) for u in spec.users]
             files[PASSWORD_FILE] = mosquitto_runtime.render_password_file(
                 passwords, _previous(broker_dir / PASSWORD_FILE))
