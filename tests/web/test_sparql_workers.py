@@ -10,6 +10,7 @@ import os
 import threading
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import pyoxigraph as ox
 import pytest
@@ -29,12 +30,14 @@ EX = "http://example.org/"
 
 
 def alive(pid: int) -> bool:
-    """Whether ``pid`` exists and is not a zombie awaiting its reaper."""
-    try:
-        stat = open(f"/proc/{pid}/stat").read()
-    except OSError:
-        return False
-    return stat.rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+    """Whether a thread of process ``pid`` still runs (a zombie awaiting its reaper does not)."""
+    states = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            states.append((task / "stat").read_text().rsplit(")", 1)[1].split()[0])
+        except OSError:
+            continue
+    return any(state not in ("Z", "X") for state in states)
 
 
 @pytest.fixture
