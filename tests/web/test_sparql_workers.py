@@ -194,3 +194,28 @@ def test_over_the_global_limit_is_503_with_retry_after(app_client: FlaskClient) 
         for client in busy:
             runner.limiter.release(client)
     assert app_client.get("/sparql", query_string={"query": CHEAP}).status_code == 200
+
+
+# ----------------------------------------------------------------------------- plantkg serve options
+
+def test_serve_passes_the_query_limits(monkeypatch: pytest.MonkeyPatch, plant_file: Path) -> None:
+    from engine.cli import main
+    from engine.web import server
+
+    got: list[Limits] = []
+    monkeypatch.setattr(server, "run_server", lambda *a, **kw: got.append(kw["limits"]) or 0)
+    assert main(["serve", str(plant_file)]) == 0
+    assert main(["serve", str(plant_file), "--max-queries", "8", "--max-client-queries", "3",
+                 "--query-timeout", "2.5"]) == 0
+    assert got == [Limits(timeout_s=10.0, max_rows=10_000, workers=4, per_client=2),
+                   Limits(timeout_s=2.5, max_rows=10_000, workers=8, per_client=3)]
+
+
+@pytest.mark.parametrize("option, value", [("--max-queries", "0"), ("--max-client-queries", "0"),
+                                           ("--max-client-queries", "many")])
+def test_serve_refuses_a_bad_limit(capsys: pytest.CaptureFixture[str], plant_file: Path, option: str,
+                                   value: str) -> None:
+    from engine.cli import main
+
+    assert main(["serve", str(plant_file), option, value]) == 2
+    assert option in capsys.readouterr().err
