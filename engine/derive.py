@@ -38,6 +38,7 @@ from typing import Iterable
 
 import pyoxigraph as ox
 
+from engine.access import broker_users, check_access_supported, close_brokers
 from engine.errors import ConfigValueError, EngineError
 from engine.bridge_cycles import check_no_cycles
 from engine.bridge_pairs import DirectedBridge, TopicOptions, pair_bridges
@@ -69,6 +70,8 @@ SELECT ?b ?id ?name ?kind ?ip ?port ?mqtt ?persist ?anonymous ?external WHERE {
     OPTIONAL { ?b pk:allowAnonymous ?anonymous } OPTIONAL { ?b pk:external ?external }
     OPTIONAL { ?b pk:mqttPort ?mqtt }
 }"""
+
+ANONYMOUS_SAID = """SELECT ?b WHERE { ?b a pk:DeployedBroker ; pk:allowAnonymous ?any }"""
 
 TOPICS = """
 SELECT ?b ?t ?name WHERE {
@@ -145,6 +148,11 @@ def derive(plant: PlantGraph) -> DesiredState:
     brokers, external = _brokers(plant, select(BROKERS), classes)
     by_iri = {b.iri: b for b in brokers}
     topics = _topics(plant, select(TOPICS), select(SETTINGS), by_iri)
+    iri_of_id = {b.id: b.iri for b in brokers}
+    users = broker_users(select, {(iri_of_id[t.broker_id], t.iri): t.name for t in topics})
+    said = frozenset(row["b"].value for row in select(ANONYMOUS_SAID))
+    brokers = close_brokers(brokers, users, said)
+    by_iri = {b.iri: b for b in brokers}
     iri_of = {b.id: b.iri for b in brokers}
     topics = [_with_entity(plant, t) if CONTEXT_BROKER in classes[iri_of[t.broker_id]] else t
               for t in topics]
@@ -175,6 +183,7 @@ def derive(plant: PlantGraph) -> DesiredState:
                            {b.id: frozenset(classes[b.iri]) for b in brokers}, topic_options,
                            external=frozenset(by_iri[iri].id for iri in external))
     deployed = [b for b in brokers if b.iri not in external]
+    check_access_supported(deployed, bridges)
     outside = {by_iri[iri].id for iri in external}
     return DesiredState(
         brokers=tuple(sorted(deployed, key=lambda b: b.address)),

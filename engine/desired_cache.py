@@ -28,6 +28,7 @@ from engine.model import (
     BridgeRoute,
     BridgeSpec,
     BrokerSpec,
+    BrokerUser,
     DesiredState,
     TopicSpec,
     to_dict,
@@ -96,7 +97,10 @@ class DesiredCache:
 def desired_from_dict(data: dict) -> DesiredState:
     """The inverse of ``to_dict(desired)``."""
     return DesiredState(
-        brokers=tuple(BrokerSpec(**b) for b in data["brokers"]),
+        brokers=tuple(BrokerSpec(**{**b, "users": tuple(BrokerUser(**{**u, "write": tuple(u["write"]),
+                                                                            "read": tuple(u["read"])})
+                                                         for u in b.get("users", ()))})
+                      for b in data["brokers"]),
         topics=tuple(TopicSpec(**t) for t in data["topics"]),
         bridges=tuple(bridge_from_dict(b) for b in data["bridges"]),
         owner=data.get("owner"),

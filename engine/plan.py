@@ -68,7 +68,8 @@ from engine.model import (
 
 #: Broker fields whose change needs a new broker process (the agent restarts it): Terraform's
 #: "forces replacement". Every other BrokerSpec field is changed in place.
-REPLACE_FIELDS: tuple[str, ...] = ("kind", "host", "port", "persist_every", "allow_anonymous", "mqtt_port")
+REPLACE_FIELDS: tuple[str, ...] = ("kind", "host", "port", "persist_every", "allow_anonymous", "mqtt_port",
+                                   "users")
 #: Replace fields after which the broker starts empty (its topics are created again).
 NEW_BROKER_FIELDS: tuple[str, ...] = ("kind", "host")
 

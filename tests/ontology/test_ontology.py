@@ -54,6 +54,8 @@ OBJECT_PROPERTIES = {  # name: (domain, range)
     "bridgesTo": ("Broker", "Broker"),
     "publishes": ("Resource", "Topic"),
     "subscribes": ("Resource", "Topic"),
+    "mayWrite": ("Resource", "Topic"),
+    "mayRead": ("Resource", "Topic"),
 }
 DATA_PROPERTIES = {  # name: (domain or None for all classes, range or None for rdfs:Literal, functional)
     "id": (None, ns.XSD.string, True),
@@ -68,6 +70,7 @@ DATA_PROPERTIES = {  # name: (domain or None for all classes, range or None for 
     "ip": ("Broker", ns.XSD.string, True),
     "port": ("Broker", ns.XSD.integer, True),
     "mqttPort": ("Broker", ns.XSD.integer, True),
+    "secretRef": ("Resource", ns.XSD.string, True),
     "persistEvery": ("Broker", ns.XSD.integer, True),
     "allowAnonymous": ("Broker", ns.XSD.boolean, True),
     "external": ("Broker", ns.XSD.boolean, True),

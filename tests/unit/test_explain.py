@@ -132,11 +132,13 @@ def test_malformed_addresses_are_refused(address: str) -> None:
 
 
 def _rule_labels() -> set[str]:
-    """The labels of the SWRL rules in ontology/plantkg-rules.ttl, read from the file itself."""
+    """The labels of the SWRL rules in ontology/plantkg-rules.ttl and plantkg-access.ttl (A1, A2:
+    the robot cell's publishers and subscribers get their rights), read from the files themselves."""
     import pyoxigraph as ox  # noqa: PLC0415
 
     store = ox.Store()
-    store.load(path=str(ROOT / "ontology" / "plantkg-rules.ttl"), format=ox.RdfFormat.TURTLE)
+    for name in ("plantkg-rules.ttl", "plantkg-access.ttl"):
+        store.load(path=str(ROOT / "ontology" / name), format=ox.RdfFormat.TURTLE)
     rows = store.query("PREFIX swrl: <http://www.w3.org/2003/11/swrl#> "
                        "PREFIX rdfs: <http://www.w3.org/2000/01/rdf-schema#> "
                        "SELECT ?l WHERE { ?r a swrl:Imp ; rdfs:label ?l }")
@@ -178,10 +180,11 @@ def test_every_fact_the_fast_engine_adds_has_its_rule(tmp_path: Path, asserted: 
     requires = {v for (_, p, _), v in outcome.provenance.items() if p.value == f"{PK}requiresBridge"}
     if asserted:
         # Every bridge and topic is asserted: the sub-properties derive them first, no SWRL rule
-        # adds a fact — which is why explain lists every derivation, not the first one.
-        assert swrl == set() and requires == {"sub-properties"}
+        # adds a fact — which is why explain lists every derivation, not the first one. (The
+        # access rules A1, A2 still conclude each publisher's and subscriber's rights.)
+        assert {label.split()[0] for label in swrl} == {"A1", "A2"} and requires == {"sub-properties"}
     else:
-        assert {label.split()[0] for label in swrl} == {"R1", "R2a", "R2b"}
+        assert {label.split()[0] for label in swrl} == {"R1", "R2a", "R2b", "A1", "A2"}
         assert requires == {f"SWRL rule '{R1}'"}
     # The recorded rule concludes its fact again through its own body (what explain asks it).
     by_name: dict[str, list[rules_fast.FastRule]] = {}

@@ -1,0 +1,103 @@
+"""Broker users and ACLs from the reasoned plant graph (docs/security.md).
+
+A resource that sends to a broker and has a ``pk:secretRef`` is one of the broker's users: its
+user name is its ``pk:id``, its password is where the reference says (read by the broker's agent,
+never by plantkg's planner), and it may publish (``pk:mayWrite``, concluded from ``pk:publishes``
+by rule A1 of ``ontology/plantkg-access.ttl``) and subscribe to (``pk:mayRead``, rule A2) those
+of its topics the broker carries. Nothing here decides who may do what: the rules did.
+
+- :func:`broker_users` reads them (SPARQL over the asserted and inferred facts);
+- :func:`close_brokers` applies them to the derived specs: a broker with users admits nobody else
+  unless the plant says ``pk:allowAnonymous true``;
+- :func:`check_access_supported` refuses, before anything is deployed, what plantkg cannot run
+  yet: users on a broker whose driver renders none (only Mosquitto does), and a bridge at a closed
+  broker (it would need plantkg's own credentials on that broker).
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import replace
+
+import pyoxigraph as ox
+
+from engine.errors import EngineError
+from engine.model import BridgeSpec, BrokerSpec, BrokerUser
+
+#: The broker kinds whose driver renders users and ACLs.
+USER_KINDS = frozenset({"mosquitto"})
+
+USERS = """
+SELECT ?b ?r ?rid ?ref ?t ?mode WHERE {
+    ?b a pk:DeployedBroker .
+    ?r pk:sendsTo ?b ; pk:secretRef ?ref ; pk:id ?rid .
+    OPTIONAL {
+        ?b pk:mustCarry ?t .
+        { ?r pk:mayWrite ?t BIND ("write" AS ?mode) } UNION { ?r pk:mayRead ?t BIND ("read" AS ?mode) }
+    }
+}"""
+
+
+class AccessNotSupportedError(EngineError):
+    """The plant asks for access control plantkg cannot render yet."""
+
+
+def broker_users(select: Callable[[str], Iterable[ox.QuerySolution]],
+                 topic_names: Mapping[tuple[str, str], str]) -> dict[str, tuple[BrokerUser, ...]]:
+    """Broker IRI -> its users, sorted by name, each with its sorted topic names.
+    ``topic_names`` maps (broker IRI, topic IRI) to the topic's name on that broker."""
+    refs: dict[tuple[str, str], str] = {}
+    rights: dict[tuple[str, str], dict[str, set[str]]] = defaultdict(lambda: {"write": set(), "read": set()})
+    for row in select(USERS):
+        broker, name = row["b"].value, row["rid"].value
+        refs[(broker, name)] = row["ref"].value
+        rights[(broker, name)]  # a user with no right still exists: it may connect, nothing more
+        if row["t"] is not None and (broker, row["t"].value) in topic_names:
+            rights[(broker, name)][row["mode"].value].add(topic_names[(broker, row["t"].value)])
+    out: dict[str, list[BrokerUser]] = defaultdict(list)
+    for (broker, name), ref in sorted(refs.items()):
+        got = rights[(broker, name)]
+        out[broker].append(BrokerUser(name=name, secret_ref=ref, write=tuple(sorted(got["write"])),
+                                      read=tuple(sorted(got["read"]))))
+    return {broker: tuple(users) for broker, users in out.items()}
+
+
+def close_brokers(brokers: Iterable[BrokerSpec], users: Mapping[str, tuple[BrokerUser, ...]],
+                  anonymous_said: frozenset[str]) -> list[BrokerSpec]:
+    """The specs with their users; a broker with users and no ``pk:allowAnonymous`` of its own
+    (``anonymous_said``: IRIs that state one) is closed (``allow_anonymous`` False)."""
+    out = []
+    for spec in brokers:
+        mine = users.get(spec.iri, ())
+        if mine:
+            closed = spec.allow_anonymous if spec.iri in anonymous_said else False
+            spec = replace(spec, users=mine, allow_anonymous=closed)
+        out.append(spec)
+    return out
+
+
+def is_closed(spec: BrokerSpec) -> bool:
+    """A Mosquitto that admits only its users."""
+    return spec.kind in USER_KINDS and spec.allow_anonymous is False
+
+
+def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[BridgeSpec]) -> None:
+    """Refuse users on a broker whose driver renders none, and bridges at a closed broker."""
+    by_id = {b.id: b for b in brokers}
+    for spec in by_id.values():
+        if spec.users and spec.kind not in USER_KINDS:
+            names = ", ".join(u.name for u in spec.users)
+            raise AccessNotSupportedError(
+                f"broker {spec.id!r} ({spec.kind}): its clients {names} have a pk:secretRef, but "
+                f"plantkg renders users and ACLs for {', '.join(sorted(USER_KINDS))} brokers only (yet)",
+                hint="remove pk:secretRef from those resources, or let them send to a Mosquitto broker")
+    for bridge in bridges:
+        closed = [end.id for end in (bridge.local, bridge.remote) if end.id in by_id and is_closed(by_id[end.id])]
+        if closed:
+            raise AccessNotSupportedError(
+                f"{bridge.address}: broker {closed[0]!r} is closed to anonymous clients (its clients "
+                "have a pk:secretRef), and a bridge at a closed broker needs plantkg's own "
+                "credentials there, which plantkg does not manage yet",
+                hint=f"keep {closed[0]!r} open (pk:allowAnonymous true) while it is bridged, or "
+                     "move the bridged topics to another broker")

@@ -1,0 +1,102 @@
+"""Broker users and ACLs derived from the graph (engine.access, ontology/plantkg-access.ttl).
+
+Each case is a small plant and what derive must make of it; both reasoners must agree."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from engine.access import AccessNotSupportedError
+from engine.derive import derive
+from engine.model import BrokerUser
+from engine.reasoning.reason import reason
+from kg.load import load_plant
+from kg.validate import validate
+
+HEADER = """@prefix pk: <https://w3id.org/plantkg/ontology#> .
+@prefix ex: <http://example.org/access#> .
+ex:m a pk:Broker ; pk:id "m1" ; pk:name "cell-mqtt" ; pk:brokerType "mosquitto" ; pk:ip "127.0.0.1" ;
+    pk:port 1883 ; pk:hasTopic ex:pose , ex:cmd .
+ex:pose a pk:Topic ; pk:id "pose" ; pk:name "cell/pose" .
+ex:cmd a pk:Topic ; pk:id "cmd" ; pk:name "cell/cmd" .
+ex:plc a pk:Resource ; pk:id "plc" ; pk:name "PLC" ; pk:sendsTo ex:m ; pk:publishes ex:cmd .
+"""
+ROBOT = """ex:robot a pk:Resource ; pk:id "robot1" ; pk:name "Robot" ; pk:sendsTo ex:m ;
+    pk:publishes ex:pose ; pk:subscribes ex:cmd ; pk:secretRef "env:ROBOT1_PASSWORD" .
+"""
+HMI = """ex:hmi a pk:Resource ; pk:id "hmi" ; pk:name "HMI" ; pk:sendsTo ex:m ; pk:subscribes ex:pose ;
+    pk:secretRef "file:/etc/plantkg/hmi.pw" .
+"""
+ROBOT_USER = BrokerUser("robot1", "env:ROBOT1_PASSWORD", write=("cell/pose",), read=("cell/cmd",))
+HMI_USER = BrokerUser("hmi", "file:/etc/plantkg/hmi.pw", read=("cell/pose",))
+
+# name: (extra Turtle, users of m1, allow_anonymous of m1)
+CASES = {
+    "nobody-has-a-secret": ("", (), None),
+    "two-users-close-the-broker": (ROBOT + HMI, (HMI_USER, ROBOT_USER), False),
+    "the-plant-keeps-it-open": (ROBOT + "ex:m pk:allowAnonymous true .", (ROBOT_USER,), True),
+    "the-plant-closes-it-without-users": ("ex:m pk:allowAnonymous false .", (), False),
+    # a watcher granted a read it does not subscribe to (an asserted pk:mayRead)
+    "an-asserted-right": ('ex:w a pk:Resource ; pk:id "watch" ; pk:name "Watcher" ; pk:sendsTo ex:m ; '
+                          'pk:mayRead ex:pose ; pk:secretRef "env:W" .',
+                          (BrokerUser("watch", "env:W", read=("cell/pose",)),), False),
+    # a right on a topic this broker does not carry is not in its ACL
+    "a-right-elsewhere": (ROBOT + 'ex:far a pk:Topic ; pk:id "far" ; pk:name "far/away" . '
+                          'ex:robot pk:mayWrite ex:far .', (ROBOT_USER,), False),
+}
+
+
+def derived(tmp_path: Path, extra: str, engine: str = "fast"):
+    plant_file = tmp_path / "plant.ttl"
+    plant_file.write_text(HEADER + extra, encoding="utf-8")
+    plant = load_plant([plant_file])
+    reason(plant, engine=engine)  # type: ignore[arg-type]
+    return derive(plant)
+
+
+@pytest.mark.parametrize("engine", ["fast", "owlready2"])
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_users_and_acls_come_from_the_graph(tmp_path: Path, name: str, engine: str) -> None:
+    extra, users, anonymous = CASES[name]
+    [broker] = derived(tmp_path, extra, engine).brokers
+    assert (broker.users, broker.allow_anonymous) == (users, anonymous)
+
+
+def test_users_on_a_broker_without_user_support_are_refused(tmp_path: Path) -> None:
+    kafka = ('ex:k a pk:Broker ; pk:id "k1" ; pk:name "k" ; pk:brokerType "kafka" ; pk:ip "127.0.0.2" ; '
+             'pk:port 9092 ; pk:hasTopic ex:pose .\n'
+             'ex:hist a pk:Resource ; pk:id "hist" ; pk:name "Historian" ; pk:sendsTo ex:k ; '
+             'pk:subscribes ex:pose ; pk:secretRef "env:HIST" .\n')
+    with pytest.raises(AccessNotSupportedError, match="'k1' \\(kafka\\): its clients hist have a pk:secretRef"):
+        derived(tmp_path, kafka)
+
+
+def test_a_bridge_at_a_closed_broker_is_refused(tmp_path: Path) -> None:
+    other = ('ex:m2 a pk:Broker ; pk:id "m2" ; pk:name "m2" ; pk:brokerType "mosquitto" ; pk:ip "127.0.0.2" ; '
+             'pk:port 1883 ; pk:hasTopic ex:pose .\n'
+             'ex:sub a pk:Resource ; pk:id "sub" ; pk:name "Sub" ; pk:sendsTo ex:m2 ; pk:subscribes ex:pose .\n')
+    with pytest.raises(AccessNotSupportedError, match="bridge.m1.m2: broker 'm1' is closed"):
+        derived(tmp_path, ROBOT + other)
+
+
+@pytest.mark.parametrize("engine", ["oxigraph", "pyshacl"])
+@pytest.mark.parametrize(("value", "ok"), [
+    ('"env:ROBOT1_PASSWORD"', True), ('"file:/etc/plantkg/robot.pw"', True),
+    ('"hunter2-secret"', False), ('"file:relative.pw"', False), ('"env:1X"', False),
+    ('"env:X"@en', False), ("42", False),
+])
+def test_a_secret_reference_is_never_a_secret(tmp_path: Path, value: str, ok: bool, engine: str) -> None:
+    plant_file = tmp_path / "plant.ttl"
+    plant_file.write_text(HEADER + ROBOT.replace('"env:ROBOT1_PASSWORD"', value), encoding="utf-8")
+    report = validate(load_plant([plant_file]), engine=engine)  # type: ignore[arg-type]
+    found = [r for r in report.violations if str(r.path).endswith("secretRef")]
+    if ok:
+        assert not found
+    elif value.startswith('"') and value.endswith('"'):  # a plain string: maybe a password, not shown
+        assert len(found) == 1 and "never the password" in found[0].message and found[0].value == "(not shown)"
+    else:  # not a plain string at all: the datatype shape says so
+        assert len(found) == 1 and "a plain string" in found[0].message
+    text = " ".join(f"{r.value} {r.message}" for r in report.results)
+    assert "hunter2" not in text  # the value is not shown: it may be a password
