@@ -101,8 +101,13 @@ _DELETE_ORDER = {"bridge": 0, "topic": 1, "broker": 2}
 # ------------------------------------------------------------------------------------- essences
 
 def broker_essence(spec: BrokerSpec) -> dict[str, Any]:
-    """The fields of a broker the plan compares (all of BrokerSpec)."""
-    return {f.name: getattr(spec, f.name) for f in fields(spec)}
+    """The fields of a broker the plan compares (all of BrokerSpec), as JSON-able values; no
+    ``users`` key for a broker without users (most), so plans of open brokers read as before.
+    A user shows its secret reference, never a secret (the plan has none)."""
+    out = {f.name: getattr(spec, f.name) for f in fields(spec) if f.name != "users"}
+    if spec.users:
+        out["users"] = to_dict(spec.users)
+    return out
 
 
 def bridge_essence(spec: BridgeSpec) -> dict[str, Any]:
@@ -291,9 +296,9 @@ def _broker_change(spec: BrokerSpec, have: ObservedBroker | None) -> Change:
     if have is None:
         return Change(spec.address, Action.CREATE, None, after, "not running on its host")
     before = broker_essence(have.spec)
-    forced = [f for f in REPLACE_FIELDS if before[f] != after[f]]
+    forced = [f for f in REPLACE_FIELDS if before.get(f) != after.get(f)]
     if forced:
-        what = ", ".join(f"{f} {_show(before[f])} → {_show(after[f])}" for f in forced)
+        what = ", ".join(f"{f} {_show(before.get(f))} → {_show(after.get(f))}" for f in forced)
         if before["host"] != after["host"]:
             how = "the broker moves: stopped on the old host, started anew on the new one"
         elif before["kind"] != after["kind"]:
@@ -302,7 +307,7 @@ def _broker_change(spec: BrokerSpec, have: ObservedBroker | None) -> Change:
             how = "the agent restarts the broker"
         return Change(spec.address, Action.REPLACE, before, after, f"{what} forces replacement ({how})")
     if before != after:
-        changed = ", ".join(f for f in after if before[f] != after[f])
+        changed = ", ".join(f for f in after if before.get(f) != after[f])
         return Change(spec.address, Action.UPDATE, before, after, f"{changed} changed in place")
     if have.status is BrokerStatus.STOPPED_BY_OPERATOR:
         return Change(spec.address, Action.NOOP, before, after,
