@@ -87,6 +87,10 @@ def render_server_properties(cfg: KafkaNodeConfig) -> str:
         "transaction.state.log.replication.factor=1",
         "transaction.state.log.min.isr=1",
         "group.initial.rebalance.delay.ms=0",
+        # Closed by default (issue 13): only the plant creates topics (AdminClient, through the
+        # driver). A produce or a metadata request for an unknown topic gets
+        # UNKNOWN_TOPIC_OR_PART instead of creating a topic plantkg never declared.
+        "auto.create.topics.enable=false",
     ]
     return "\n".join(lines) + "\n"
 

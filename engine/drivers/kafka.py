@@ -166,8 +166,9 @@ class KafkaDriver:
     # --- helpers ---------------------------------------------------------------------------
 
     def _describe(self, admin: AdminClient, name: str) -> ObservedTopic | None:
-        # All topics, not list_topics(topic=name): a metadata request for one unknown topic may
-        # auto-create it on a broker with auto.create.topics.enable (Kafka's default).
+        # All topics, not list_topics(topic=name): a metadata request for one unknown topic
+        # auto-creates it on a broker with auto.create.topics.enable (Kafka's default). Ours
+        # render it false (kafka_runtime), but an adopted or hand-edited broker may not.
         metadata = _call(lambda: admin.list_topics(timeout=self.admin_timeout),
                          f"describing topic {name!r}")
         found = metadata.topics.get(name)
