@@ -11,7 +11,9 @@ of its topics the broker carries. Nothing here decides who may do what: the rule
   unless the plant says ``pk:allowAnonymous true``;
 - :func:`check_access_supported` refuses, before anything is deployed, what plantkg cannot run
   yet: users on a broker whose driver renders none (only Mosquitto does), and a bridge at a closed
-  broker (it would need plantkg's own credentials on that broker).
+  broker (it would need plantkg's own credentials on that broker);
+- :func:`open_broker_warnings` and :func:`access_label` say, in a plan and in ``status``, which
+  brokers anyone on the network may use.
 """
 
 from __future__ import annotations
@@ -101,3 +103,38 @@ def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
                 "credentials there, which plantkg does not manage yet",
                 hint=f"keep {closed[0]!r} open (pk:allowAnonymous true) while it is bridged, or "
                      "move the bridged topics to another broker")
+
+
+def access_label(spec: BrokerSpec) -> str:
+    """Who may use the broker, in a word or two (``status``): ``users (N)`` for a closed
+    Mosquitto, ``token`` for a context broker whose writes need its agent's token, ``open``
+    (anyone who reaches it) otherwise. No broker plantkg runs speaks TLS yet."""
+    if spec.kind in USER_KINDS:
+        if spec.allow_anonymous is False:
+            return f"users ({len(spec.users)})"
+        return f"open + users ({len(spec.users)})" if spec.users else "open"
+    if spec.kind == "ngsi-v2":
+        return "open" if spec.allow_anonymous else "token for writes"
+    return "open"
+
+
+def open_broker_warnings(brokers: Iterable[BrokerSpec]) -> tuple[str, ...]:
+    """One line per deployed broker anyone on the network may use (a Mosquitto or a context broker
+    open to anonymous clients, any Kafka), saying why and how to close it (a plan shows them;
+    docs/security.md)."""
+    out = []
+    for spec in sorted(brokers, key=lambda b: b.id):
+        if spec.kind in USER_KINDS and spec.allow_anonymous is not False:
+            why = ("the plant says pk:allowAnonymous true" if spec.allow_anonymous
+                   else "none of its clients has a pk:secretRef")
+            out.append(f"broker.{spec.id} admits anonymous clients ({why}): anyone who reaches "
+                       f"{spec.host}:{spec.port} may publish and read every topic; give its "
+                       "clients a pk:secretRef to close it")
+        elif spec.kind == "ngsi-v2" and spec.allow_anonymous:
+            out.append(f"broker.{spec.id} (context broker) takes writes without its agent's token "
+                       "(the plant says pk:allowAnonymous true): anyone who reaches "
+                       f"{spec.host}:{spec.port} may change every entity")
+        elif spec.kind == "kafka":
+            out.append(f"broker.{spec.id} (Kafka) admits any client: plantkg does not run Kafka "
+                       "with SASL users and ACLs yet")
+    return tuple(out)

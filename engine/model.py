@@ -310,6 +310,7 @@ class Plan:
     refusals: tuple[Refusal, ...] = ()
     unreachable: tuple[str, ...] = ()
     foreign: tuple[Foreign, ...] = ()
+    warnings: tuple[str, ...] = ()   # for people: e.g. brokers open to anonymous clients
 
     @property
     def pending(self) -> tuple[Change, ...]:

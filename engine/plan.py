@@ -47,6 +47,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
+from engine.access import open_broker_warnings
 from engine.model import (
     Action,
     BridgeSpec,
@@ -225,6 +226,7 @@ def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False)
         refusals=tuple(sorted(refusals, key=lambda r: r.address)),
         unreachable=tuple(sorted(unreachable)),
         foreign=tuple(sorted(foreign, key=lambda f: f.address)),
+        warnings=open_broker_warnings(desired.brokers),
     )
 
 

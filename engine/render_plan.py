@@ -77,6 +77,11 @@ def render_plan(plan: Plan, *, color: bool = False) -> str:
             whose = f"owned by {item.owner}" if item.owner else "owned by nobody (--prune deletes it)"
             lines.append(f"  = {item.address}: {whose}")
         lines.append("")
+    if plan.warnings:
+        lines.append(click.style("Warnings:", fg="yellow", bold=True) if color else "Warnings:")
+        for warning in plan.warnings:
+            lines.append(f"  ! {warning}")
+        lines.append("")
     if plan.unreachable:
         lines.append(paint("Agents that did not answer (what runs there is unknown):",
                            Action.DELETE, True))
@@ -151,6 +156,7 @@ def plan_dict(plan: Plan) -> dict[str, Any]:
         "refusals": [to_dict(r) for r in plan.refusals],
         "unreachable": list(plan.unreachable),
         "foreign": [to_dict(f) for f in plan.foreign],
+        "warnings": list(plan.warnings),
     }
 
 

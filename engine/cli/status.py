@@ -1,6 +1,7 @@
 """``plantkg status FILE...``: what each broker of the plant is doing, as its agent reports it.
 
-One row per broker: id, kind, host:port, status, pid, uptime, restarts, topics (present/asked);
+One row per broker: id, kind, host:port, status, pid, uptime, restarts, topics (present/asked),
+access (who may use it: ``users (N)``, ``token for writes``, ``open``; engine.access);
 then, if the plant has bridges, one row per bridge: its address, mechanism, status, routes,
 messages forwarded, its forwarding rate (``rate/s``: messages per second over the worker's last
 ~10 s) and messages retried (Mosquitto's own bridges count nothing: "-"), last error.
@@ -35,7 +36,7 @@ from engine.cli.options import agents_option
 from kg.errors import EXIT_VIOLATIONS, PlantKGError
 
 if TYPE_CHECKING:
-    from engine.model import DesiredState, ObservedBroker, ObservedState
+    from engine.model import BrokerSpec, DesiredState, ObservedBroker, ObservedState
 
 # The model, the pipeline and the progress display are imported where they are used, so that
 # `plantkg --help` (which lists this command) does not load them.
@@ -44,30 +45,34 @@ EXIT_CONVERGED, EXIT_ERROR, EXIT_NOT_CONVERGED = 0, 1, 2
 #: Messages/s above which ``plantkg status`` says a bridge runs away (``--max-bridge-rate``).
 DEFAULT_MAX_BRIDGE_RATE = 10_000.0
 
-HEADERS = ("id", "kind", "host:port", "status", "pid", "uptime", "restarts", "topics")
+HEADERS = ("id", "kind", "host:port", "status", "pid", "uptime", "restarts", "topics", "access")
 _COLOURS = {"running": "green", "starting": "yellow", "connecting": "yellow", "stopped": "yellow", "crashed": "red",
             "failed": "red", "absent": "red", "unknown": "red"}
 
 
 def status_rows(desired: DesiredState, observed: ObservedState, now: float) -> list[dict[str, str]]:
-    """The table's rows as strings (desired brokers first, then others the agents run)."""
+    """The table's rows as strings (desired brokers first, then others the agents run). ``access``
+    is who may use the broker as it runs (``-`` when nothing runs: engine.access.access_label)."""
+    from engine.access import access_label  # noqa: PLC0415
+
     rows = []
     for spec in desired.brokers:
         have = observed.broker(spec.id)
         wanted = {t.name for t in desired.topics_of(spec.id)}
         if have is None:
             state = "unknown" if spec.host in observed.unreachable else "absent"
-            rows.append(_row(spec.id, spec.kind, spec.host, spec.port, state, None, now, wanted))
+            rows.append({**_row(spec.id, spec.kind, spec.host, spec.port, state, None, now, wanted),
+                         "access": "-"})
         else:
-            rows.append(_row(spec.id, have.spec.kind, have.spec.host, have.spec.port,
-                             have.status.value, have, now, wanted))
+            rows.append({**_row(spec.id, have.spec.kind, have.spec.host, have.spec.port,
+                                have.status.value, have, now, wanted), "access": access_label(have.spec)})
     named = {b.id for b in desired.brokers}
     for have in observed.brokers:
         if have.spec.id not in named:
             row = _row(have.spec.id, have.spec.kind, have.spec.host, have.spec.port,
                        have.status.value, have, now, set())
             row["status"] += " (not in plant)"
-            rows.append(row)
+            rows.append({**row, "access": access_label(have.spec)})
     return rows
 
 
@@ -249,8 +254,17 @@ def typed_broker_rows(desired: DesiredState, observed: ObservedState, now: float
             "uptime_s": round(now - have.started_at, 3) if alive and have and have.started_at else None,
             "restarts": have.restarts if have else None,
             "topics_present": None if present == "?" else int(present), "topics_wanted": int(wanted),
+            # who may use it as it runs (None: nothing runs); no broker plantkg runs speaks TLS yet
+            "anonymous": None if have is None else _anonymous(have.spec),
+            "users": None if have is None else len(have.spec.users),
+            "tls": None if have is None else False,
         })
     return out
+
+
+def _anonymous(spec: BrokerSpec) -> bool:
+    """Whether a running broker admits clients without credentials (a context broker: writes)."""
+    return spec.allow_anonymous is not False or spec.kind == "kafka"
 
 
 def _typed_bridge(row: dict[str, str], observed: ObservedState) -> dict[str, object]:

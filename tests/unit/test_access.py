@@ -100,3 +100,26 @@ def test_a_secret_reference_is_never_a_secret(tmp_path: Path, value: str, ok: bo
         assert len(found) == 1 and "a plain string" in found[0].message
     text = " ".join(f"{r.value} {r.message}" for r in report.results)
     assert "hunter2" not in text  # the value is not shown: it may be a password
+
+
+# --- what plans and status say about who may use a broker ---------------------------------------
+
+def _spec(**kw):
+    from engine.model import BrokerSpec  # noqa: PLC0415
+    return BrokerSpec(**{"id": "m1", "iri": "urn:m1", "name": "m1", "kind": "mosquitto",
+                         "host": "127.0.0.1", "port": 1883, **kw})
+
+
+@pytest.mark.parametrize(("spec", "label", "warning"), [
+    (_spec(), "open", "none of its clients has a pk:secretRef"),
+    (_spec(allow_anonymous=True, users=(ROBOT_USER,)), "open + users (1)", "the plant says pk:allowAnonymous true"),
+    (_spec(allow_anonymous=False, users=(ROBOT_USER, HMI_USER)), "users (2)", None),
+    (_spec(kind="kafka", port=9092), "open", "plantkg does not run Kafka with SASL users"),
+    (_spec(kind="ngsi-v2", allow_anonymous=False), "token for writes", None),
+    (_spec(kind="ngsi-v2", allow_anonymous=True), "open", "takes writes without its agent's token"),
+])
+def test_plans_and_status_say_who_may_use_a_broker(spec, label: str, warning: str | None) -> None:
+    from engine.access import access_label, open_broker_warnings  # noqa: PLC0415
+    assert access_label(spec) == label
+    warnings = open_broker_warnings([spec])
+    assert (warnings == ()) if warning is None else (len(warnings) == 1 and warning in warnings[0])

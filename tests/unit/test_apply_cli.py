@@ -138,9 +138,10 @@ def test_status_table_and_destroy(fleet: FakeFleet, capsys) -> None:  # type: ig
                                                "RATE/S", "RETRIED", "ERROR"]
     assert bridges.splitlines()[1].split()[:8] == [
         "bridge.mosquitto.kafka", "mqtt-kafka", "running", "robot.abb-irb120.position", "out", "0", "0.0", "0"]
-    assert header.split() == ["ID", "KIND", "HOST:PORT", "STATUS", "PID", "UPTIME", "RESTARTS", "TOPICS"]
+    assert header.split() == ["ID", "KIND", "HOST:PORT", "STATUS", "PID", "UPTIME", "RESTARTS", "TOPICS",
+                              "ACCESS"]
     assert rows[0].split()[:4] == ["kafka", "kafka", "127.0.0.3:9092", "running"]
-    assert rows[0].split()[-1] == "2/2"
+    assert rows[0].split()[-2:] == ["2/2", "open"]  # nobody in the robot cell has a pk:secretRef
     code, out, _ = run(capsys, "destroy", PLANT, "--yes")
     assert code == 0 and "Destroy complete: 6 changed" in out
     assert fleet.brokers == {}
