@@ -3,8 +3,16 @@ is acknowledged only after Kafka confirmed the write.
 
 The producer is idempotent with ``acks=all`` and no delivery timeout: librdkafka retries a write
 that did not go through (Kafka down, a leader moving) itself, in order, for as long as it takes.
-A delivery that fails anyway (a permanent error: topic missing, not authorised) is produced again
-after a short backoff and counted in ``retried``; its MQTT message stays unacknowledged meanwhile.
+A delivery that fails anyway (a permanent error: topic missing, not authorised), or a produce call
+that librdkafka refuses at once (a topic it knows to be missing: ``_UNKNOWN_TOPIC``), is produced
+again after a short backoff and counted in ``retried``; its MQTT message stays unacknowledged
+meanwhile. While a topic has records waiting for a retry, its new records queue behind them, so
+the topic's order holds (other topics go on).
+
+A missing topic is expected for a while: plantkg's Kafka does not create topics on demand
+(``auto.create.topics.enable=false``, issue 13), and apply runs the bridge in its Mosquitto's lane,
+in parallel with the Kafka lane that creates the topic. librdkafka reports the topic missing after
+``topic.metadata.propagation.max.ms`` (30 s); the records are then retried until it exists.
 
 The record: value = the payload untouched; key = the MQTT topic (all of a topic's messages in one
 partition, in order) or none; headers ``mqtt.topic``, ``mqtt.qos``, ``mqtt.received_at`` (ms since
@@ -23,7 +31,7 @@ from dataclasses import dataclass, field
 from functools import partial
 
 import paho.mqtt.client as mqtt
-from confluent_kafka import KafkaError, Message, Producer
+from confluent_kafka import KafkaError, KafkaException, Message, Producer
 
 from engine.bridge_worker.config import Direction, KeyMode, Route, WorkerConfig
 from engine.bridge_worker.health import Health
@@ -71,6 +79,7 @@ class MqttToKafka:
         self._stopping = threading.Event()
         self._done = threading.Event()
         self._retries: list[_Retry] = []
+        self._parked: dict[str, tuple[int, float]] = {}  # topic -> (records in _retries, last due)
         self._retry_lock = threading.Lock()
         self._seq = 0
         self._thread = threading.Thread(target=self._poll_loop, name="kafka-producer", daemon=True)
@@ -96,11 +105,19 @@ class MqttToKafka:
         headers = [("mqtt.topic", msg.topic.encode("utf-8")), ("mqtt.qos", str(msg.qos).encode()),
                    ("mqtt.received_at", str(received_ms).encode()),
                    (BRIDGE_HEADER, self.cfg.bridge_id.encode("utf-8"))]
-        self._produce(route.kafka_topic, bytes(msg.payload), key, headers, received_ms, entry)
+        self._send((route.kafka_topic, bytes(msg.payload), key, headers, received_ms, entry))
 
-    def _produce(self, topic: str, value: bytes, key: bytes | None, headers: list, ts: int,
-                 entry: PendingAck | None) -> None:
-        args = (topic, value, key, headers, ts, entry)
+    def _send(self, args: tuple) -> None:
+        """Produce, unless older records of the topic wait for a retry: then queue behind them."""
+        with self._retry_lock:
+            parked = self._parked.get(args[0])
+            if parked is not None:
+                self._park(args, parked[1])
+                return
+        self._produce(args)
+
+    def _produce(self, args: tuple) -> None:
+        topic, value, key, headers, ts, _entry = args
         while True:
             try:
                 self.producer.produce(topic, value=value, key=key, headers=headers, timestamp=ts,
@@ -108,6 +125,23 @@ class MqttToKafka:
                 return
             except BufferError:  # librdkafka's queue is full: let deliveries drain it
                 self.producer.poll(0.05)
+            except KafkaException as exc:  # e.g. _UNKNOWN_TOPIC: the topic does not exist (yet)
+                self._retry_later(args, exc.args[0].str() if exc.args else str(exc))
+                return
+
+    def _retry_later(self, args: tuple, why: str) -> None:
+        self.health.count("retried")
+        self.health.error(f"Kafka delivery to {args[0]!r} failed: {why}; retrying")
+        with self._retry_lock:
+            self._park(args, time.monotonic() + RETRY_BACKOFF)
+
+    def _park(self, args: tuple, due: float) -> None:
+        """Queue ``args`` for a produce at ``due`` (the caller holds the retry lock)."""
+        count, last = self._parked.get(args[0], (0, due))
+        due = max(due, last)  # never before an older record of the same topic
+        self._parked[args[0]] = (count + 1, due)
+        self._seq += 1
+        heapq.heappush(self._retries, _Retry(due, self._seq, args))
 
     def _delivered(self, args: tuple, err: KafkaError | None, _msg: Message) -> None:
         """The producer thread: Kafka's answer about one record."""
@@ -117,11 +151,7 @@ class MqttToKafka:
             if entry is not None:
                 self.acks.confirm(entry)
             return
-        self.health.count("retried")
-        self.health.error(f"Kafka delivery to {args[0]!r} failed: {err.str()}; retrying")
-        with self._retry_lock:
-            self._seq += 1
-            heapq.heappush(self._retries, _Retry(time.monotonic() + RETRY_BACKOFF, self._seq, args))
+        self._retry_later(args, err.str())
 
     def _poll_loop(self) -> None:
         while not self._done.is_set():
@@ -133,9 +163,15 @@ class MqttToKafka:
         due = []
         with self._retry_lock:
             while self._retries and self._retries[0].due <= now:
-                due.append(heapq.heappop(self._retries).args)
-        for args in due:
-            self._produce(*args)
+                args = heapq.heappop(self._retries).args
+                count, last = self._parked[args[0]]
+                if count > 1:
+                    self._parked[args[0]] = (count - 1, last)
+                else:
+                    del self._parked[args[0]]
+                due.append(args)
+        for args in due:  # in order; one that fails again parks the rest of its topic behind it
+            self._send(args)
 
     def _connection_changed(self, up: bool, _generation: int) -> None:
         if not up:
