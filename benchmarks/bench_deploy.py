@@ -18,8 +18,11 @@ plantkg, each until a QoS-1 publish of a small message is acknowledged.
   ``--delay-ms`` (``benchmarks.delay_proxy``: orders to a second local agent, and the publish, go
   through it) — the delayed network where netem is missing, and a cross-check where it is not.
 - ``kafka-bare`` / ``kafka-plantkg``: the same for one Kafka (KRaft) broker — render
-  server.properties, format storage, start the JVM, until a produce with acks=all is acknowledged;
-  ``--kafka-runs`` runs (each takes seconds), interleaved likewise; ratio to ``kafka-bare``.
+  server.properties, format storage, start the JVM, create the topic, until a produce with
+  acks=all is acknowledged; ``--kafka-runs`` runs (each takes seconds), interleaved likewise;
+  ratio to ``kafka-bare``. The rendered broker does not auto-create topics (issue 13): bare
+  creates ``bench.t`` with an AdminClient (what ``kafka-topics.sh --create`` does), plantkg's
+  apply creates it because the plant declares it; neither path produces before the topic exists.
 
 Runs are interleaved so drift hits all alike. Results: ``benchmarks/results/deploy.{json,md}``,
 with min, max, mean, standard deviation, p50, p99 and the ratio of means to bare.
@@ -39,7 +42,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import paho.mqtt.client as mqtt
-from confluent_kafka import KafkaException, Producer
+from confluent_kafka import KafkaError, KafkaException, Producer
+from confluent_kafka.admin import AdminClient, NewTopic
 
 from benchmarks import netns
 from benchmarks.delay_proxy import DelayProxy
@@ -72,6 +76,10 @@ KAFKA_PLANT = """@prefix pk: <https://w3id.org/plantkg/ontology#> .
 :r a pk:Resource ; pk:id "r" ; pk:name "producer" ; pk:sendsTo :kafka ; pk:publishes :t .
 """
 KAFKA_READY_S = 120.0
+BENCH_TOPIC = "bench.t"
+# while the JVM starts: no controller / broker yet, or the request timed out
+_NOT_READY = (KafkaError._TRANSPORT, KafkaError._TIMED_OUT, KafkaError.REQUEST_TIMED_OUT,
+              KafkaError._ALL_BROKERS_DOWN, KafkaError.NOT_CONTROLLER)
 
 
 def acked_publish(host: str, port: int, deadline: float = 10.0) -> None:
@@ -95,19 +103,46 @@ def acked_publish(host: str, port: int, deadline: float = 10.0) -> None:
             time.sleep(0.0005)  # poll interval of the readiness check (a deadline bounds it)
 
 
+def create_topic(host: str, port: int, deadline: float = KAFKA_READY_S) -> None:
+    """Create BENCH_TOPIC (1 partition, 1 replica) on a starting broker, polling every 5 ms until
+    it is created or already there: the broker does not auto-create it."""
+    admin = AdminClient({"bootstrap.servers": f"{host}:{port}", "reconnect.backoff.ms": 5,
+                         "reconnect.backoff.max.ms": 50, "log_level": 0})
+    end = time.monotonic() + deadline
+    while True:
+        left = max(end - time.monotonic(), 0.1)
+        future = admin.create_topics([NewTopic(BENCH_TOPIC, 1, 1)], request_timeout=left)[BENCH_TOPIC]
+        try:
+            future.result(timeout=left)
+            return
+        except KafkaException as exc:
+            error = exc.args[0]
+            if error.code() == KafkaError.TOPIC_ALREADY_EXISTS:
+                return
+            if not error.retriable() and error.code() not in _NOT_READY:
+                raise
+            if time.monotonic() > end:
+                raise TimeoutError(f"Kafka on {host}:{port} never created {BENCH_TOPIC}: {error}") from None
+        finally:
+            del future  # its exception's traceback would keep the AdminClient alive
+        time.sleep(0.005)  # poll interval of the readiness check (a deadline bounds it)
+
+
 def acked_produce(host: str, port: int, deadline: float = KAFKA_READY_S) -> None:
-    """Produce PAYLOAD with acks=all until Kafka acknowledges it (the client retries meanwhile)."""
+    """Produce PAYLOAD with acks=all until Kafka acknowledges it (the client retries meanwhile).
+    The topic must exist: the broker does not create it on demand."""
     producer = Producer({"bootstrap.servers": f"{host}:{port}", "acks": "all", "linger.ms": 0,
                          "reconnect.backoff.ms": 5, "reconnect.backoff.max.ms": 50, "retry.backoff.ms": 5,
                          "message.timeout.ms": int(deadline * 1000), "log_level": 0})
     errors: list[object] = []
-    producer.produce("bench.t", PAYLOAD, on_delivery=lambda err, msg: errors.append(err))
+    producer.produce(BENCH_TOPIC, PAYLOAD, on_delivery=lambda err, msg: errors.append(err))
     if producer.flush(deadline) != 0 or errors != [None]:
         raise TimeoutError(f"Kafka on {host}:{port} never acknowledged: {errors}")
 
 
 def bare_kafka(work: Path) -> float:
-    """What a person does by hand: write server.properties, format storage, start, produce."""
+    """What a person does by hand: write server.properties, format storage, start, create the
+    topic, produce."""
     kafka, java = parts.kafka_parts(), parts.java_binary()
     port, controller = netutil.free_ports(2, HOST)
     broker_dir = work / f"kafka-bare-{port}"
@@ -120,6 +155,7 @@ def bare_kafka(work: Path) -> float:
     child = process.spawn(kafka_runtime.broker_command(kafka, java, properties, broker_dir / "logs"),
                           log_dir=broker_dir, name="kafka")
     try:
+        create_topic(HOST, port)
         acked_produce(HOST, port)
         return time.perf_counter() - start
     finally:

@@ -106,7 +106,9 @@ def measure_size(n: int, threads: int, requests: int, tmp: Path) -> dict[str, ob
     port = netutil.free_port()
     began = time.perf_counter()
     child = process.spawn([*plantkg_command(), "serve", plant, "--listen", f"127.0.0.1:{port}",
-                           "--agents", agents, "--token-file", token, "--observe-interval", "5"],
+                           "--agents", agents, "--token-file", token, "--observe-interval", "5",
+                           # every load thread is the same client (127.0.0.1): let all of them query
+                           "--max-queries", str(max(4, threads)), "--max-client-queries", str(threads)],
                           log_dir=tmp / "logs", name=f"serve-{n}")
     base = f"http://127.0.0.1:{port}"
     try:
