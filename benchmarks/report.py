@@ -30,6 +30,7 @@ SECTIONS = (
     ("fleet_tasks", "LoTLan transport orders over simulated AGVs against the ideal (the task planner)",
      ("fleet_tasks-paths.png", "fleet_tasks-gantt.png")),
     ("cli", "Command-line start-up against a bare Python start", ()),
+    ("security", "Mosquitto with users and ACLs against the same Mosquitto open (issue 13)", ()),
     ("validate", "Validation against pySHACL", ()),
     ("reason", "Reasoning against HermiT", ()),
 )
@@ -78,6 +79,8 @@ def goals(results: Path) -> list[tuple[str, str, str, str]]:
                     _verdict(median < 0.15)))
     for g in (_read(results, "context_broker") or {}).get("goals", []):  # verdicts computed by the study
         out.append((f"context broker: {g['goal']}", g["measured"], g["target"], _verdict(g["met"])))
+    for g in (_read(results, "security") or {}).get("goals", []):  # verdicts computed by the study
+        out.append((g["goal"], g["measured"], g["target"], _verdict(g["met"])))
     return out
 
 

@@ -28,6 +28,7 @@ MEASURES: dict[str, tuple[str, ...]] = {
     "fleet_join": ("fleet/manager", "fleet/discovery", "fleet/model", "engine/apply.py", "engine/agent"),
     "fleet_tasks": ("fleet/planner", "fleet/sim"),
     "cli": ("engine/cli",),
+    "security": ("engine/drivers/mosquitto.py", "engine/mosquitto_runtime.py"),
     "validate": ("kg", "shapes"),
     "reason": ("engine/reasoning/reason.py", "engine/reasoning/rules_fast.py", "engine/reasoning/rules_owlready.py", "ontology"),
 }
