@@ -5,7 +5,7 @@ send time):
 
 - ``raw``: paho publisher -> one Mosquitto -> paho subscriber;
 - ``mosquitto-bridge``: publisher -> Mosquitto A -> A's own bridge (rendered by
-  engine.mosquitto_runtime) -> Mosquitto B -> subscriber;
+  engine.drivers.mosquitto.runtime) -> Mosquitto B -> subscriber;
 - ``mqtt-kafka``: publisher -> Mosquitto -> bridge worker -> Kafka -> confluent consumer;
 - ``kafka-mqtt``: confluent producer -> Kafka -> bridge worker -> Mosquitto -> subscriber.
 
@@ -39,7 +39,7 @@ from benchmarks.common import RESULTS, machine, write_results
 from engine import process
 from engine.bridge_worker.config import Direction, Route, WorkerConfig
 from engine.errors import WaitTimeoutError
-from engine.mosquitto_runtime import MosquittoBridge, MosquittoBridgeTopic
+from engine.drivers.mosquitto.runtime import MosquittoBridge, MosquittoBridgeTopic
 
 PAYLOAD_SIZE = 100
 HEADER = struct.Struct("!QQ")  # index, send time (ns since the epoch)

@@ -1,6 +1,6 @@
 """Benchmark: plantkg's NGSI-v2 context broker against raw Mosquitto, measured in the same run.
 
-Everything runs on loopback: one Mosquitto (rendered by engine.mosquitto_runtime, as plantkg
+Everything runs on loopback: one Mosquitto (rendered by engine.drivers.mosquitto.runtime, as plantkg
 deploys it) and one ``python -m engine.context_broker`` (token file, tmp data folder).
 
 - **updates**: ``PATCH /v2/entities/{id}/attrs`` per second with 1, 8 and 32 concurrent clients

@@ -30,7 +30,7 @@ from paho.mqtt.enums import CallbackAPIVersion
 from benchmarks.bridge_rig import Mosquitto
 from benchmarks.common import RESULTS, command_line, machine, write_results
 from engine import process
-from engine.mosquitto_runtime import BRIDGE_RESTART_TIMEOUT, DEFAULT_PERSIST_EVERY, MosquittoBridge, MosquittoBridgeTopic
+from engine.drivers.mosquitto.runtime import BRIDGE_RESTART_TIMEOUT, DEFAULT_PERSIST_EVERY, MosquittoBridge, MosquittoBridgeTopic
 
 TOPIC = "bench/durability"
 UNSAFE = "1000000"  # the largest pk:persistEvery: saved in practice only on a clean stop

@@ -4,7 +4,7 @@ open to anonymous clients, in the same run.
 Issue 13 asks for "the cost of TLS and ACLs … with and without, same run; goal ≤ 15% throughput
 cost". TLS is not built yet and bridges at a closed broker are refused by the plan, so this
 measures what exists: two Mosquitto brokers rendered by the real driver
-(:class:`engine.drivers.mosquitto.MosquittoDriver`, files 0600 as the agent writes them) on free
+(:class:`engine.drivers.mosquitto.driver.MosquittoDriver`, files 0600 as the agent writes them) on free
 loopback ports, both up for the whole run:
 
 - ``open``: no users (``allow_anonymous true``, no password or ACL file);
@@ -47,7 +47,7 @@ from paho.mqtt.enums import CallbackAPIVersion
 from benchmarks.common import RESULTS, command_line, machine, percentile, write_results
 from engine import netutil, process
 from engine.agent.folder import RENDERED_MODE, write_atomic
-from engine.drivers.mosquitto import MosquittoDriver
+from engine.drivers.mosquitto.driver import MosquittoDriver
 from engine.model import BrokerSpec, BrokerUser
 
 HOST = "127.0.0.1"

@@ -1,6 +1,6 @@
 """Real brokers and bridge workers on loopback, for the bridge benchmark and the bridge tests.
 
-- :class:`Mosquitto`: one broker rendered by :mod:`engine.mosquitto_runtime` (so it has the
+- :class:`Mosquitto`: one broker rendered by :mod:`engine.drivers.mosquitto.runtime` (so it has the
   settings plantkg deploys: persistence, large queues), which can be SIGKILLed and started again
   with the same config and data folder.
 - :func:`respawn_kafka`: start a stopped or killed Kafka node again from its rendered
@@ -21,7 +21,7 @@ from confluent_kafka.admin import AdminClient, NewTopic
 from engine import kafka_runtime, netutil, parts, process
 from engine.bridge_worker.config import WorkerConfig
 from engine.bridge_worker.stats import WorkerStats, read_stats
-from engine.mosquitto_runtime import MosquittoBridge, MosquittoConfig, default_run_as, mosquitto_command, render_mosquitto_conf
+from engine.drivers.mosquitto.runtime import MosquittoBridge, MosquittoConfig, default_run_as, mosquitto_command, render_mosquitto_conf
 
 
 @dataclass

@@ -16,19 +16,19 @@ from typing import Any
 
 #: study -> the repository paths whose code it measures
 MEASURES: dict[str, tuple[str, ...]] = {
-    "deploy": ("engine/apply.py", "engine/agent", "engine/drivers", "engine/mosquitto_runtime.py"),
-    "load": ("engine/apply.py", "engine/agent", "engine/drivers", "engine/mosquitto_runtime.py"),
+    "deploy": ("engine/apply.py", "engine/agent", "engine/drivers"),
+    "load": ("engine/apply.py", "engine/agent", "engine/drivers"),
     "replan": ("kg", "shapes", "ontology", "engine/pipeline.py", "engine/derive.py", "engine/plan.py",
                "engine/reasoning/reason.py", "engine/reasoning/rules_fast.py"),
     "bridge": ("engine/bridge_worker", "engine/drivers"),
-    "durability": ("engine/bridge_worker", "engine/drivers", "engine/mosquitto_runtime.py"),
+    "durability": ("engine/bridge_worker", "engine/drivers"),
     "web": ("engine/web",),
     "context_broker": ("engine/context_broker",),
     "bridge_ngsi": ("engine/bridge_worker", "engine/context_broker"),
     "fleet_join": ("fleet/manager", "fleet/discovery", "fleet/model", "engine/apply.py", "engine/agent"),
     "fleet_tasks": ("fleet/planner", "fleet/sim"),
     "cli": ("engine/cli",),
-    "security": ("engine/drivers/mosquitto.py", "engine/mosquitto_runtime.py"),
+    "security": ("engine/drivers/mosquitto",),
     "validate": ("kg", "shapes"),
     "reason": ("engine/reasoning/reason.py", "engine/reasoning/rules_fast.py", "engine/reasoning/rules_owlready.py", "ontology"),
 }

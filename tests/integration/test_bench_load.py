@@ -66,7 +66,7 @@ def test_load_benchmark_bridge_arm(tmp_path: Path) -> None:
 
 def test_burst_refuses_more_one_to_one_messages_than_publishers(tmp_path: Path) -> None:
     from engine import netutil, process
-    from engine.mosquitto_runtime import MosquittoConfig, default_run_as, mosquitto_command, render_mosquitto_conf
+    from engine.drivers.mosquitto.runtime import MosquittoConfig, default_run_as, mosquitto_command, render_mosquitto_conf
     from engine.parts import mosquitto_binary
 
     port = netutil.free_port()

@@ -19,7 +19,8 @@ import pytest
 from paho.mqtt import client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
-from engine import mosquitto_runtime, netutil, parts, process
+from engine import netutil, parts, process
+from engine.drivers.mosquitto import runtime as mosquitto_runtime
 from engine.cli import main
 from engine.model import BridgeDirection, BridgeEnd, BridgeMechanism, BridgeRoute, BridgeSpec, BridgeStatus
 from tests.integration.agents import AgentFleet, start_agents

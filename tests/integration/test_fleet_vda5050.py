@@ -24,7 +24,8 @@ import pytest
 from paho.mqtt import client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
-from engine import mosquitto_runtime, netutil, parts, process
+from engine import netutil, parts, process
+from engine.drivers.mosquitto import runtime as mosquitto_runtime
 from fleet.vda5050 import schemas, topics
 from fleet.vda5050.errors import SchemaError
 from fleet.vda5050.headers import HeaderCounter

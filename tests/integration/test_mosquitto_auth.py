@@ -30,7 +30,7 @@ from paho.mqtt import client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
 from engine import netutil, process
-from engine.drivers.mosquitto import ACL_FILE, CONF_FILE, PASSWORD_FILE, MosquittoDriver
+from engine.drivers.mosquitto.driver import ACL_FILE, CONF_FILE, PASSWORD_FILE, MosquittoDriver
 from engine.errors import DispatchError
 from engine.model import BrokerSpec, BrokerStatus, BrokerUser
 from tests.integration.agents import AgentFleet, start_agents

@@ -17,7 +17,8 @@ from confluent_kafka.admin import AdminClient, NewTopic
 from paho.mqtt import client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
-from engine import mosquitto_runtime, netutil, parts, process
+from engine import netutil, parts, process
+from engine.drivers.mosquitto import runtime as mosquitto_runtime
 
 pytestmark = pytest.mark.integration
 

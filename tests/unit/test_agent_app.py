@@ -17,7 +17,7 @@ from engine import netutil
 from engine.agent.app import AgentState, create_app
 from engine.agent.manager import BrokerManager
 from engine.agent.procs import processes_mentioning, proc_info
-from engine.drivers.mosquitto import MosquittoDriver
+from engine.drivers.mosquitto.driver import MosquittoDriver
 from engine.drivers.registry import DriverRegistry
 
 TOKEN = "test-token-0123456789abcdef"

@@ -23,7 +23,7 @@ from engine.agent.server import (
     parse_listen,
     start_agent,
 )
-from engine.drivers.mosquitto import MosquittoDriver
+from engine.drivers.mosquitto.driver import MosquittoDriver
 from engine.drivers.registry import DriverRegistry
 from engine.errors import (
     AgentAuthError,

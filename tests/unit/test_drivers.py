@@ -18,7 +18,7 @@ from engine import netutil, parts, process
 from engine.drivers import registry as registry_module
 from engine.drivers.base import Driver, config_hash
 from engine.drivers.kafka import KafkaDriver, check_kafka_topic_name, read_controller_port
-from engine.drivers.mosquitto import MosquittoDriver, check_mqtt_topic_name
+from engine.drivers.mosquitto.driver import MosquittoDriver, check_mqtt_topic_name
 from engine.drivers.registry import DriverRegistry
 from engine.errors import (
     ConfigValueError,
@@ -305,9 +305,9 @@ def test_registries_are_independent() -> None:
 def test_a_broken_driver_entry_point_is_reported_not_fatal(monkeypatch: pytest.MonkeyPatch) -> None:
     group = registry_module.ENTRY_POINT_GROUP
     fake = [
-        EntryPoint("mosquitto", "engine.drivers.mosquitto:MosquittoDriver", group),
+        EntryPoint("mosquitto", "engine.drivers.mosquitto.driver:MosquittoDriver", group),
         EntryPoint("zeromq", "plantkg_zeromq_missing.driver:ZmqDriver", group),
-        EntryPoint("kafka", "engine.drivers.mosquitto:MosquittoDriver", group),  # wrong kind
+        EntryPoint("kafka", "engine.drivers.mosquitto.driver:MosquittoDriver", group),  # wrong kind
     ]
     monkeypatch.setattr(registry_module, "entry_points", lambda group: fake)
     registry = DriverRegistry.from_entry_points()

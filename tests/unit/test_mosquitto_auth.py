@@ -21,10 +21,10 @@ from pathlib import Path
 
 import pytest
 
-from engine import mosquitto_runtime as mr
+from engine.drivers.mosquitto import runtime as mr
 from engine.agent.folder import BrokerFolder
 from engine.drivers.base import config_hash
-from engine.drivers.mosquitto import (
+from engine.drivers.mosquitto.driver import (
     ACL_FILE,
     CONF_FILE,
     PASSWORD_FILE,

@@ -6,10 +6,11 @@ from pathlib import Path
 
 import pytest
 
-from engine import kafka_runtime, mosquitto_runtime
+from engine import kafka_runtime
+from engine.drivers.mosquitto import runtime as mosquitto_runtime
 from engine.errors import ConfigValueError, EngineError
 from engine.kafka_runtime import KafkaNodeConfig, render_server_properties
-from engine.mosquitto_runtime import DEFAULT_PERSIST_EVERY, MosquittoConfig, render_mosquitto_conf
+from engine.drivers.mosquitto.runtime import DEFAULT_PERSIST_EVERY, MosquittoConfig, render_mosquitto_conf
 from engine.parts import KafkaParts
 
 MOSQUITTO_GOLDEN = """\

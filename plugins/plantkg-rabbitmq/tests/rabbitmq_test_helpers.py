@@ -11,7 +11,8 @@ from pathlib import Path
 from paho.mqtt import client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
-from engine import mosquitto_runtime, netutil, parts, process
+from engine import netutil, parts, process
+from engine.drivers.mosquitto import runtime as mosquitto_runtime
 from engine.model import BrokerSpec
 from plantkg_rabbitmq import amqp
 

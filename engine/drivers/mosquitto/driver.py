@@ -1,6 +1,6 @@
 """The Mosquitto (MQTT) driver: ``mosquitto -c <broker dir>/mosquitto.conf``.
 
-Config and command line come from :mod:`engine.mosquitto_runtime`; persistence is on, in
+Config and command line come from :mod:`engine.drivers.mosquitto.runtime`; persistence is on, in
 ``<broker dir>/data/``. Bridges to other MQTT brokers are Mosquitto's own (``connection`` sections
 of the config, one per :class:`~engine.model.BridgeSpec` this broker carries); their state is read
 from the retained notifications Mosquitto publishes on the broker. MQTT has no topic list: a topic
@@ -31,7 +31,8 @@ from typing import Any
 from paho.mqtt import client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
-from engine import mosquitto_runtime, netutil, parts
+from engine import netutil, parts
+from engine.drivers.mosquitto import runtime as mosquitto_runtime
 from engine.drivers.base import (
     DATA_DIR,
     MQTT_TOPIC_FIELDS,
