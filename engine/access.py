@@ -7,11 +7,14 @@ by rule A1 of ``ontology/plantkg-access.ttl``) and subscribe to (``pk:mayRead``,
 of its topics the broker carries. Nothing here decides who may do what: the rules did.
 
 - :func:`broker_users` reads them (SPARQL over the asserted and inferred facts);
-- :func:`close_brokers` applies them to the derived specs: a broker with users admits nobody else
-  unless the plant says ``pk:allowAnonymous true``;
+- :func:`close_brokers` applies them to the derived specs: a Mosquitto admits only its users
+  (closed by default) unless the plant says ``pk:allowAnonymous true``;
+- :func:`with_bridge_principals` adds plantkg's own principal of each bridge to the broker it
+  logs in to (engine.security.principals): a Mosquitto bridge on its remote, a worker on its MQTT
+  broker, with exactly the topics it forwards there;
 - :func:`check_access_supported` refuses, before anything is deployed, what plantkg cannot run
-  yet: users on a broker whose driver renders none (only Mosquitto does), and a bridge at a closed
-  broker (it would need plantkg's own credentials on that broker);
+  yet: users on a broker whose driver renders none (only Mosquitto does), a resource whose
+  ``pk:id`` is one of plantkg's principal names;
 - :func:`open_broker_warnings` and :func:`access_label` say, in a plan and in ``status``, which
   brokers anyone on the network may use.
 """
@@ -25,10 +28,11 @@ from dataclasses import replace
 import pyoxigraph as ox
 
 from engine.errors import EngineError
-from engine.model import BridgeSpec, BrokerSpec, BrokerUser
+from engine.model import BridgeDirection, BridgeMechanism, BridgeSpec, BrokerSpec, BrokerUser
+from engine.security import mqtt_client, principals
 
 #: The broker kinds whose driver renders users and ACLs.
-USER_KINDS = frozenset({"mosquitto"})
+USER_KINDS = mqtt_client.USER_KINDS
 
 USERS = """
 SELECT ?b ?r ?rid ?ref ?t ?mode WHERE {
@@ -67,14 +71,45 @@ def broker_users(select: Callable[[str], Iterable[ox.QuerySolution]],
 
 def close_brokers(brokers: Iterable[BrokerSpec], users: Mapping[str, tuple[BrokerUser, ...]],
                   anonymous_said: frozenset[str]) -> list[BrokerSpec]:
-    """The specs with their users; a broker with users and no ``pk:allowAnonymous`` of its own
-    (``anonymous_said``: IRIs that state one) is closed (``allow_anonymous`` False)."""
+    """The specs with their users. A Mosquitto with no ``pk:allowAnonymous`` of its own
+    (``anonymous_said``: IRIs that state one) is closed (``allow_anonymous`` False): closed by
+    default, whether or not its clients have a ``pk:secretRef``."""
     out = []
     for spec in brokers:
         mine = users.get(spec.iri, ())
+        if spec.kind in USER_KINDS and spec.iri not in anonymous_said:
+            spec = replace(spec, allow_anonymous=False)
         if mine:
-            closed = spec.allow_anonymous if spec.iri in anonymous_said else False
-            spec = replace(spec, users=mine, allow_anonymous=closed)
+            spec = replace(spec, users=mine)
+        out.append(spec)
+    return out
+
+
+def with_bridge_principals(brokers: Iterable[BrokerSpec], bridges: Iterable[BridgeSpec]) -> list[BrokerSpec]:
+    """The specs with each bridge's principal as a user of the closed broker the bridge logs in to:
+    a Mosquitto bridge on its remote (writes what it sends there, reads what it fetches), a
+    worker on its MQTT broker (reads what it forwards to Kafka or the context broker, writes what
+    it brings back). A broker that admits anonymous clients and has no plant users gets none: it
+    has no users file, the bridge's login is not checked there, and a users file would cost its
+    anonymous persistent sessions the messages that arrive between a restart and their
+    reconnection (docs/security.md). Users stay sorted by name."""
+    extra: dict[str, list[BrokerUser]] = defaultdict(list)
+    for bridge in bridges:
+        at = bridge.remote if bridge.mechanism is BridgeMechanism.MOSQUITTO else bridge.local
+        # seen from the broker it logs in to: a Mosquitto bridge sends OUT routes to the remote;
+        # a worker reads OUT routes from its (local) MQTT broker
+        sends = {BridgeDirection.OUT, BridgeDirection.BOTH}
+        fetches = {BridgeDirection.IN, BridgeDirection.BOTH}
+        write, read = (sends, fetches) if bridge.mechanism is BridgeMechanism.MOSQUITTO else (fetches, sends)
+        extra[at.id].append(BrokerUser(
+            name=principals.bridge_principal(bridge.local.id, bridge.remote.id),
+            secret_ref=principals.PRINCIPAL_REF,
+            write=tuple(sorted(r.topic for r in bridge.routes if r.direction in write)),
+            read=tuple(sorted(r.topic for r in bridge.routes if r.direction in read))))
+    out = []
+    for spec in brokers:
+        if (is_closed(spec) or spec.users) and extra.get(spec.id):  # a broker with a users file
+            spec = replace(spec, users=tuple(sorted((*spec.users, *extra[spec.id]), key=lambda u: u.name)))
         out.append(spec)
     return out
 
@@ -84,9 +119,18 @@ def is_closed(spec: BrokerSpec) -> bool:
     return spec.kind in USER_KINDS and spec.allow_anonymous is False
 
 
-def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[BridgeSpec]) -> None:
-    """Refuse users on a broker whose driver renders none, and bridges at a closed broker."""
+def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[BridgeSpec] = ()) -> None:
+    """Refuse users on a broker whose driver renders none, plant users named like plantkg's own
+    principals (``plantkg.``...), and an MQTT <-> NGSI bridge bringing entities back to a TLS
+    broker (the context broker publishes its notifications over plain MQTT)."""
     by_id = {b.id: b for b in brokers}
+    for bridge in bridges:
+        if (bridge.mechanism is BridgeMechanism.NGSI and bridge.local.tls
+                and any(r.direction is not BridgeDirection.OUT for r in bridge.routes)):
+            raise AccessNotSupportedError(
+                f"{bridge.address}: broker {bridge.local.id!r} speaks TLS (pk:tls true), but the "
+                "context broker publishes its notifications to MQTT without TLS",
+                hint=f"keep {bridge.local.id!r} plain, or bridge only MQTT -> context broker there")
     for spec in by_id.values():
         if spec.users and spec.kind not in USER_KINDS:
             names = ", ".join(u.name for u in spec.users)
@@ -94,25 +138,25 @@ def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
                 f"broker {spec.id!r} ({spec.kind}): its clients {names} have a pk:secretRef, but "
                 f"plantkg renders users and ACLs for {', '.join(sorted(USER_KINDS))} brokers only (yet)",
                 hint="remove pk:secretRef from those resources, or let them send to a Mosquitto broker")
-    for bridge in bridges:
-        closed = [end.id for end in (bridge.local, bridge.remote) if end.id in by_id and is_closed(by_id[end.id])]
-        if closed:
+        reserved = [u.name for u in spec.users
+                    if principals.is_reserved(u.name) and u.secret_ref != principals.PRINCIPAL_REF]
+        if reserved:
             raise AccessNotSupportedError(
-                f"{bridge.address}: broker {closed[0]!r} is closed to anonymous clients (its clients "
-                "have a pk:secretRef), and a bridge at a closed broker needs plantkg's own "
-                "credentials there, which plantkg does not manage yet",
-                hint=f"keep {closed[0]!r} open (pk:allowAnonymous true) while it is bridged, or "
-                     "move the bridged topics to another broker")
+                f"broker {spec.id!r}: the resource with pk:id {reserved[0]!r} has a pk:secretRef, "
+                f"but user names starting with {principals.PREFIX!r} are plantkg's own principals",
+                hint="give the resource another pk:id")
 
 
 def access_label(spec: BrokerSpec) -> str:
     """Who may use the broker, in a word or two (``status``): ``users (N)`` for a closed
-    Mosquitto, ``token`` for a context broker whose writes need its agent's token, ``open``
-    (anyone who reaches it) otherwise. No broker plantkg runs speaks TLS yet."""
+    Mosquitto (N: the plant's users and the bridges' principals; plantkg's fixed principals not
+    counted), ``token`` for a context broker whose writes need its agent's token, ``open``
+    (anyone who reaches it) otherwise; ``, TLS`` when its listener speaks TLS only."""
     if spec.kind in USER_KINDS:
+        tls = ", TLS" if spec.tls else ""
         if spec.allow_anonymous is False:
-            return f"users ({len(spec.users)})"
-        return f"open + users ({len(spec.users)})" if spec.users else "open"
+            return f"users ({len(spec.users)}){tls}"
+        return (f"open + users ({len(spec.users)}){tls}" if spec.users else f"open{tls}")
     if spec.kind == "ngsi-v2":
         return "open" if spec.allow_anonymous else "token for writes"
     return "open"
@@ -126,10 +170,10 @@ def open_broker_warnings(brokers: Iterable[BrokerSpec]) -> tuple[str, ...]:
     for spec in sorted(brokers, key=lambda b: b.id):
         if spec.kind in USER_KINDS and spec.allow_anonymous is not False:
             why = ("the plant says pk:allowAnonymous true" if spec.allow_anonymous
-                   else "none of its clients has a pk:secretRef")
+                   else "its spec does not close it")
             out.append(f"broker.{spec.id} admits anonymous clients ({why}): anyone who reaches "
-                       f"{spec.host}:{spec.port} may publish and read every topic; give its "
-                       "clients a pk:secretRef to close it")
+                       f"{spec.host}:{spec.port} may publish and read every topic; remove "
+                       "pk:allowAnonymous (closed by default) and give its clients a pk:secretRef")
         elif spec.kind == "ngsi-v2" and spec.allow_anonymous:
             out.append(f"broker.{spec.id} (context broker) takes writes without its agent's token "
                        "(the plant says pk:allowAnonymous true): anyone who reaches "

@@ -215,4 +215,5 @@ def _end(spec: BrokerSpec, classes: Mapping[str, frozenset[str]]) -> BridgeEnd:
     ``pk:port`` speaks another protocol), every other broker at its ``pk:port``."""
     mqtt = MQTT_CLASS in classes.get(spec.id, frozenset()) and spec.mqtt_port is not None
     return BridgeEnd(id=spec.id, kind=spec.kind, host=spec.host,
-                     port=spec.mqtt_port if mqtt else spec.port)  # type: ignore[arg-type]
+                     port=spec.mqtt_port if mqtt else spec.port,  # type: ignore[arg-type]
+                     tls=spec.tls)

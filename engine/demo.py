@@ -14,6 +14,8 @@ and shows their attribute values (:mod:`engine.simulate_ngsi`).
 
 from __future__ import annotations
 
+import os
+import secrets
 import tempfile
 import threading
 import time
@@ -32,8 +34,9 @@ NGSI = "ngsi-v2"
 from kg.query import run_query
 
 FEEDS_QUERY = """
-SELECT ?resource ?topic ?value ?broker ?qos WHERE {
+SELECT ?resource ?topic ?value ?broker ?qos ?rid ?ref WHERE {
   ?r pk:publishes ?t ; pk:sendsTo ?b ; pk:name ?resource .
+  OPTIONAL { ?r pk:id ?rid } OPTIONAL { ?r pk:secretRef ?ref }
   ?b pk:hasTopic ?t ; pk:id ?broker .
   ?t pk:name ?topic .
   OPTIONAL { ?t pk:valueTopic ?value }
@@ -52,10 +55,26 @@ def feeds(files: list[str]) -> list[Feed]:
     brokers: dict[str, BrokerSpec] = {b.id: b for b in result.desired.brokers}
     out = []
     for row in run_query(result.plant, FEEDS_QUERY).rows:
-        resource, topic, value, broker, qos = (t.value if t is not None else None for t in row)
+        resource, topic, value, broker, qos, rid, ref = (t.value if t is not None else None for t in row)
         if broker in brokers:
-            out.append(Feed(resource or "", topic or "", value or "", brokers[broker], int(qos or 1)))
+            out.append(Feed(resource or "", topic or "", value or "", brokers[broker], int(qos or 1),
+                            user=rid, secret_ref=ref))
     return out
+
+
+def make_demo_secrets(plant_feeds: list[Feed], environ: dict[str, str] | None = None) -> list[str]:
+    """Give each resource whose ``pk:secretRef`` is an unset environment variable a random
+    password in this process's environment (the demo's agents inherit it; nothing is written to
+    disk); returns the variables set. A ``file:`` reference must exist already."""
+    env = os.environ if environ is None else environ
+    made = []
+    for feed in plant_feeds:
+        if feed.secret_ref and feed.secret_ref.startswith("env:"):
+            name = feed.secret_ref.removeprefix("env:")
+            if name not in env:
+                env[name] = secrets.token_urlsafe(24)
+                made.append(name)
+    return made
 
 
 def hosts_of(files: list[str]) -> list[str]:
@@ -137,7 +156,10 @@ def run_demo(files: list[str], run: Runner, *, duration: float | None, work_dir:
     desired = run_pipeline(files, None, observe=False).desired or DesiredState()
     via = bridged_in(desired)
     base = Path(work_dir) if work_dir else Path(tempfile.mkdtemp(prefix="plantkg-demo-"))
+    made = make_demo_secrets(plant_feeds)  # before the agents start: they inherit them
     click.secho(f"1. starting an agent on each machine of the plant: {', '.join(hosts)}", bold=True)
+    if made:
+        click.echo(f"   the resources' passwords: random, in this demo's environment ({', '.join(made)})")
     agents: LocalAgents = start_local_agents(hosts, base)
     stop = threading.Event()
     threads: list[threading.Thread] = []

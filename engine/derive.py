@@ -5,7 +5,9 @@ run), only what the ontology concluded:
 
 - a :class:`BrokerSpec` for every ``pk:DeployedBroker`` (kind = ``pk:brokerType``, host =
   ``pk:ip``, port = ``pk:port``; ``allow_anonymous`` = ``pk:allowAnonymous``, false on a
-  ``pk:ContextBroker`` that does not say, so a plan shows that writes need the token;
+  ``pk:ContextBroker`` or a Mosquitto that does not say (closed by default: engine.access), so
+  a plan shows who may connect; users from ``pk:secretRef`` and the bridges' principals;
+  ``tls`` = ``pk:tls`` (a TLS-only listener, Mosquitto);
   ``mqtt_port`` = ``pk:mqttPort``, the MQTT listener of a broker type that speaks MQTT beside its
   own protocol, which bridges from MQTT brokers connect to). A broker
   marked ``pk:external`` runs outside plantkg: it is left out of the brokers (and topics) to
@@ -38,7 +40,7 @@ from typing import Iterable
 
 import pyoxigraph as ox
 
-from engine.access import broker_users, check_access_supported, close_brokers
+from engine.access import broker_users, check_access_supported, close_brokers, with_bridge_principals
 from engine.errors import ConfigValueError, EngineError
 from engine.bridge_cycles import check_no_cycles
 from engine.bridge_pairs import DirectedBridge, TopicOptions, pair_bridges
@@ -63,12 +65,12 @@ _INTEGERS = {str(XSD[t]) for t in ("integer", "int", "long", "short", "byte", "n
                                     "unsignedByte", "negativeInteger", "nonPositiveInteger")}
 
 BROKERS = """
-SELECT ?b ?id ?name ?kind ?ip ?port ?mqtt ?persist ?anonymous ?external WHERE {
+SELECT ?b ?id ?name ?kind ?ip ?port ?mqtt ?persist ?anonymous ?external ?tls WHERE {
     ?b a pk:DeployedBroker .
     OPTIONAL { ?b pk:id ?id } OPTIONAL { ?b pk:name ?name } OPTIONAL { ?b pk:brokerType ?kind }
     OPTIONAL { ?b pk:ip ?ip } OPTIONAL { ?b pk:port ?port } OPTIONAL { ?b pk:persistEvery ?persist }
     OPTIONAL { ?b pk:allowAnonymous ?anonymous } OPTIONAL { ?b pk:external ?external }
-    OPTIONAL { ?b pk:mqttPort ?mqtt }
+    OPTIONAL { ?b pk:mqttPort ?mqtt } OPTIONAL { ?b pk:tls ?tls }
 }"""
 
 ANONYMOUS_SAID = """SELECT ?b WHERE { ?b a pk:DeployedBroker ; pk:allowAnonymous ?any }"""
@@ -184,6 +186,7 @@ def derive(plant: PlantGraph) -> DesiredState:
                            external=frozenset(by_iri[iri].id for iri in external))
     deployed = [b for b in brokers if b.iri not in external]
     check_access_supported(deployed, bridges)
+    deployed = with_bridge_principals(deployed, bridges)
     outside = {by_iri[iri].id for iri in external}
     return DesiredState(
         brokers=tuple(sorted(deployed, key=lambda b: b.address)),
@@ -236,7 +239,7 @@ def _brokers(plant: PlantGraph, rows: Iterable[ox.QuerySolution],
     values: dict[ox.NamedNode, dict[str, set[object]]] = defaultdict(lambda: defaultdict(set))
     for row in rows:
         slot = values[row["b"]]
-        for var in ("id", "name", "kind", "ip", "port", "mqtt", "persist", "anonymous", "external"):
+        for var in ("id", "name", "kind", "ip", "port", "mqtt", "persist", "anonymous", "external", "tls"):
             if row[var] is not None:
                 slot[var].add(row[var])
     out = []
@@ -253,9 +256,10 @@ def _brokers(plant: PlantGraph, rows: Iterable[ox.QuerySolution],
                      if slot["anonymous"] else (False if CONTEXT_BROKER in classes[node.value] else None))
         if slot["external"] and _boolean(plant, node, "external", _one(plant, node, "external", slot["external"])):
             external.add(node.value)
+        tls = bool(slot["tls"]) and _boolean(plant, node, "tls", _one(plant, node, "tls", slot["tls"]))
         out.append(BrokerSpec(id=got["id"].value, iri=node.value, name=got["name"].value,
                               kind=got["kind"].value, host=got["ip"].value, port=port,
-                              persist_every=persist, allow_anonymous=anonymous, mqtt_port=mqtt))
+                              persist_every=persist, allow_anonymous=anonymous, mqtt_port=mqtt, tls=tls))
     return _unique(out, "broker"), external
 
 

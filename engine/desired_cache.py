@@ -36,7 +36,7 @@ from engine.model import (
 from kg import resources, shape_plugins
 from kg.validate import ValidationReport, ValidationResult
 
-FORMAT = 2  # 2: the desired state holds its owner
+FORMAT = 3  # 2: the desired state holds its owner; 3: closed Mosquittos, bridge principals, tls
 
 
 def default_dir() -> Path:

@@ -72,6 +72,7 @@ class BrokerSpec:
     users: tuple[BrokerUser, ...] = ()  # the clients it admits and their ACLs (sorted by name); a
                                         # broker with users is closed to anonymous clients unless
                                         # the plant says pk:allowAnonymous true
+    tls: bool = False       # pk:tls — the listener speaks TLS only (a plant-CA certificate)
 
     @property
     def address(self) -> str:
@@ -134,6 +135,7 @@ class BridgeEnd:
     kind: str
     host: str
     port: int
+    tls: bool = False       # the broker's listener speaks TLS: connect with it, verify with the plant CA
 
 
 @dataclass(frozen=True)
@@ -223,6 +225,8 @@ class ObservedBroker:
     config_hash: str | None = None
     last_error: str | None = None
     owner: str | None = None              # the plant that owns it on its agent (None: nobody)
+    tls_renew: str | None = None          # why its TLS certificate must be issued again (the
+                                          # agent's check, e.g. "expires 2027-02-26"); None: current
 
 
 @dataclass(frozen=True)

@@ -44,6 +44,21 @@ def mosquitto_binary() -> Path:
     raise MosquittoMissingError("mosquitto", "PATH, " + ", ".join(map(str, SBIN_DIRS)))
 
 
+#: Where Mosquitto's dynamic security plugin may be (Debian's package: /usr/lib/<arch>/).
+PLUGIN_DIRS = (Path("/usr/lib"), Path("/usr/local/lib"), Path("/usr/lib64"))
+
+
+def mosquitto_dynsec_plugin() -> Path:
+    """Mosquitto's dynamic security plugin (``mosquitto_dynamic_security.so``, shipped with
+    Debian's ``mosquitto``): closed brokers load it for their users and ACLs."""
+    name = "mosquitto_dynamic_security.so"
+    for folder in PLUGIN_DIRS:
+        for candidate in (folder / name, *sorted(folder.glob(f"*/{name}"))):
+            if candidate.is_file():
+                return candidate
+    raise MosquittoMissingError(name, ", ".join(f"{d}, {d}/*" for d in PLUGIN_DIRS))
+
+
 def java_binary() -> Path:
     """The ``java`` executable: PATH first, then ``$JAVA_HOME/bin/java``."""
     found = shutil.which("java")

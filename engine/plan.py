@@ -70,7 +70,7 @@ from engine.model import (
 #: Broker fields whose change needs a new broker process (the agent restarts it): Terraform's
 #: "forces replacement". Every other BrokerSpec field is changed in place.
 REPLACE_FIELDS: tuple[str, ...] = ("kind", "host", "port", "persist_every", "allow_anonymous", "mqtt_port",
-                                   "users")
+                                   "users", "tls")
 #: Replace fields after which the broker starts empty (its topics are created again).
 NEW_BROKER_FIELDS: tuple[str, ...] = ("kind", "host")
 
@@ -103,11 +103,14 @@ _DELETE_ORDER = {"bridge": 0, "topic": 1, "broker": 2}
 
 def broker_essence(spec: BrokerSpec) -> dict[str, Any]:
     """The fields of a broker the plan compares (all of BrokerSpec), as JSON-able values; no
-    ``users`` key for a broker without users (most), so plans of open brokers read as before.
-    A user shows its secret reference, never a secret (the plan has none)."""
-    out = {f.name: getattr(spec, f.name) for f in fields(spec) if f.name != "users"}
+    ``users`` key for a broker without users, and no ``tls`` key for a plain one, so plans of
+    other brokers read as before. A user shows its secret reference, never a secret (the plan
+    has none)."""
+    out = {f.name: getattr(spec, f.name) for f in fields(spec) if f.name not in ("users", "tls")}
     if spec.users:
         out["users"] = to_dict(spec.users)
+    if spec.tls:
+        out["tls"] = True
     return out
 
 
@@ -116,6 +119,9 @@ def bridge_essence(spec: BridgeSpec) -> dict[str, Any]:
     no unset optional route field (a route's entity id and type belong to NGSI bridges only)."""
     data = to_dict(spec)
     data.pop("asserted")
+    for end in ("local", "remote"):  # a plain end reads as before TLS existed
+        if not data[end]["tls"]:
+            del data[end]["tls"]
     data["routes"] = [{k: v for k, v in route.items() if v is not None} for route in data["routes"]]
     return data
 
@@ -314,6 +320,11 @@ def _broker_change(spec: BrokerSpec, have: ObservedBroker | None) -> Change:
     if have.status is BrokerStatus.STOPPED_BY_OPERATOR:
         return Change(spec.address, Action.NOOP, before, after,
                       f"stopped by the operator: `plantkg start {spec.id}` starts it")
+    if have.tls_renew is not None and have.status is BrokerStatus.RUNNING:
+        return Change(spec.address, Action.UPDATE, {**before, "tls_certificate": have.tls_renew},
+                      {**after, "tls_certificate": "renewed"},
+                      f"its TLS certificate is due ({have.tls_renew}): the agent issues a new one "
+                      "and restarts the broker")
     if have.status in RESTART_STATUSES:
         detail = f": {have.last_error}" if have.last_error else ""
         return Change(spec.address, Action.UPDATE,

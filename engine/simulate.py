@@ -23,6 +23,9 @@ import paho.mqtt.client as mqtt
 from confluent_kafka import Consumer, Producer
 
 from engine.model import BrokerSpec
+from engine.security import principals
+from engine.security.mqtt_client import MqttLogin, apply_login, apply_tls, secure
+from engine.security.secrets import read_secret
 
 
 @dataclass(frozen=True)
@@ -34,10 +37,18 @@ class Feed:
     value: str           # pk:valueTopic: what the payload is
     broker: BrokerSpec
     qos: int = 1
+    user: str | None = None        # the resource's pk:id: its user name where it has a secret
+    secret_ref: str | None = None  # its pk:secretRef (env:NAME or file:/path), read here
 
     @property
     def rate_hz(self) -> float:
         return 10.0 if self.broker.kind == "mosquitto" else 1.0
+
+    def login(self) -> MqttLogin | None:
+        """The resource's login (its pk:id and the secret its reference points to), if it has one."""
+        if self.secret_ref is None or self.user is None:
+            return None
+        return MqttLogin(self.user, read_secret(f"{self.user}.secretRef", self.secret_ref))
 
 
 def payload(feed: Feed, n: int, t: float) -> bytes:
@@ -90,6 +101,8 @@ class Source(threading.Thread):
             # id, or the broker drops each connection when the next one with that id arrives
             client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2,
                                  client_id=f"demo-{self.feed.resource}-{self.feed.topic}")
+            apply_tls(client, b.tls)
+            apply_login(client, self.feed.login())
             client.connect(b.host, b.port)
             client.loop_start()
             publish = lambda data: client.publish(self.feed.topic, data, qos=self.feed.qos).wait_for_publish(5)
@@ -148,6 +161,7 @@ class Tap(threading.Thread):
                 consumer.close()
             return
         client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"demo-tap-{b.id}")
+        secure(client, b.kind, principals.OBSERVER, b.tls)
         client.on_message = lambda _c, _u, m: self._record(m.topic, m.payload)
         client.on_subscribe = lambda *_: self.ready.set()
         client.connect(b.host, b.port)

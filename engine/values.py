@@ -89,16 +89,20 @@ def check_ngsi_id(field: str, value: object) -> str:
 
 
 #: Where a secret is, never the secret: an environment variable or an absolute file path of the
-#: machine that reads it (docs/security.md).
-SECRET_REF = re.compile(r"env:[A-Za-z_][A-Za-z0-9_]{0,127}|file:/[^\s\x00-\x1f\x7f\\]{1,4095}")
+#: machine that reads it (docs/security.md); ``plantkg:principal-key`` for plantkg's own
+#: principals, whose passwords derive from the plant's principal key (engine.security).
+SECRET_REF = re.compile(r"env:[A-Za-z_][A-Za-z0-9_]{0,127}|file:/[^\s\x00-\x1f\x7f\\]{1,4095}"
+                        r"|plantkg:principal-key")
 #: A broker user name: a resource's pk:id (one word of a password or ACL file: no ':' or blank).
 BROKER_USER = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,127}")
 
 
 def check_secret_ref(field: str, value: object) -> str:
-    """``env:NAME`` or ``file:/absolute/path``: a reference to a secret, not a secret."""
+    """``env:NAME``, ``file:/absolute/path`` or ``plantkg:principal-key``: a reference to a
+    secret, not a secret."""
     if not isinstance(value, str) or not SECRET_REF.fullmatch(value):
-        shown = value if isinstance(value, str) and value[:4] in ("env:", "file") else "(not shown)"
+        shown = (value if isinstance(value, str) and value.startswith(("env:", "file:", "plantkg:"))
+                 else "(not shown)")
         raise ConfigValueError(field, shown, "must be env:NAME or file:/absolute/path, where the "
                                "secret is on the broker's machine; never the secret itself")
     return value

@@ -49,8 +49,23 @@ def no_leftover_children(request: pytest.FixtureRequest):
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    """Keep the desired-state cache of every test run (and of the commands it spawns) in a folder
-    of its own, never in the user's ~/.cache."""
+    """Keep the desired-state cache, the principal key and the plant CA of every test run (and of
+    the commands it spawns) in folders of their own, never in the user's ~/.cache or ~/.local;
+    give the example plants' resources their throwaway passwords."""
     import tempfile
 
     os.environ["PLANTKG_CACHE_DIR"] = tempfile.mkdtemp(prefix="plantkg-test-cache-")
+    # plantkg's principal key (engine.security.principal_key): one per test run, never the user's
+    key_dir = tempfile.mkdtemp(prefix="plantkg-test-key-")
+    os.environ["PLANTKG_PRINCIPAL_KEY"] = os.path.join(key_dir, "principal-key")
+    os.environ["PLANTKG_CA_DIR"] = os.path.join(key_dir, "ca")  # the plant CA, likewise
+    # The example plants' resources log in with passwords their pk:secretRef "env:NAME" names
+    # (closed brokers): give each a throwaway one, as `plantkg demo` does; agents inherit them.
+    import re
+    import secrets
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    for plant in [*root.glob("ontology/examples/*.ttl"), *root.glob("notebooks/plants/*.ttl")]:
+        for name in re.findall(r'pk:secretRef\s+"env:([A-Za-z_][A-Za-z0-9_]*)"', plant.read_text(encoding="utf-8")):
+            os.environ.setdefault(name, secrets.token_urlsafe(16))

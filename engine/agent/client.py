@@ -17,9 +17,11 @@ from __future__ import annotations
 import http.client
 import json
 import socket
+import ssl
 import urllib.error
 import urllib.parse
 import urllib.request
+from pathlib import Path
 from typing import Any
 
 from engine.agent.wire import (
@@ -29,6 +31,7 @@ from engine.agent.wire import (
     observed_topic_from_json,
 )
 from engine.errors import AgentAuthError, PermanentDispatchError, TemporaryDispatchError
+from engine.security import ca
 from engine.model import (
     BridgeSpec,
     BrokerSpec,
@@ -42,11 +45,20 @@ from engine.model import (
 DEFAULT_BROKER_TIMEOUT = 150.0
 
 
+def tls_client_context(ca_file: Path | None = None) -> ssl.SSLContext:
+    """Verifies the agent's certificate and address against the plant CA only (TLS 1.2+)."""
+    context = ssl.create_default_context(cafile=str(ca_file or ca.ca_cert_file()))
+    context.minimum_version = ssl.TLSVersion.TLSv1_2
+    return context
+
+
 class AgentClient:
     """One agent at ``base_url`` (e.g. ``http://127.0.0.2:7300``) with its bearer token."""
 
     def __init__(self, base_url: str, token: str, *, timeout: float = 30.0,
-                 broker_timeout: float = DEFAULT_BROKER_TIMEOUT) -> None:
+                 broker_timeout: float = DEFAULT_BROKER_TIMEOUT, ca_file: Path | None = None) -> None:
+        """``ca_file``: the CA certificate an https agent is verified against (default: the
+        plant CA's ``ca.pem``, engine.security.ca)."""
         parsed = urllib.parse.urlsplit(base_url)
         if parsed.scheme not in ("http", "https") or not parsed.hostname:
             raise ValueError(f"agent URL {base_url!r} must be http(s)://host:port")
@@ -55,8 +67,12 @@ class AgentClient:
         self.timeout = timeout
         self.broker_timeout = max(broker_timeout, timeout)
         self._token = token
-        # Agents are addressed directly: never send their token through an HTTP proxy.
-        self._opener = urllib.request.build_opener(urllib.request.ProxyHandler({}))
+        # Agents are addressed directly: never send their token through an HTTP proxy. An https
+        # agent is verified against the plant CA (engine.agent.tls), never the system's store.
+        handlers: list[urllib.request.BaseHandler] = [urllib.request.ProxyHandler({})]
+        if parsed.scheme == "https":
+            handlers.append(urllib.request.HTTPSHandler(context=tls_client_context(ca_file)))
+        self._opener = urllib.request.build_opener(*handlers)
 
     def __repr__(self) -> str:  # no token in logs
         return f"AgentClient({self.base_url!r})"
@@ -157,6 +173,12 @@ class AgentClient:
                 raise self._http_error(what, exc.code, exc.read()) from None
         except (urllib.error.URLError, http.client.HTTPException, OSError) as exc:
             reason = exc.reason if isinstance(exc, urllib.error.URLError) else exc
+            if isinstance(reason, ssl.SSLCertVerificationError):
+                raise PermanentDispatchError(
+                    f"agent {self.base_url}: {what}: its TLS certificate is not trusted "
+                    f"({reason.verify_message})",
+                    hint="verify agents against the plant CA that issued their certificates "
+                         "(its ca.pem; PLANTKG_CA_DIR)", host=self.host) from None
             if isinstance(reason, (socket.timeout, TimeoutError)):
                 problem = f"no answer within {timeout or self.timeout:.0f} s"
             else:

@@ -18,6 +18,7 @@ from pathlib import Path
 from engine import netutil, process
 from engine.agent.client import AgentClient
 from engine.errors import DispatchError
+from engine.security import ca, principal_key
 
 AGENT_READY_S = 30.0
 
@@ -69,19 +70,25 @@ def plantkg_command() -> list[str]:
     return [sys.executable, "-m", "engine.cli"]
 
 
-def start_local_agents(hosts: list[str], work_dir: Path) -> LocalAgents:
-    """Start one agent per host under ``work_dir``; on failure, stop those already started."""
+def start_local_agents(hosts: list[str], work_dir: Path, *, tls: bool = False) -> LocalAgents:
+    """Start one agent per host under ``work_dir``; on failure, stop those already started.
+    ``tls``: each serves its API over HTTPS with a certificate of the plant CA."""
     agents: dict[str, LocalAgent] = {}
+    # one principal key for all of them and for this process's own clients (check, the demo's taps)
+    key = principal_key.key_file().resolve()
+    principal_key.load_or_create_key(key)
+    ca_folder = ca.ca_dir().resolve()  # the CA too (created when a TLS broker first needs it)
     try:
         for host in hosts:
             port = netutil.free_port(host)
             state = work_dir / f"agent-{host}"
             child = process.spawn(
                 [*plantkg_command(), "agent", "--listen", f"{host}:{port}", "--state-dir", state,
-                 "--stop-brokers-on-exit"],
+                 "--stop-brokers-on-exit", "--principal-key", key, "--ca-dir", ca_folder,
+                 *(["--tls"] if tls else [])],
                 log_dir=work_dir / "logs", name=f"agent-{host}",
             )
-            agent = LocalAgent(host, f"http://{host}:{port}", state, child)
+            agent = LocalAgent(host, f"{'https' if tls else 'http'}://{host}:{port}", state, child)
             agents[host] = agent
             process.wait_until(
                 lambda a=agent: (a.state_dir / "token").is_file() and a.client().health(),

@@ -543,6 +543,9 @@ class BrokerManager:
                 owner=record.owner,
             )
             held = b.held
+        renewal = getattr(driver, "tls_renewal", None)  # drivers with TLS listeners (Mosquitto)
+        if renewal is not None and spec.tls:
+            observed = replace(observed, tls_renew=renewal(spec, b.folder.path))
         topics: list[ObservedTopic] = []
         if driver is not None and driver.implicit_topics:
             topics = b.folder.read_topics()

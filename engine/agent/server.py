@@ -25,12 +25,14 @@ from typing import IO
 
 from werkzeug.serving import BaseWSGIServer, make_server
 
+from engine.agent import tls
 from engine.agent.app import AgentState, create_app
 from engine.agent.manager import BrokerManager
 from engine.agent.workers import WorkerManager
 from engine.drivers.base import AGENT_TOKEN_FILE_ENV
 from engine.drivers.registry import DriverRegistry
 from engine.errors import EngineError
+from engine.security import ca, principal_key
 
 log = logging.getLogger(__name__)
 
@@ -43,11 +45,12 @@ LOCK_FILE = "agent.lock"
 class ListenAddress:
     host: str
     port: int
+    tls: bool = False   # the API speaks HTTPS (engine.agent.tls)
 
     @property
     def url(self) -> str:
         host = f"[{self.host}]" if ":" in self.host else self.host
-        return f"http://{host}:{self.port}"
+        return f"{'https' if self.tls else 'http'}://{host}:{self.port}"
 
 
 def parse_listen(text: str, *, allow_remote: bool = False) -> ListenAddress:
@@ -144,8 +147,11 @@ class RunningAgent:
     manager: BrokerManager
     lock: IO[str]
     workers: WorkerManager | None = None
+    tls_stop: threading.Event | None = None   # ends the certificate renewer (TLS only)
 
     def shutdown(self, *, stop_brokers: bool = False) -> None:
+        if self.tls_stop is not None:
+            self.tls_stop.set()
         self.server.shutdown()
         self.thread.join()
         self.server.server_close()
@@ -174,17 +180,22 @@ def start_agent(
     workers = WorkerManager(state_dir).open()
     app = create_app(AgentState(manager, token, name or f"plantkg-agent@{listen.url}", workers))
     try:
-        server = make_server(listen.host, listen.port, app, threaded=True)
-    except (OSError, SystemExit) as exc:  # werkzeug exits when the port is taken
+        context = tls.server_context(state_dir, listen.host) if listen.tls else None
+        server = make_server(listen.host, listen.port, app, threaded=True, ssl_context=context)
+    except (OSError, SystemExit, ca.CaError) as exc:  # werkzeug exits when the port is taken
         workers.close()
         manager.close()
         lock.close()
         raise EngineError(f"cannot listen on {listen.url}: {exc}",
                           hint="pick another --listen port, or stop what uses it") from None
-    address = ListenAddress(listen.host, server.server_port)
+    address = ListenAddress(listen.host, server.server_port, listen.tls)
     thread = threading.Thread(target=server.serve_forever, name="plantkg-http", daemon=True)
     thread.start()
-    return RunningAgent(address, server, thread, manager, lock, workers)
+    tls_stop = None
+    if context is not None:
+        tls_stop = threading.Event()
+        tls.start_renewer(context, state_dir, listen.host, tls_stop)
+    return RunningAgent(address, server, thread, manager, lock, workers, tls_stop)
 
 
 def wait_for_signal(signals: tuple[signal.Signals, ...] = (signal.SIGTERM, signal.SIGINT),
@@ -211,19 +222,27 @@ def wait_for_signal(signals: tuple[signal.Signals, ...] = (signal.SIGTERM, signa
 
 def run_agent(listen: ListenAddress, state_dir: Path, token_file: Path | None, *,
               stop_brokers_on_exit: bool = False, name: str | None = None,
-              out: IO[str] = sys.stderr) -> int:
+              out: IO[str] = sys.stderr, principal_key_file: Path | None = None,
+              ca_dir: Path | None = None) -> int:
     """The ``plantkg agent`` command: start, print where things are, serve until a signal."""
     state_dir = state_dir.resolve()
     state_dir.mkdir(parents=True, exist_ok=True, mode=0o700)
     token_path = (token_file or state_dir / TOKEN_FILE).resolve()
     token, created = load_or_create_token(token_path)
     os.environ[AGENT_TOKEN_FILE_ENV] = str(token_path)   # brokers that check the agent's token
+    key_path = principal_key.key_file(principal_key_file).resolve()
+    key_new = not key_path.exists()
+    principal_key.load_or_create_key(key_path)            # refuses an unusable key before serving
+    os.environ[principal_key.KEY_ENV] = str(key_path)     # drivers, brokers and workers derive logins
+    if ca_dir is not None:  # TLS brokers' certificates are issued from it (created on first need)
+        os.environ[ca.CA_ENV] = str(ca_dir.resolve())
     agent = start_agent(listen, state_dir, token, name=name)
 
     def ready() -> None:
         print(f"plantkg agent listening on {agent.address.url}", file=out)
         print(f"  state dir: {state_dir}", file=out)
         print(f"  token:     {token_path}" + (" (new)" if created else ""), file=out)
+        print(f"  principal key: {key_path}" + (" (new)" if key_new else ""), file=out)
         print(f"  drivers:   {', '.join(agent.manager.registry.kinds()) or 'none'}", file=out)
         out.flush()
 

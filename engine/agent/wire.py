@@ -122,9 +122,10 @@ def broker_spec_from_json(data: Any, where: str = "", *, strict: bool = True) ->
     if mqtt_port is not None:
         _checked(where, check_port, "mqtt_port", mqtt_port)
     users = _typed(data, "users", (list,), where, optional=True) or []
+    tls = _typed(data, "tls", (bool,), where, optional=True) or False
     return BrokerSpec(id=broker_id, iri=iri, name=name, kind=kind, host=host, port=port,
                       persist_every=persist, allow_anonymous=anonymous, mqtt_port=mqtt_port,
-                      users=_users(users, _join(where, "users")))
+                      users=_users(users, _join(where, "users")), tls=tls)
 
 
 def _users(items: list[Any], where: str) -> tuple[BrokerUser, ...]:
@@ -206,6 +207,7 @@ def observed_broker_from_json(data: Any, where: str = "") -> ObservedBroker:
         config_hash=_typed(data, "config_hash", (str,), where, optional=True),
         last_error=_typed(data, "last_error", (str,), where, optional=True),
         owner=_typed(data, "owner", (str,), where, optional=True),
+        tls_renew=_typed(data, "tls_renew", (str,), where, optional=True),
     )
 
 
@@ -228,7 +230,8 @@ def _bridge_end(data: Any, where: str, strict: bool) -> BridgeEnd:
     host = _typed(data, "host", (str,), where)
     _checked(where, check_host, "host", host)
     port = _checked(where, check_port, "port", _typed(data, "port", (int,), where))
-    return BridgeEnd(id=end_id, kind=kind, host=host, port=port)
+    tls = _typed(data, "tls", (bool,), where, optional=True) or False
+    return BridgeEnd(id=end_id, kind=kind, host=host, port=port, tls=tls)
 
 
 def _bridge_route(data: Any, where: str, strict: bool) -> BridgeRoute:

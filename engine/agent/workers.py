@@ -57,6 +57,8 @@ from engine.bridge_worker.ngsi_config import NgsiDirection, NgsiRoute, NgsiWorke
 from engine.bridge_worker.stats import read_stats
 from engine.drivers.base import LOGS_DIR, config_hash
 from engine.errors import ConfigValueError, EngineError
+from engine.security import ca, principals
+from engine.security.mqtt_client import USER_KINDS
 from engine.model import (
     BridgeDirection,
     BridgeMechanism,
@@ -100,7 +102,8 @@ def worker_config(spec: BridgeSpec, state_dir: Path) -> WorkerConfig:
         bridge_id=folder_name(spec.local.id, spec.remote.id),
         mqtt_host=spec.local.host, mqtt_port=spec.local.port,
         kafka_bootstrap=f"{host_in_url(spec.remote.host)}:{spec.remote.port}",
-        routes=tuple(routes), state_dir=state_dir,
+        routes=tuple(routes), state_dir=state_dir, mqtt_username=_mqtt_login(spec),
+        mqtt_ca_file=_mqtt_ca(spec),
     )
 
 
@@ -124,7 +127,21 @@ def ngsi_worker_config(spec: BridgeSpec, state_dir: Path, token_file: Path | Non
         mqtt_host=spec.local.host, mqtt_port=spec.local.port,
         ngsi_url=f"http://{host_in_url(spec.remote.host)}:{spec.remote.port}",
         routes=tuple(routes), state_dir=state_dir, token_file=token_file,
+        mqtt_username=_mqtt_login(spec), mqtt_ca_file=_mqtt_ca(spec),
     )
+
+
+def _mqtt_ca(spec: BridgeSpec) -> Path | None:
+    """The plant CA's certificate when the worker's MQTT broker speaks TLS."""
+    return ca.ca_cert_file() if spec.local.tls else None
+
+
+def _mqtt_login(spec: BridgeSpec) -> str | None:
+    """The worker's principal on its MQTT broker where plantkg renders users (engine.access
+    makes it a user there), else None (anonymous)."""
+    if spec.local.kind not in USER_KINDS:
+        return None
+    return principals.bridge_principal(spec.local.id, spec.remote.id)
 
 
 def _config_text(spec: BridgeSpec, folder: Path, remote_token: str | None) -> str:

@@ -82,8 +82,16 @@ class WorkerConfig:
     routes: tuple[Route, ...]
     state_dir: Path
     stats_interval: float = 0.5
+    #: The worker's user on its MQTT broker (a plantkg principal, engine.security.principals): the
+    #: worker derives its password from the principal key; None: anonymous.
+    mqtt_username: str | None = None
+    #: The plant CA's certificate: the MQTT broker speaks TLS, verified against it; None: plain.
+    mqtt_ca_file: Path | None = None
 
     def __post_init__(self) -> None:
+        check_mqtt_username(self.mqtt_username)
+        if self.mqtt_ca_file is not None:
+            object.__setattr__(self, "mqtt_ca_file", check_path("mqtt_ca_file", self.mqtt_ca_file))
         if not isinstance(self.bridge_id, str) or not _BRIDGE_ID.fullmatch(self.bridge_id):
             raise ConfigValueError("bridge_id", self.bridge_id, "must be 1 to 200 of A-Z a-z 0-9 _ . -")
         object.__setattr__(self, "mqtt_host", check_host("mqtt_host", self.mqtt_host))
@@ -118,6 +126,8 @@ class WorkerConfig:
             "bridge_id": self.bridge_id, "mqtt_host": self.mqtt_host, "mqtt_port": self.mqtt_port,
             "kafka_bootstrap": self.kafka_bootstrap, "routes": [r.to_dict() for r in self.routes],
             "state_dir": str(self.state_dir), "stats_interval": self.stats_interval,
+            "mqtt_username": self.mqtt_username,
+            "mqtt_ca_file": None if self.mqtt_ca_file is None else str(self.mqtt_ca_file),
         }, indent=2)
 
     @classmethod
@@ -127,6 +137,14 @@ class WorkerConfig:
             raise ConfigValueError("state_dir", values["state_dir"], "must be a path string")
         values["state_dir"] = Path(values["state_dir"])
         return cls(**values)
+
+
+def check_mqtt_username(value: object) -> None:
+    """None, or a plantkg principal's name (the worker derives its password; nothing else)."""
+    if value is not None and (not isinstance(value, str) or not value.startswith("plantkg.")
+                              or not _BRIDGE_ID.fullmatch(value)):
+        raise ConfigValueError("mqtt_username", value, "must be null or a plantkg principal "
+                               "(plantkg.<letters, digits, _ . ->)")
 
 
 def worker_json_fields(cls: type, text: str, route: Any) -> dict[str, Any]:

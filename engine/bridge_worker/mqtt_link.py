@@ -28,6 +28,7 @@ from paho.mqtt.subscribeoptions import SubscribeOptions
 from engine.bridge_worker.config import Direction, WorkerConfig
 from engine.bridge_worker.health import Health
 from engine.bridge_worker.ngsi_config import NgsiWorkerConfig
+from engine.security import principal_key
 
 log = logging.getLogger("plantkg.bridge.mqtt")
 
@@ -57,6 +58,10 @@ class MqttLink:
         self._subscriptions = [(topic, SubscribeOptions(qos=qos, noLocal=True)) for topic, qos in topics]
         client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=cfg.client_id,
                              protocol=mqtt.MQTTv5, manual_ack=True)
+        if cfg.mqtt_username is not None:  # a plantkg principal: its password derives from the key
+            client.username_pw_set(cfg.mqtt_username, principal_key.password_for(cfg.mqtt_username))
+        if cfg.mqtt_ca_file is not None:   # the broker speaks TLS: verify it against the plant CA
+            client.tls_set(ca_certs=str(cfg.mqtt_ca_file))
         client.reconnect_delay_set(*RECONNECT_DELAY)
         client.max_inflight_messages_set(RECEIVE_MAXIMUM)
         client.max_queued_messages_set(0)

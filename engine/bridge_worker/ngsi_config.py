@@ -27,6 +27,7 @@ from engine.bridge_worker.config import (
     _check_mqtt_topic,
     _enum,
     _fields_of,
+    check_mqtt_username,
     worker_json_fields,
 )
 from engine.bridge_worker.ngsi_mapping import Refused, check_name
@@ -90,11 +91,16 @@ class NgsiWorkerConfig:
     token_file: Path | None = None
     stats_interval: float = 0.5
     check_every: float = 30.0      # seconds between checks that the subscriptions are still right
+    mqtt_username: str | None = None  # as WorkerConfig.mqtt_username
+    mqtt_ca_file: Path | None = None  # as WorkerConfig.mqtt_ca_file
     mechanism: str = MECHANISM
 
     def __post_init__(self) -> None:
         if self.mechanism != MECHANISM:
             raise ConfigValueError("mechanism", self.mechanism, f"must be {MECHANISM!r}")
+        check_mqtt_username(self.mqtt_username)
+        if self.mqtt_ca_file is not None:
+            object.__setattr__(self, "mqtt_ca_file", check_path("mqtt_ca_file", self.mqtt_ca_file))
         if not isinstance(self.bridge_id, str) or not _BRIDGE_ID.fullmatch(self.bridge_id):
             raise ConfigValueError("bridge_id", self.bridge_id, "must be 1 to 200 of A-Z a-z 0-9 _ . -")
         object.__setattr__(self, "mqtt_host", check_host("mqtt_host", self.mqtt_host))
@@ -141,6 +147,8 @@ class NgsiWorkerConfig:
             "routes": [r.to_dict() for r in self.routes], "state_dir": str(self.state_dir),
             "token_file": str(self.token_file) if self.token_file is not None else None,
             "stats_interval": self.stats_interval, "check_every": self.check_every,
+            "mqtt_username": self.mqtt_username,
+            "mqtt_ca_file": None if self.mqtt_ca_file is None else str(self.mqtt_ca_file),
         }, indent=2)
 
     @classmethod

@@ -23,6 +23,7 @@ from typing import Any
 from engine.bridge_worker.ngsi_client import NgsiClient, NgsiError
 from engine.bridge_worker.ngsi_config import NgsiDirection, NgsiRoute, NgsiWorkerConfig
 from engine.bridge_worker.ngsi_health import NgsiHealth
+from engine.security import principal_key
 
 log = logging.getLogger("plantkg.bridge.ngsi-subscriptions")
 
@@ -40,14 +41,16 @@ def owned_by(bridge_id: str, sub: dict[str, Any]) -> bool:
 
 
 def subscription_body(cfg: NgsiWorkerConfig, route: NgsiRoute) -> dict[str, Any]:
-    """The subscription of one ``ngsi-to-mqtt`` route, as POSTed."""
+    """The subscription of one ``ngsi-to-mqtt`` route, as POSTed. With an MQTT user (a closed
+    broker), the context broker publishes the notifications as the bridge's own principal: its
+    ``user`` and ``passwd`` (Orion's fields; the context broker never shows the password back)."""
+    mqtt: dict[str, Any] = {"url": cfg.mqtt_url, "topic": route.mqtt_topic, "qos": route.qos}
+    if cfg.mqtt_username is not None:
+        mqtt.update(user=cfg.mqtt_username, passwd=principal_key.password_for(cfg.mqtt_username))
     return {
         "description": description(cfg.bridge_id, route.mqtt_topic),
         "subject": {"entities": [{"id": route.entity_id, "type": route.entity_type}]},
-        "notification": {
-            "mqtt": {"url": cfg.mqtt_url, "topic": route.mqtt_topic, "qos": route.qos},
-            "attrsFormat": "keyValues",
-        },
+        "notification": {"mqtt": mqtt, "attrsFormat": "keyValues"},
     }
 
 
@@ -61,7 +64,7 @@ def _essence(sub: dict[str, Any]) -> tuple[Any, ...]:
                      for e in subject.get("entities") or [] if isinstance(e, dict))
     condition = subject.get("condition") or {}
     return (sub.get("description"), entities, bool(condition.get("attrs")),
-            bool((condition.get("expression") or {})), mqtt.get("url"), mqtt.get("topic"),
+            bool((condition.get("expression") or {})), mqtt.get("url"), mqtt.get("topic"), mqtt.get("user"),
             int(mqtt.get("qos", 0) or 0), notification.get("attrsFormat", "normalized"),
             tuple(notification.get("attrs") or ()), sub.get("status", "active") in ("active", "failed"))
 

@@ -49,6 +49,7 @@ class Stop:
     port: int
     hops: int                   # bridges from the publishing broker (0: the source)
     via: tuple[Link, ...] = ()  # every bridge of the flow that delivers the topic here
+    tls: bool = False           # the broker's listener speaks TLS (pk:tls)
 
     @property
     def watchable(self) -> bool:
@@ -111,7 +112,7 @@ def flow_of(desired: DesiredState, publication: Publication) -> Flow | None:
         via = () if broker_id == source.id else tuple(sorted(
             {link for src, dst, link in links if dst == broker_id and src in hops},
             key=lambda link: (link.source, link.bridge)))
-        stops.append(Stop(spec.id, spec.kind, spec.host, spec.port, count, via))
+        stops.append(Stop(spec.id, spec.kind, spec.host, spec.port, count, via, tls=spec.tls))
     return Flow(publication.resource_id, publication.resource, publication.topic, tuple(stops))
 
 

@@ -32,6 +32,8 @@ from paho.mqtt.properties import Properties
 from paho.mqtt.subscribeoptions import SubscribeOptions
 
 from engine.errors import EngineError
+from engine.security import principals
+from engine.security.mqtt_client import secure
 from engine.values import host_in_url
 
 PROBE_MARK = "plantkg-check"
@@ -50,6 +52,7 @@ class Endpoint:
     kind: str
     host: str
     port: int
+    tls: bool = False   # an MQTT listener that speaks TLS (verified against the plant CA)
 
     @property
     def address(self) -> str:
@@ -128,6 +131,7 @@ class MqttTap(Tap):
         super().__init__(endpoint, topics)
         self._client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, protocol=mqtt.MQTTv5,
                                    client_id=f"plantkg-check-{uuid.uuid4().hex[:12]}")
+        secure(self._client, endpoint.kind, principals.OBSERVER, endpoint.tls)
         self._connected, self._subscribed = threading.Event(), threading.Event()
         self._refused: list[str] = []
         self._client.on_connect = self._on_connect
@@ -264,6 +268,7 @@ def _publish_kafka(endpoint: Endpoint, topic: str, probe_id: str, payload: bytes
 def _publish_mqtt(endpoint: Endpoint, topic: str, probe_id: str, payload: bytes, timeout: float) -> None:
     client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, protocol=mqtt.MQTTv5,
                          client_id=f"plantkg-check-probe-{uuid.uuid4().hex[:12]}")
+    secure(client, endpoint.kind, principals.CHECK, endpoint.tls)
     props = Properties(PacketTypes.PUBLISH)
     props.UserProperty = (PROBE_MARK, probe_id)
     connected = threading.Event()

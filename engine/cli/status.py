@@ -254,10 +254,10 @@ def typed_broker_rows(desired: DesiredState, observed: ObservedState, now: float
             "uptime_s": round(now - have.started_at, 3) if alive and have and have.started_at else None,
             "restarts": have.restarts if have else None,
             "topics_present": None if present == "?" else int(present), "topics_wanted": int(wanted),
-            # who may use it as it runs (None: nothing runs); no broker plantkg runs speaks TLS yet
+            # who may use it as it runs, and whether its listener speaks TLS (None: nothing runs)
             "anonymous": None if have is None else _anonymous(have.spec),
             "users": None if have is None else len(have.spec.users),
-            "tls": None if have is None else False,
+            "tls": None if have is None else have.spec.tls,
         })
     return out
 

@@ -101,7 +101,7 @@ def rate_targets(desired: DesiredState | None, observed: ObservedState | None,
     for broker_id, topics in by_broker.items():
         spec, have = desired.broker(broker_id), observed.broker(broker_id)
         assert spec is not None and have is not None
-        targets.append(RateTarget(Endpoint(spec.id, spec.kind, spec.host, spec.port),
+        targets.append(RateTarget(Endpoint(spec.id, spec.kind, spec.host, spec.port, spec.tls),
                                   tuple(sorted(set(topics))), have.pid))
     return tuple(sorted(targets, key=lambda t: t.endpoint.broker))
 

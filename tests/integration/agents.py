@@ -75,9 +75,10 @@ def _alive(pid: int) -> bool:
     return state not in ("Z", "X")
 
 
-def start_agents(hosts: list[str], tmp_path: Path) -> AgentFleet:
-    """One agent per host on a free port of that host; the agents file lists them."""
-    return AgentFleet(start_local_agents(hosts, tmp_path))
+def start_agents(hosts: list[str], tmp_path: Path, *, tls: bool = False) -> AgentFleet:
+    """One agent per host on a free port of that host; the agents file lists them. ``tls``: the
+    agents serve HTTPS (certificates of the test run's plant CA)."""
+    return AgentFleet(start_local_agents(hosts, tmp_path, tls=tls))
 
 
 def plant_copy(example: str, tmp_path: Path, ports: dict[int, list[tuple[str, int]]] | None = None,

@@ -15,7 +15,7 @@ from engine import netutil, process
 from engine.model import BridgeStatus
 from engine.cli import main
 from tests.integration.agents import plant_copy, start_agents
-from tests.integration.test_apply_robot_cell import kafka_partitions, kafka_roundtrip, mqtt_roundtrip
+from tests.integration.test_apply_robot_cell import as_prober, kafka_partitions, kafka_roundtrip, mqtt_roundtrip
 
 pytestmark = pytest.mark.integration
 
@@ -38,8 +38,9 @@ def test_multi_machine_plant_on_three_agents(tmp_path: Path, capsys: pytest.Capt
         assert "Plan: 24 to create, 0 to update, 0 to replace, 0 to destroy." in out, out
         brokers = fleet.brokers()
         assert {b: brokers[b].spec.host for b in HOSTS} == HOSTS  # type: ignore[attr-defined]
-        mqtt_roundtrip(HOSTS["mosquitto-a"], ports["mosquitto-a"], "cell-a/plc-a/robot-command")
-        mqtt_roundtrip(HOSTS["mosquitto-b"], ports["mosquitto-b"], "fleet/agv/command")
+        # closed brokers: plantkg's own principals publish (check) and read (observer)
+        mqtt_roundtrip(HOSTS["mosquitto-a"], ports["mosquitto-a"], "cell-a/plc-a/robot-command", as_prober)
+        mqtt_roundtrip(HOSTS["mosquitto-b"], ports["mosquitto-b"], "fleet/agv/command", as_prober)
         bootstrap = f"{HOSTS['kafka']}:{ports['kafka']}"
         assert kafka_partitions(bootstrap, "plant.kpi") >= 1
         kafka_roundtrip(bootstrap, "plant.kpi")

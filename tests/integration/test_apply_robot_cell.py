@@ -18,7 +18,7 @@ import signal
 import re
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,6 +32,7 @@ from paho.mqtt.enums import CallbackAPIVersion
 from engine import netutil, process
 from engine.cli import main
 from engine.model import BridgeStatus
+from engine.security import principal_key, principals
 from kg.namespaces import PK
 from tests.integration.agents import AgentFleet, plant_copy, set_port, start_agents
 
@@ -59,6 +60,26 @@ class Cell:
                 for i, b in self.fleet.brokers().items()}
 
 
+#: The robot cell's Mosquitto is closed: the ROS machine logs in with the password its
+#: pk:secretRef names (env:PLANTKG_ROS_MACHINE_PASSWORD: tests/conftest.py made a throwaway one,
+#: which the agents inherit).
+ROS_ENV = "PLANTKG_ROS_MACHINE_PASSWORD"
+ROS_PASSWORD = os.environ[ROS_ENV]  # tests/conftest.py made it
+
+
+def as_ros_machine(client: mqtt.Client) -> mqtt.Client:
+    """The ROS machine publishes the position (its write right)."""
+    client.username_pw_set("ros-machine", ROS_PASSWORD)
+    return client
+
+
+def as_observer(client: mqtt.Client) -> mqtt.Client:
+    """plantkg's observer principal reads every topic (nobody of the plant reads the position on
+    Mosquitto: only the bridge worker and plantkg's taps do)."""
+    client.username_pw_set(principals.OBSERVER, principal_key.password_for(principals.OBSERVER))
+    return client
+
+
 @pytest.fixture(scope="module")
 def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Cell]:
     tmp = tmp_path_factory.mktemp("robot-cell")
@@ -72,16 +93,24 @@ def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Cell]:
 
 # ------------------------------------------------------------------------------------ clients
 
-def mqtt_roundtrip(host: str, port: int, topic: str) -> None:
-    """Subscribe, publish one QoS-1 message, receive it (paho)."""
+def as_prober(client: mqtt.Client) -> mqtt.Client:
+    """plantkg's check principal writes every topic (as ``plantkg check --probe`` does)."""
+    client.username_pw_set(principals.CHECK, principal_key.password_for(principals.CHECK))
+    return client
+
+
+def mqtt_roundtrip(host: str, port: int, topic: str,
+                   publisher: Callable[[mqtt.Client], mqtt.Client] = as_ros_machine) -> None:
+    """Subscribe (as plantkg's observer), publish one QoS-1 message (as ``publisher``: the ROS
+    machine by default), receive it (paho)."""
     received: queue.Queue[mqtt.MQTTMessage] = queue.Queue()
     subscribed: queue.Queue[object] = queue.Queue()
     clients = []
     try:
-        sub = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"plantkg-it-sub-{uuid.uuid4().hex[:6]}")
+        sub = as_observer(mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"plantkg-it-sub-{uuid.uuid4().hex[:6]}"))
         sub.on_message = lambda _c, _u, msg: received.put(msg)
         sub.on_subscribe = lambda _c, _u, _mid, codes, _p: subscribed.put(codes)
-        pub = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"plantkg-it-pub-{uuid.uuid4().hex[:6]}")
+        pub = publisher(mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"plantkg-it-pub-{uuid.uuid4().hex[:6]}"))
         for client in (sub, pub):
             clients.append(client)
             client.connect(host, port, keepalive=10)
@@ -137,7 +166,7 @@ def assert_bridged(mqtt_host: str, mqtt_port: int, bootstrap: str, topic: str) -
     """A QoS-1 message published on Mosquitto arrives on Kafka, payload untouched, with the MQTT
     topic as key and in a header (the bridge worker may still be connecting: poll until it is)."""
     payload = json.dumps({"probe": uuid.uuid4().hex}).encode()
-    pub = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"it-pub-{uuid.uuid4().hex[:8]}")
+    pub = as_ros_machine(mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"it-pub-{uuid.uuid4().hex[:8]}"))
     pub.connect(mqtt_host, mqtt_port)
     pub.loop_start()
     consumer = Consumer({"bootstrap.servers": bootstrap, "group.id": f"it-{uuid.uuid4().hex[:8]}",
@@ -203,7 +232,7 @@ def test_a_killed_bridge_worker_is_restarted_by_its_agent_and_loses_nothing(cell
     consumer = Consumer({"bootstrap.servers": f"{KAFKA_HOST}:{cell.ports['kafka']}",
                          "group.id": f"it-{run_id}", "auto.offset.reset": "earliest"})
     consumer.subscribe([POSITION])
-    pub = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"it-pub-{run_id}")
+    pub = as_ros_machine(mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"it-pub-{run_id}"))
     pub.max_inflight_messages_set(100)
     pub.max_queued_messages_set(0)
     pub.connect(MQTT_HOST, cell.ports["mosquitto"])
@@ -325,7 +354,9 @@ def test_removing_a_broker_stops_it(cell: Cell, capsys: pytest.CaptureFixture[st
     without_broker(cell.plant, "kafka", smaller)
     code, out, err = cell.run(capsys, "plan", smaller, "--agents", cell.fleet.agents_file)
     assert code == 0, out + err
-    assert "Plan: 0 to create, 0 to update, 0 to replace, 4 to destroy." in out
+    # the bridge worker's principal leaves Mosquitto's users: its ACL changes, it restarts
+    assert "Plan: 0 to create, 0 to update, 1 to replace, 4 to destroy." in out
+    assert "-/+ broker.mosquitto must be replaced" in out
     assert out.index(f"- topic.kafka.{ENERGY}") < out.index("- broker.kafka")
     assert "- bridge.mosquitto.kafka will be destroyed" in out
     code, out, err = cell.run(capsys, "apply", smaller, "--agents", cell.fleet.agents_file, "--yes")

@@ -16,6 +16,7 @@ state); NGSI -> MQTT by an MQTT subscriber of the route's topic.
 from __future__ import annotations
 
 import json
+import os
 import stat
 import threading
 import time
@@ -97,10 +98,13 @@ class MqttCounter:
     """A persistent-session QoS-1 subscriber: the ``seq`` of every notification on ``topic``
     (and, apart, every other message)."""
 
-    def __init__(self, port: int, topic: str, client_id: str = "test-counter", host: str = "127.0.0.1") -> None:
+    def __init__(self, port: int, topic: str, client_id: str = "test-counter", host: str = "127.0.0.1",
+                 login: tuple[str, str] | None = None) -> None:
         self.seqs: list[int] = []
         self.other: list[bytes] = []
         client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id, protocol=mqtt.MQTTv5)
+        if login is not None:
+            client.username_pw_set(*login)
         client.reconnect_delay_set(1, 1)
         client.on_message = self._message
         granted = threading.Event()
@@ -149,11 +153,14 @@ def check(label: str, seqs: list[int], count: int, *, ordered: bool = True) -> i
 # --- senders ------------------------------------------------------------------------------------
 
 def publish(port: int, count: int, *, topic: str = TOPIC, rate: float | None = RATE,
-            extra: Callable[[int], dict] = lambda i: {}, host: str = "127.0.0.1") -> threading.Thread:
+            extra: Callable[[int], dict] = lambda i: {}, host: str = "127.0.0.1",
+            login: tuple[str, str] | None = None) -> threading.Thread:
     """``count`` QoS-1 messages ``{"seq": i, ...}`` (paced at ``rate``/s, or as fast as they go);
     the thread ends when all are PUBACKed."""
     client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"test-publisher-{topic}",
                          protocol=mqtt.MQTTv5)
+    if login is not None:
+        client.username_pw_set(*login)
     client.max_inflight_messages_set(100)
     client.connect(host, port)
     client.loop_start()
@@ -562,10 +569,13 @@ def test_apply_of_the_agv_middleware_plant_bridges_mqtt_and_the_context_broker(
         assert main(["plan", str(plant), *agents]) == 0
         assert cb_token not in capsys.readouterr().out
 
-        counter = MqttCounter(mqtt_port, "agv-1/motion_channel", "test-motion", host="127.0.0.2")
+        # the plant's Mosquitto is closed: the AGV interface publishes its status and reads its
+        # motion commands with its own password (tests/conftest.py made a throwaway one)
+        agv = ("agv-interface-1", os.environ["PLANTKG_AGV_INTERFACE_1_PASSWORD"])
+        counter = MqttCounter(mqtt_port, "agv-1/motion_channel", "test-motion", host="127.0.0.2", login=agv)
         try:
             publish(mqtt_port, 1, topic="agv-1/status_channel", rate=None, host="127.0.0.2",
-                    extra=lambda i: {"state": "idle", "battery": 87}).join(30)
+                    extra=lambda i: {"state": "idle", "battery": 87}, login=agv).join(30)
             http = Http("127.0.0.3", cb_port)  # the context broker the agent runs
 
             def status_entity() -> dict | None:

@@ -13,6 +13,7 @@ what is left and checks that no broker process survived.
 from __future__ import annotations
 
 import json
+import os
 import threading
 import uuid
 from collections.abc import Iterator
@@ -130,6 +131,8 @@ def test_passive_passes_while_the_resources_publish(cell: Cell, sources: list[So
 
 def _publish_retained(port: int, payload: bytes) -> None:
     client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"it-check-{uuid.uuid4().hex[:8]}")
+    # the robot cell's Mosquitto is closed: as the ROS machine (its throwaway password: conftest)
+    client.username_pw_set("ros-machine", os.environ["PLANTKG_ROS_MACHINE_PASSWORD"])
     client.connect(MQTT_HOST, port)
     client.loop_start()
     try:

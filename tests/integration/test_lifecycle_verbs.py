@@ -234,7 +234,7 @@ LOOP_PLANT = """\
 @prefix : <http://example.org/held-plant#> .
 <http://example.org/held-plant> a owl:Ontology .
 :cell a pk:Broker ; pk:id "cell" ; pk:name "cell broker" ; pk:brokerType "mosquitto" ;
-    pk:ip "{host}" ; pk:port {port} ; pk:hasTopic :pose .
+    pk:ip "{host}" ; pk:port {port} ; pk:hasTopic :pose ; pk:allowAnonymous true .
 :pose a pk:Topic ; pk:id "pose" ; pk:name "cell/pose" ; pk:qos 1 .
 """
 

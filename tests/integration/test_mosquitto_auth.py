@@ -6,8 +6,9 @@ user, so that a topic someone may write is also subscribed to by someone who may
 whose passwords it reads on its own machine: robot1's from a file, hmi's and plc's from the agent's
 environment. Throwaway passwords, made per test run.
 
-Mosquitto 2.0 with an ``acl_file`` grants every subscription and filters what it delivers (its
-author, eclipse/mosquitto#2042): a topic a user may not read is never delivered to it, whatever the
+The broker's users file (the dynamic security plugin's, engine.drivers.mosquitto.dynsec) grants
+every subscription and filters what it delivers, as Mosquitto 2.0's ACL file did (its author,
+eclipse/mosquitto#2042): a topic a user may not read is never delivered to it, whatever the
 SUBACK said. A publish on a topic a user may not write is acknowledged and dropped (MQTT 3.1.1).
 Ordering makes "never delivered" checkable: Mosquitto handles one connection's packets in order and
 writes each client's messages in order, so once a later message arrived, an earlier one would have. paho and Debian's ``mosquitto_pub``/``mosquitto_sub`` (independent clients; their ``-P``
@@ -16,6 +17,7 @@ shows the throwaway password in ps, acceptable in a test) then check what the br
 
 from __future__ import annotations
 
+import json
 import secrets
 import shutil
 import stat
@@ -30,9 +32,11 @@ from paho.mqtt import client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
 from engine import netutil, process
-from engine.drivers.mosquitto.driver import ACL_FILE, CONF_FILE, PASSWORD_FILE, MosquittoDriver
+from engine.drivers.mosquitto import dynsec
+from engine.drivers.mosquitto.driver import CONF_FILE, USERS_FILE, MosquittoDriver
 from engine.errors import DispatchError
 from engine.model import BrokerSpec, BrokerStatus, BrokerUser
+from engine.security import principal_key, principals
 from tests.integration.agents import AgentFleet, start_agents
 
 pytestmark = pytest.mark.integration
@@ -130,7 +134,7 @@ def test_closed_broker_admits_its_users_with_their_acls(cell: dict) -> None:
         assert hmi.subscribe("cell/pose") == 1
         assert robot.subscribe("cell/cmd") == 1
         # hmi may not read cell/cmd: Mosquitto may refuse the subscription (0x80) or grant it
-        # and deliver nothing (2.0 with acl_file); what matters is that nothing arrives
+        # and deliver nothing (plantkg's users file); what matters is that nothing arrives
         assert hmi.subscribe("cell/cmd") in (1, 0x80)
         robot.publish("cell/cmd", b"robot1 may only read cell/cmd")   # dropped: no write right
         robot.publish("cell/other", b"robot1 may not write here")     # dropped
@@ -148,16 +152,46 @@ def test_closed_broker_admits_its_users_with_their_acls(cell: dict) -> None:
             client.close()
 
 
-def test_password_and_acl_files_are_0600_and_hold_no_password(cell: dict) -> None:
+def test_users_file_is_0600_and_holds_no_password(cell: dict) -> None:
     folder: Path = cell["folder"]
-    for name in (PASSWORD_FILE, ACL_FILE, CONF_FILE):
+    for name in (USERS_FILE, CONF_FILE):
         assert stat.S_IMODE((folder / name).stat().st_mode) == 0o600, name
-    texts = {name: (folder / name).read_text() for name in (PASSWORD_FILE, ACL_FILE, CONF_FILE)}
+    texts = {name: (folder / name).read_text() for name in (USERS_FILE, CONF_FILE)}
     for text in texts.values():
         assert cell["robot"] not in text and cell["hmi"] not in text
     assert "allow_anonymous false" in texts[CONF_FILE].splitlines()
-    assert [line.split(":")[0] for line in texts[PASSWORD_FILE].splitlines()] == ["hmi", "plc", "robot1"]
-    assert all(line.split(":")[1].startswith("$7$101$") for line in texts[PASSWORD_FILE].splitlines())
+    clients = json.loads(texts[USERS_FILE])["clients"]
+    assert [c["username"] for c in clients] == [
+        "hmi", "plantkg.agent", "plantkg.check", "plantkg.observer", "plc", "robot1"]  # + plantkg's own
+    assert all(c["iterations"] == 101 for c in clients)
+    assert dynsec.matches(texts[USERS_FILE], "robot1", cell["robot"])
+
+
+def test_plantkgs_own_principals_do_exactly_their_job(cell: dict) -> None:
+    """plantkg.observer (the dashboard's and check's taps) reads every topic and writes none;
+    plantkg.check writes (check's probes) and reads none; plantkg.agent reads only $SYS; each
+    logs in with the password derived from the principal key this test run's agent uses."""
+    port = cell["spec"].port
+    login = {name: (name, principal_key.password_for(name))
+             for name in (principals.OBSERVER, principals.CHECK, principals.AGENT)}
+    observer, check, agent, hmi = (Mqtt(port, *login[principals.OBSERVER]), Mqtt(port, *login[principals.CHECK]),
+                                   Mqtt(port, *login[principals.AGENT]), Mqtt(port, "hmi", cell["hmi"]))
+    try:
+        assert observer.accepted and check.accepted and agent.accepted and hmi.accepted
+        for client in (observer, check, agent, hmi):
+            client.subscribe("cell/pose")
+        observer.publish("cell/pose", b"the observer may not write")  # dropped
+        check.publish("cell/pose", b"probe")                           # delivered
+        process.wait_until(lambda: hmi.messages, 10.0, what="the probe at the hmi")
+        process.wait_until(lambda: observer.messages, 10.0, what="the probe at the observer")
+        assert hmi.messages == observer.messages == [("cell/pose", b"probe")]
+        assert check.messages == [] and agent.messages == []
+    finally:
+        for client in (observer, check, agent, hmi):
+            client.close()
+    wrong = Mqtt(port, principals.OBSERVER, "not-the-derived-password")
+    assert not wrong.accepted
+    wrong.close()
 
 
 def test_a_second_put_keeps_the_broker_running(cell: dict) -> None:

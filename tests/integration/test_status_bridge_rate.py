@@ -10,6 +10,7 @@ naming the bridge, the default limit (10,000/s) exits 0. Waits poll with deadlin
 from __future__ import annotations
 
 import json
+import os
 import threading
 import uuid
 from collections.abc import Iterator
@@ -73,6 +74,9 @@ class Publisher:
 
     def run(self) -> None:
         client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"it-rate-{uuid.uuid4().hex[:8]}")
+        # the robot cell's Mosquitto is closed: publish as the ROS machine (tests/conftest.py
+        # made its throwaway password, which the agents inherit)
+        client.username_pw_set("ros-machine", os.environ["PLANTKG_ROS_MACHINE_PASSWORD"])
         client.connect(MQTT_HOST, self.port)
         client.loop_start()
         try:

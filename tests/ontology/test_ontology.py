@@ -73,6 +73,7 @@ DATA_PROPERTIES = {  # name: (domain or None for all classes, range or None for 
     "secretRef": ("Resource", ns.XSD.string, True),
     "persistEvery": ("Broker", ns.XSD.integer, True),
     "allowAnonymous": ("Broker", ns.XSD.boolean, True),
+    "tls": ("Broker", ns.XSD.boolean, True),
     "external": ("Broker", ns.XSD.boolean, True),
     "valueTopic": ("Topic", ns.XSD.string, True),
     "typeTopic": ("Topic", ns.XSD.string, True),

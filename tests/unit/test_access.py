@@ -34,7 +34,7 @@ HMI_USER = BrokerUser("hmi", "file:/etc/plantkg/hmi.pw", read=("cell/pose",))
 
 # name: (extra Turtle, users of m1, allow_anonymous of m1)
 CASES = {
-    "nobody-has-a-secret": ("", (), None),
+    "nobody-has-a-secret": ("", (), False),  # closed by default: nobody but plantkg gets in
     "two-users-close-the-broker": (ROBOT + HMI, (HMI_USER, ROBOT_USER), False),
     "the-plant-keeps-it-open": (ROBOT + "ex:m pk:allowAnonymous true .", (ROBOT_USER,), True),
     "the-plant-closes-it-without-users": ("ex:m pk:allowAnonymous false .", (), False),
@@ -73,12 +73,26 @@ def test_users_on_a_broker_without_user_support_are_refused(tmp_path: Path) -> N
         derived(tmp_path, kafka)
 
 
-def test_a_bridge_at_a_closed_broker_is_refused(tmp_path: Path) -> None:
+@pytest.mark.parametrize("engine", ["fast", "owlready2"])
+def test_a_bridge_logs_in_to_its_remote_as_its_own_principal(tmp_path: Path, engine: str) -> None:
+    """robot1 publishes cell/pose on m1, sub reads it on m2: rule R1 bridges m1 -> m2, and the
+    bridge (carried by m1) is a user of m2 that may write exactly cell/pose there; m1 keeps its
+    plant users only (a bridge's local side is the broker itself)."""
     other = ('ex:m2 a pk:Broker ; pk:id "m2" ; pk:name "m2" ; pk:brokerType "mosquitto" ; pk:ip "127.0.0.2" ; '
              'pk:port 1883 ; pk:hasTopic ex:pose .\n'
              'ex:sub a pk:Resource ; pk:id "sub" ; pk:name "Sub" ; pk:sendsTo ex:m2 ; pk:subscribes ex:pose .\n')
-    with pytest.raises(AccessNotSupportedError, match="bridge.m1.m2: broker 'm1' is closed"):
-        derived(tmp_path, ROBOT + other)
+    state = derived(tmp_path, ROBOT + other, engine)
+    m1, m2 = state.brokers
+    [bridge] = state.bridges
+    assert (bridge.local.id, bridge.remote.id) == ("m1", "m2")
+    assert m1.users == (ROBOT_USER,) and m1.allow_anonymous is False
+    assert m2.users == (BrokerUser("plantkg.bridge.m1.m2", "plantkg:principal-key", write=("cell/pose",)),)
+    assert m2.allow_anonymous is False
+
+
+def test_a_resource_may_not_take_a_principals_name(tmp_path: Path) -> None:
+    with pytest.raises(AccessNotSupportedError, match="'plantkg.agent' has a pk:secretRef"):
+        derived(tmp_path, ROBOT.replace('pk:id "robot1"', 'pk:id "plantkg.agent"'))
 
 
 @pytest.mark.parametrize("engine", ["oxigraph", "pyshacl"])
@@ -111,9 +125,11 @@ def _spec(**kw):
 
 
 @pytest.mark.parametrize(("spec", "label", "warning"), [
-    (_spec(), "open", "none of its clients has a pk:secretRef"),
+    (_spec(), "open", "its spec does not close it"),
     (_spec(allow_anonymous=True, users=(ROBOT_USER,)), "open + users (1)", "the plant says pk:allowAnonymous true"),
     (_spec(allow_anonymous=False, users=(ROBOT_USER, HMI_USER)), "users (2)", None),
+    (_spec(allow_anonymous=False, users=(ROBOT_USER,), tls=True), "users (1), TLS", None),
+    (_spec(allow_anonymous=True, tls=True), "open, TLS", "the plant says pk:allowAnonymous true"),
     (_spec(kind="kafka", port=9092), "open", "plantkg does not run Kafka with SASL users"),
     (_spec(kind="ngsi-v2", allow_anonymous=False), "token for writes", None),
     (_spec(kind="ngsi-v2", allow_anonymous=True), "open", "takes writes without its agent's token"),

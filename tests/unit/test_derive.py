@@ -15,6 +15,7 @@ from engine.model import (
     BridgeRoute,
     BridgeSpec,
     BrokerSpec,
+    BrokerUser,
     TopicSpec,
 )
 from engine.reasoning.reason import reason
@@ -63,7 +64,13 @@ def test_robot_cell() -> None:
     state = derive(plant)
     assert state.brokers == (
         BrokerSpec("kafka", RC + "kafka", "kafka-aggregation", "kafka", "127.0.0.3", 9092),
-        BrokerSpec("mosquitto", RC + "mosquitto", "mosquitto-cell", "mosquitto", "127.0.0.2", 1883),
+        # closed by default: the ROS machine (its pk:secretRef) and the bridge worker's principal
+        BrokerSpec("mosquitto", RC + "mosquitto", "mosquitto-cell", "mosquitto", "127.0.0.2", 1883,
+                   allow_anonymous=False, users=(
+                       BrokerUser("plantkg.bridge.mosquitto.kafka", "plantkg:principal-key",
+                                  read=("robot.abb-irb120.position",)),
+                       BrokerUser("ros-machine", "env:PLANTKG_ROS_MACHINE_PASSWORD",
+                                  write=("robot.abb-irb120.position",)))),
     )
     assert state.topics == (
         TopicSpec("kafka", "robot.abb-irb120.energy", RC + "robot-energy", partitions=3,
@@ -183,7 +190,7 @@ def test_a_context_broker_topic_is_an_entity_with_defaults_applied(tmp_path: Pat
     state = derive(reasoned(tmp_path, NGSI_PLANT))
     assert state.broker("cb") == BrokerSpec("cb", EX + "cb", "cb", "ngsi-v2", "127.0.0.3", 1026,
                                             allow_anonymous=False)
-    assert state.broker("mq").allow_anonymous is None  # type: ignore[union-attr]
+    assert state.broker("mq").allow_anonymous is False  # type: ignore[union-attr]  # closed by default
     assert state.topics_of("cb") == (
         TopicSpec("cb", "agv/1/order", EX + "order", entity_id="urn:ngsi-ld:Order:agv1", entity_type="Order"),
         TopicSpec("cb", "agv/1/status", EX + "status", entity_id="urn:ngsi-ld:Thing:agv:1:status",

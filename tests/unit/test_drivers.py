@@ -87,7 +87,12 @@ def two_way_bridge(**changes) -> BridgeSpec:
     return BridgeSpec(**{**values, **changes})
 
 
-def test_mosquitto_golden_with_a_bridge(tmp_path: Path) -> None:
+def test_mosquitto_golden_with_a_bridge(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """With a fixed principal key, so the bridge's remote password (derived from it) is fixed."""
+    key = tmp_path / "key"
+    key.write_text("11" * 32 + "\n", encoding="ascii")
+    key.chmod(0o600)
+    monkeypatch.setenv("PLANTKG_PRINCIPAL_KEY", str(key))
     files = MosquittoDriver(run_as=None).render_config(mqtt_spec(), tmp_path, (two_way_bridge(),))
     check_golden("mosquitto-bridge.conf", files["mosquitto.conf"], tmp_path)
 
@@ -273,8 +278,8 @@ def test_essence_ignores_names_and_follows_the_listener(driver: Driver) -> None:
     moved = BrokerSpec(**{**spec.__dict__, "port": spec.port + 1})
     assert driver.essence(renamed) == driver.essence(spec)
     assert driver.essence(moved) != driver.essence(spec)
-    # Mosquitto restarts for its save policy too (pk:persistEvery), and its users; Kafka ignores them
-    extra = {"persist_every", "closed", "users"} if driver.kind == "mosquitto" else set()
+    # Mosquitto restarts for its save policy too (pk:persistEvery), its users and TLS; Kafka ignores them
+    extra = {"persist_every", "closed", "users", "tls"} if driver.kind == "mosquitto" else set()
     assert set(driver.essence(spec)) == {"kind", "host", "port"} | extra
 
 

@@ -2,6 +2,7 @@
 
 Two machines (127.0.0.2 and 127.0.0.3), one Mosquitto broker each, a robot and a sensor sending to
 them; broker A bridges the robot's position topic (which both carry) to broker B (a Mosquitto bridge).
+Both admit anonymous clients (the tests publish anonymously; closed brokers: docs/security.md).
 """
 
 from __future__ import annotations
@@ -23,9 +24,11 @@ _TEMPLATE = """@prefix pk: <https://w3id.org/plantkg/ontology#> .
 :temperature a pk:Topic ; pk:id "temperature" ; pk:name "cell.sensor-1.temperature" ;
     pk:valueTopic "temperature" ; pk:typeTopic "json" .
 :mqtt-a a pk:Broker ; pk:id "mqtt-a" ; pk:name "Cell MQTT A" ; pk:brokerType "mosquitto" ;
-    pk:ip "127.0.0.2" ; pk:port {port_a} ; pk:hasTopic :position ; pk:bridgesTo :mqtt-b .
+    pk:ip "127.0.0.2" ; pk:port {port_a} ; pk:hasTopic :position ; pk:bridgesTo :mqtt-b ;
+    pk:allowAnonymous true .
 :mqtt-b a pk:Broker ; pk:id "mqtt-b" ; pk:name "Cell MQTT B" ; pk:brokerType "mosquitto" ;
-    pk:ip "127.0.0.3" ; pk:port {port_b} ; pk:hasTopic :temperature , :position .
+    pk:ip "127.0.0.3" ; pk:port {port_b} ; pk:hasTopic :temperature , :position ;
+    pk:allowAnonymous true .
 """
 
 

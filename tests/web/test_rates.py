@@ -14,6 +14,7 @@ and a real paho client publishes. Every wait polls with a deadline; no timing is
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import socket
 import threading
@@ -92,9 +93,11 @@ def rate_threads(before: set[threading.Thread]) -> list[str]:
         ("plantkg-rates-", "plantkg-web-rates", "paho-mqtt-client-plantkg-check-", "check-tap-"))]
 
 
-def publish(host: str, port: int, topic: str, count: int) -> None:
+def publish(host: str, port: int, topic: str, count: int, login: tuple[str, str] | None = None) -> None:
     """``count`` QoS 1 messages, each acknowledged by the broker."""
     client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"rates-test-{uuid.uuid4().hex[:8]}")
+    if login is not None:
+        client.username_pw_set(*login)
     client.connect(host, port)
     client.loop_start()
     try:
@@ -309,7 +312,9 @@ def test_kafka_topics_are_counted_from_their_end(cell: Plant) -> None:
     for i in range(25):
         producer.produce(KAFKA_ENERGY, json.dumps({"i": i}).encode(), on_delivery=lambda err, _m: delivered.append(err))
     assert producer.flush(30) == 0 and delivered == [None] * 25
-    publish(MACHINES[0], cell.ports["mosquitto"], KAFKA_POSITION, 30)
+    # the robot cell's Mosquitto is closed: as the ROS machine (its throwaway password: conftest)
+    publish(MACHINES[0], cell.ports["mosquitto"], KAFKA_POSITION, 30,
+            login=("ros-machine", os.environ["PLANTKG_ROS_MACHINE_PASSWORD"]))
     assert total_reaches(cell, "kafka", KAFKA_ENERGY, before[("kafka", KAFKA_ENERGY)] + 25)["total"] \
         == before[("kafka", KAFKA_ENERGY)] + 25
     assert total_reaches(cell, "mosquitto", KAFKA_POSITION, before[("mosquitto", KAFKA_POSITION)] + 30)["total"] \

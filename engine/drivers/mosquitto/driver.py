@@ -10,12 +10,20 @@ CONNECT/CONNACK with paho, not just an open port.
 
 Users (``BrokerSpec.users``): each user's ``secret_ref`` is resolved here, on the broker's machine
 (``env:NAME``, the agent's environment; ``file:/path``, the file's text without one trailing
-newline), and only hashes reach the broker folder: ``passwords`` (Mosquitto's hashed format) and
-``acl`` (what each user may publish and subscribe to), mode 0600 like every rendered file. A broker
+newline), and only hashes reach the broker folder: ``dynamic-security.json``, the file of
+Mosquitto's dynamic security plugin (hashed passwords and what each user may publish and
+receive; :mod:`engine.drivers.mosquitto.dynsec` says why not an ACL file), mode 0600 like every
+rendered file. A broker
 with users is closed (``allow_anonymous false``) unless the spec says ``allow_anonymous`` true; a
 spec with ``allow_anonymous`` false is closed even without users. A closed broker answers the
-agent's anonymous health check with a refusing CONNACK, which still proves it speaks MQTT; it
-carries no bridge (they connect, and their states are read, anonymously).
+agent's anonymous health check with a refusing CONNACK, which still proves it speaks MQTT.
+
+plantkg's own principals (engine.security.principals): a broker with a password file also admits
+``plantkg.agent`` (read ``$SYS/#``: the health check and the bridge states log in as it),
+``plantkg.observer`` (read ``#``) and ``plantkg.check`` (write ``#``), and the bridge principals
+the spec lists as users (``secret_ref`` ``plantkg:principal-key``); their passwords derive from
+the plant's principal key on this machine. A bridge to a Mosquitto logs in there as its
+principal (``remote_username``/``remote_password`` in ``mosquitto.conf``, mode 0600).
 """
 
 from __future__ import annotations
@@ -32,6 +40,7 @@ from paho.mqtt import client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
 from engine import netutil, parts
+from engine.drivers.mosquitto import dynsec
 from engine.drivers.mosquitto import runtime as mosquitto_runtime
 from engine.drivers.base import (
     DATA_DIR,
@@ -43,12 +52,21 @@ from engine.drivers.base import (
 )
 from engine.errors import ConfigValueError
 from engine.model import BridgeMechanism, BridgeSpec, BrokerSpec, BrokerUser, ObservedTopic, TopicSpec
-from engine.values import check_secret_ref
+from engine.security import ca, principal_key, principals
+from engine.security.mqtt_client import MqttLogin, apply_login, apply_tls, principal_login
+from engine.security.secrets import read_secret
 
 CONF_FILE = "mosquitto.conf"
-#: The hashed password file and the ACL file of a broker with users (in its broker folder).
-PASSWORD_FILE = "passwords"
-ACL_FILE = "acl"
+#: The users file of a broker with users (in its broker folder): the dynamic security plugin's,
+#: hashed passwords and ACLs (engine.drivers.mosquitto.dynsec).
+USERS_FILE = dynsec.DYNSEC_FILE
+#: Files of an earlier plantkg (password_file + acl_file), removed when the broker is prepared.
+OLD_FILES = ("passwords", "acl")
+#: The TLS files of a broker with ``tls`` (its listener) or with a bridge to a TLS broker (the CA
+#: certificate only): the plant CA's certificate, the broker's certificate and key.
+TLS_CA_FILE = "tls-ca.pem"
+TLS_CERT_FILE = "tls-cert.pem"
+TLS_KEY_FILE = "tls-key.pem"
 #: CONNACKs that prove the broker answers MQTT: accepted, and the refusals of a closed broker to
 #: the agent's anonymous health check (MQTT 3.1.1 return codes 4 and 5, paho's names).
 ANSWERING_CONNACKS = ("Success", "Bad user name or password", "Not authorized")
@@ -66,13 +84,16 @@ class MosquittoDriver:
     start_deadline = 10.0
     stop_grace = 5.0
 
-    def __init__(self, *, run_as: Any = _AUTO, binary: Path | None = None) -> None:
+    def __init__(self, *, run_as: Any = _AUTO, binary: Path | None = None,
+                 dynsec_plugin: Path | None = None) -> None:
         """``run_as``: the ``user`` line (only used by a root-started Mosquitto); by default the
-        current user when running as root, else none. ``binary``: default found at start."""
+        current user when running as root, else none. ``binary``, ``dynsec_plugin``: by default
+        found when needed (engine.parts)."""
         if run_as is _AUTO:
             run_as = getpass.getuser() if os.geteuid() == 0 else None
         self.run_as: str | None = run_as
         self._binary = binary
+        self._dynsec_plugin = dynsec_plugin
 
     def validate(self, spec: BrokerSpec) -> None:
         self.render_config(spec, Path("/nonexistent/plantkg/broker"))
@@ -83,18 +104,18 @@ class MosquittoDriver:
         each user's secret, and the previous password file so unchanged passwords keep their
         hash: the same inputs render the same files)."""
         closed = is_closed(spec)
-        if closed and bridges:
-            raise ConfigValueError("bridges", [b.address for b in bridges],
-                                   f"broker {spec.id!r} is closed to anonymous clients: bridges "
-                                   "with closed brokers are not supported yet")
         files: dict[str, str] = {}
-        if spec.users:
-            acl_users = tuple(mosquitto_runtime.MosquittoUser(u.name, u.write, u.read)
-                              for u in spec.users)  # names and topics checked before any secret
-            passwords = [(u.name, resolve_secret(u)) for u in spec.users]
-            files[PASSWORD_FILE] = mosquitto_runtime.render_password_file(
-                passwords, _previous(broker_dir / PASSWORD_FILE))
-            files[ACL_FILE] = mosquitto_runtime.render_acl_file(acl_users, anonymous=not closed)
+        if has_users(spec):
+            acl_users = (*(mosquitto_runtime.MosquittoUser(u.name, u.write, u.read) for u in spec.users),
+                         *FIXED_PRINCIPALS)  # names and topics checked before any secret
+            passwords = {u.name: resolve_secret(u) for u in spec.users}
+            passwords.update((p.name, principal_key.password_for(p.name)) for p in FIXED_PRINCIPALS)
+            files[USERS_FILE] = dynsec.render_dynsec(acl_users, passwords, _previous(broker_dir / USERS_FILE),
+                                                     anonymous=not closed)
+        files.update(_tls_files(spec, broker_dir, bridges))
+        tls = (mosquitto_runtime.MosquittoTls(broker_dir / TLS_CA_FILE, broker_dir / TLS_CERT_FILE,
+                                              broker_dir / TLS_KEY_FILE) if spec.tls else None)
+        cafile = broker_dir / TLS_CA_FILE if TLS_CA_FILE in files else None
         cfg = mosquitto_runtime.MosquittoConfig(
             host=spec.host,
             port=spec.port,
@@ -102,12 +123,16 @@ class MosquittoDriver:
             run_as=self.run_as,
             data_dir=broker_dir / DATA_DIR,
             persist_every=spec.persist_every,
-            bridges=tuple(native_bridge(spec, b) for b in bridges),
+            bridges=tuple(native_bridge(spec, b, cafile) for b in bridges),
             allow_anonymous=not closed,
-            password_file=broker_dir / PASSWORD_FILE if spec.users else None,
-            acl_file=broker_dir / ACL_FILE if spec.users else None,
+            dynsec_plugin=self._plugin() if has_users(spec) else None,
+            dynsec_file=broker_dir / USERS_FILE if has_users(spec) else None,
+            tls=tls,
         )
         return {CONF_FILE: mosquitto_runtime.render_mosquitto_conf(cfg), **files}
+
+    def _plugin(self) -> Path:
+        return self._dynsec_plugin or parts.mosquitto_dynsec_plugin()
 
     def command(self, spec: BrokerSpec, broker_dir: Path) -> list[str]:
         binary = self._binary or parts.mosquitto_binary()
@@ -117,8 +142,12 @@ class MosquittoDriver:
         """The persistence folder (Mosquitto does not create it); the password and ACL files of
         a broker that no longer has users are removed (no stale hashes left in the folder)."""
         (broker_dir / DATA_DIR).mkdir(parents=True, exist_ok=True)
-        if not spec.users:
-            for name in (PASSWORD_FILE, ACL_FILE):
+        for name in OLD_FILES:
+            (broker_dir / name).unlink(missing_ok=True)
+        if not has_users(spec):
+            (broker_dir / USERS_FILE).unlink(missing_ok=True)
+        if not spec.tls:
+            for name in (TLS_CERT_FILE, TLS_KEY_FILE):
                 (broker_dir / name).unlink(missing_ok=True)
 
     def health(self, spec: BrokerSpec, timeout: float) -> bool:
@@ -132,6 +161,8 @@ class MosquittoDriver:
         client = mqtt.Client(
             CallbackAPIVersion.VERSION2, client_id=f"plantkg-health-{secrets.token_hex(4)}"
         )
+        apply_tls(client, spec.tls)
+        apply_login(client, agent_login(spec))
         answers: list[str] = []
         client.on_connect = lambda _c, _u, _f, reason, _p: answers.append(str(reason))
         client.connect_timeout = max(timeout, 0.05)
@@ -168,9 +199,21 @@ class MosquittoDriver:
         essence is kept in pid.json). A password's new content is not here: it shows in the
         rendered password file, whose change restarts the broker at the next PUT."""
         return {**spec_essence(spec), "persist_every": spec.persist_every,
-                "closed": is_closed(spec),
+                "closed": is_closed(spec), "tls": spec.tls,
                 "users": [{"name": u.name, "secret_ref": u.secret_ref, "write": sorted(u.write),
                            "read": sorted(u.read)} for u in sorted(spec.users, key=lambda u: u.name)]}
+
+    def tls_renewal(self, spec: BrokerSpec, broker_dir: Path) -> str | None:
+        """Why the broker's TLS certificate must be issued again (engine.security.ca: none,
+        expiring within 30 days, for another address, another CA); None if current. The agent
+        reports it, the plan turns it into an update, and the PUT renders a new one."""
+        if not spec.tls:
+            return None
+        try:
+            authority = ca.load_ca(ca.ca_dir())
+        except ca.CaError as exc:
+            return f"the plant CA is unusable: {exc}"
+        return ca.needs_new_cert(_previous_bytes(broker_dir / TLS_CERT_FILE), authority, (spec.host,))
 
     def bridge_states(self, spec: BrokerSpec, bridges: tuple[BridgeSpec, ...],
                       timeout: float) -> dict[str, bool]:
@@ -181,6 +224,8 @@ class MosquittoDriver:
         found: dict[str, bool] = {}
         client = mqtt.Client(CallbackAPIVersion.VERSION2,
                              client_id=f"plantkg-bridge-state-{secrets.token_hex(4)}")
+        apply_tls(client, spec.tls)
+        apply_login(client, agent_login(spec))
         client.on_message = lambda _c, _u, msg: found.__setitem__(
             wanted[msg.topic], msg.payload == b"1") if msg.topic in wanted else None
         subscribed: list[float] = []
@@ -208,40 +253,39 @@ def is_closed(spec: BrokerSpec) -> bool:
     return spec.allow_anonymous is False or (bool(spec.users) and spec.allow_anonymous is not True)
 
 
+def has_users(spec: BrokerSpec) -> bool:
+    """The broker gets a password and an ACL file: it has users, or it is closed."""
+    return bool(spec.users) or is_closed(spec)
+
+
+#: plantkg's principals every broker with a password file admits, with what they may do.
+FIXED_PRINCIPALS = (
+    mosquitto_runtime.MosquittoUser(principals.AGENT, filters=(("read", "$SYS/#"),)),
+    mosquitto_runtime.MosquittoUser(principals.OBSERVER, filters=(("read", "#"),)),
+    mosquitto_runtime.MosquittoUser(principals.CHECK, filters=(("write", "#"),)),
+)
+
+
+def agent_login(spec: BrokerSpec) -> MqttLogin | None:
+    """How the agent logs in to ``spec``'s broker: as ``plantkg.agent`` where there is a
+    password file, else anonymously (no key needed)."""
+    return principal_login(MosquittoDriver.kind, principals.AGENT) if has_users(spec) else None
+
+
 def connack_answers(reason: str) -> bool:
     """True if a CONNACK with this reason (paho's name) shows a broker answering MQTT."""
     return reason in ANSWERING_CONNACKS
 
 
 def resolve_secret(user: BrokerUser, environ: Mapping[str, str] | None = None) -> str:
-    """The password ``user.secret_ref`` points to on this machine: an environment variable of
-    this process, or a file's text without one trailing newline. A missing, empty or unreadable
-    secret is a ConfigValueError naming the user and the reference, never the secret."""
-    field = f"users[{user.name}].secret_ref"
-    ref = check_secret_ref(field, user.secret_ref)
-    kind, _, where = ref.partition(":")
-    if kind == "env":
-        value = (os.environ if environ is None else environ).get(where)
-        if value is None:
-            raise ConfigValueError(field, ref, f"the environment variable {where} is not set for "
-                                   "the agent on this machine; set it where the agent starts")
-    else:
-        try:
-            raw = Path(where).read_bytes()
-        except OSError as exc:
-            raise ConfigValueError(field, ref, f"cannot read the file ({exc.strerror}); create "
-                                   "it on the broker's machine, readable by the agent") from None
-        try:
-            value = raw.decode("utf-8")
-        except UnicodeDecodeError:
-            raise ConfigValueError(field, ref, "the file is not UTF-8 text") from None
-        value = value[:-2] if value.endswith("\r\n") else value.removesuffix("\n")
-    if not value:
-        raise ConfigValueError(field, ref, "the secret is empty; put the user's password there")
-    if "\0" in value or "\n" in value or "\r" in value:
-        raise ConfigValueError(field, ref, "the secret holds a NUL or a line break; a password "
-                               "is one line of text")
-    return value
+    """The password of ``user`` on this machine: derived from the principal key for plantkg's
+    principals (``plantkg:principal-key``), else what ``user.secret_ref`` points to (an
+    environment variable of this process, or a file's text without one trailing newline). A
+    missing, empty or unreadable secret is a ConfigValueError naming the user and the reference,
+    never the secret."""
+    if user.secret_ref == principals.PRINCIPAL_REF:
+        return principal_key.password_for(user.name)
+    return read_secret(f"users[{user.name}].secret_ref", user.secret_ref, environ)
 
 
 def _previous(path: Path) -> str:
@@ -257,8 +301,33 @@ def bridge_name(bridge: BridgeSpec) -> str:
     return f"plantkg.{bridge.local.id}.{bridge.remote.id}"
 
 
-def native_bridge(spec: BrokerSpec, bridge: BridgeSpec) -> mosquitto_runtime.MosquittoBridge:
-    """The ``connection`` section of ``bridge``, which ``spec`` must carry."""
+def _tls_files(spec: BrokerSpec, broker_dir: Path, bridges: tuple[BridgeSpec, ...]) -> dict[str, str]:
+    """The CA certificate (for a TLS listener or a bridge to a TLS broker) and, for a TLS
+    listener, the broker's certificate and key for its address: the previous ones while current
+    (so re-rendering gives the same files), else new ones (engine.security.ca)."""
+    if not spec.tls and not any(b.remote.tls for b in bridges):
+        return {}
+    authority = ca.load_or_create_ca(ca.ca_dir())
+    files = {TLS_CA_FILE: ca.ca_pem(authority).decode("ascii")}
+    if spec.tls:
+        cert, key = ca.current_server_cert(_previous_bytes(broker_dir / TLS_CERT_FILE),
+                                           _previous_bytes(broker_dir / TLS_KEY_FILE), authority,
+                                           (spec.host,), name=f"plantkg broker {spec.id}")
+        files[TLS_CERT_FILE], files[TLS_KEY_FILE] = cert.decode("ascii"), key.decode("ascii")
+    return files
+
+
+def _previous_bytes(path: Path) -> bytes | None:
+    try:
+        return path.read_bytes()
+    except OSError:
+        return None
+
+
+def native_bridge(spec: BrokerSpec, bridge: BridgeSpec,
+                  cafile: Path | None = None) -> mosquitto_runtime.MosquittoBridge:
+    """The ``connection`` section of ``bridge``, which ``spec`` must carry (``cafile``: the CA
+    certificate, for a remote that speaks TLS)."""
     if bridge.mechanism is not BridgeMechanism.MOSQUITTO or bridge.local.id != spec.id:
         raise ConfigValueError("bridges", bridge.address,
                                f"not a Mosquitto bridge carried by broker {spec.id!r}")
@@ -271,7 +340,17 @@ def native_bridge(spec: BrokerSpec, bridge: BridgeSpec) -> mosquitto_runtime.Mos
         # the bridge flag is Mosquitto's own: another MQTT broker (RabbitMQ's plugin, say) may
         # refuse it as a corrupt header (engine.bridge_pairs keeps such bridges one-way)
         try_private=bridge.remote.kind == MosquittoDriver.kind,
+        **_remote_login(bridge),
+        cafile=cafile if bridge.remote.tls else None,
     )
+
+
+def _remote_login(bridge: BridgeSpec) -> dict[str, str]:
+    """The bridge's principal at a Mosquitto remote (derived users there: engine.access)."""
+    login = principal_login(bridge.remote.kind,
+                            principals.bridge_principal(bridge.local.id, bridge.remote.id))
+    return {} if login is None else {"remote_username": login.username,
+                                     "remote_password": login.password}
 
 
 def _close(client: mqtt.Client) -> None:

@@ -21,28 +21,19 @@ Each :class:`MosquittoBridge` is one ``connection`` section: Mosquitto's own bri
 persistent session (``cleansession false``), notifications of its state on the local broker
 (retained ``$SYS/broker/connection/<client id>/state``: 1 up, 0 down) and a restart backoff.
 
-Users and ACLs: :func:`render_password_file` writes Mosquitto 2.x's own hashed format
-(``name:$7$101$<salt>$<hash>``: PBKDF2-HMAC-SHA512, 101 iterations, a 12-byte random salt, both in
-base64, as ``mosquitto_passwd`` writes it) with :mod:`hashlib`, so no password ever reaches a
-command line; a line of the previous file whose hash still matches the password is kept, so the
-same passwords render the same file (the agent restarts a broker whose rendered files changed).
-:func:`render_acl_file` writes one ``user`` section per user with its ``topic read|write|readwrite``
-lines. Both refuse names and topics that would break a line of those files.
+Users and ACLs: the broker loads Mosquitto's dynamic security plugin with a file rendered by
+:mod:`engine.drivers.mosquitto.dynsec` (why the plugin and not an ACL file: see there). Here are
+the users' names and topics (:class:`MosquittoUser`), checked so they cannot break a file, and the
+password hash parameters (Mosquitto 2.x's: PBKDF2-HMAC-SHA512, 101 iterations, 12-byte salt).
 """
 
 from __future__ import annotations
 
-import base64
-import binascii
 import getpass
-import hashlib
-import hmac
 import ipaddress
-import os
 import re
 import unicodedata
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from engine.errors import ConfigValueError
@@ -98,8 +89,25 @@ class MosquittoBridge:
     #: Mark the bridge as one (MQTT protocol level | 0x80) so a Mosquitto remote does not send back
     #: what came from us; a remote that is not Mosquitto may refuse the flag as a corrupt header.
     try_private: bool = True
+    #: The bridge's user on the remote broker (``remote_username``/``remote_password``); None:
+    #: anonymous. The password ends up in ``mosquitto.conf`` (mode 0600): Mosquitto reads it there.
+    remote_username: str | None = None
+    remote_password: str | None = field(default=None, repr=False)
+    #: The CA certificate to verify a TLS remote with (``bridge_cafile``); None: plain MQTT.
+    cafile: Path | None = None
 
     def __post_init__(self) -> None:
+        if self.cafile is not None:
+            object.__setattr__(self, "cafile", check_path("cafile", self.cafile, forbid="\t "))
+        if (self.remote_username is None) != (self.remote_password is None):
+            raise ConfigValueError("remote_username", self.remote_username,
+                                   "a bridge's remote user name and password go together")
+        if self.remote_username is not None:
+            check_user_name(self.remote_username)
+            check_password(self.remote_username, self.remote_password)
+            if any(c.isspace() or c == '"' for c in self.remote_password or ""):
+                raise ConfigValueError(f"users[{self.remote_username}].password", "(not shown)",
+                                       "a bridge's password is one word of mosquitto.conf")
         if not isinstance(self.try_private, bool):
             raise ConfigValueError("try_private", self.try_private, "must be true or false")
         if not _NAME.fullmatch(self.name):
@@ -116,6 +124,19 @@ class MosquittoBridge:
 
 
 @dataclass(frozen=True)
+class MosquittoTls:
+    """The listener's TLS files: the CA certificate, the server certificate and its key (PEM)."""
+
+    cafile: Path
+    certfile: Path
+    keyfile: Path
+
+    def __post_init__(self) -> None:
+        for name in ("cafile", "certfile", "keyfile"):
+            object.__setattr__(self, name, check_path(name, getattr(self, name), forbid="\t "))
+
+
+@dataclass(frozen=True)
 class MosquittoConfig:
     """One Mosquitto broker. ``run_as`` matters only when started as root: Mosquitto then
     switches to this user (default: its own ``mosquitto`` user, which cannot write our files)."""
@@ -128,11 +149,14 @@ class MosquittoConfig:
     persist_every: int | None = None      # save after this many changes; None: DEFAULT_PERSIST_EVERY
     bridges: tuple[MosquittoBridge, ...] = ()
     allow_anonymous: bool = True          # False: only clients of the password file connect
-    password_file: Path | None = None     # render_password_file's output
-    acl_file: Path | None = None          # render_acl_file's output
+    dynsec_plugin: Path | None = None     # Mosquitto's dynamic security plugin (users and ACLs)
+    dynsec_file: Path | None = None       # its file (engine.drivers.mosquitto.dynsec)
+    tls: MosquittoTls | None = None       # the listener speaks TLS only (TLS 1.2 or newer)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "host", check_host("host", self.host))
+        if self.tls is not None and not isinstance(self.tls, MosquittoTls):
+            raise ConfigValueError("tls", self.tls, "must be a MosquittoTls or None")
         check_port("port", self.port)
         object.__setattr__(self, "log_file", check_path("log_file", self.log_file, forbid="\t"))
         if self.data_dir is not None:
@@ -150,7 +174,9 @@ class MosquittoConfig:
             raise ConfigValueError("bridges", names, "two bridges with the same name")
         if not isinstance(self.allow_anonymous, bool):
             raise ConfigValueError("allow_anonymous", self.allow_anonymous, "must be true or false")
-        for name in ("password_file", "acl_file"):
+        if (self.dynsec_plugin is None) != (self.dynsec_file is None):
+            raise ConfigValueError("dynsec_file", self.dynsec_file, "the plugin and its file go together")
+        for name in ("dynsec_plugin", "dynsec_file"):
             value = getattr(self, name)
             if value is not None:
                 object.__setattr__(self, name, check_path(name, value, forbid="\t "))
@@ -162,9 +188,11 @@ def render_mosquitto_conf(cfg: MosquittoConfig) -> str:
         "# Rendered by plantkg; edits are overwritten.",
         "per_listener_settings false",
         f"listener {cfg.port} {cfg.host}",
+        *([] if cfg.tls is None else [f"cafile {cfg.tls.cafile}", f"certfile {cfg.tls.certfile}",
+                                      f"keyfile {cfg.tls.keyfile}", "tls_version tlsv1.2"]),
         f"allow_anonymous {'true' if cfg.allow_anonymous else 'false'}",
-        *([] if cfg.password_file is None else [f"password_file {cfg.password_file}"]),
-        *([] if cfg.acl_file is None else [f"acl_file {cfg.acl_file}"]),
+        *([] if cfg.dynsec_plugin is None else [f"plugin {cfg.dynsec_plugin}",
+                                                f"plugin_opt_config_file {cfg.dynsec_file}"]),
         f"max_queued_messages {MAX_QUEUED_MESSAGES}",
         f"max_inflight_messages {MAX_INFLIGHT_MESSAGES}",
         "set_tcp_nodelay true",
@@ -208,6 +236,9 @@ def _bridge_lines(bridge: MosquittoBridge) -> list[str]:
         "keepalive_interval 10",
         "notifications true",
         "notifications_local_only true",
+        *([] if bridge.remote_username is None else
+          [f"remote_username {bridge.remote_username}", f"remote_password {bridge.remote_password}"]),
+        *([] if bridge.cafile is None else [f"bridge_cafile {bridge.cafile}", "bridge_insecure false"]),
         *(f"topic {t.pattern} {t.direction} {t.qos}" for t in bridge.topics),
     ]
 
@@ -233,11 +264,14 @@ def _check_token(field: str, value: object) -> str:
 @dataclass(frozen=True)
 class MosquittoUser:
     """A user of the ACL file: the topic names it may publish (``write``) and subscribe to
-    (``read``). Names only, no filter: a plant grants topics, not patterns."""
+    (``read``). Names only, no filter: a plant grants topics, not patterns. ``filters``:
+    (access, filter) pairs with wildcards, for plantkg's own principals only (the driver sets
+    them: ``read $SYS/#`` for the agent, ``read #`` for the observer); never from a spec."""
 
     name: str
     write: tuple[str, ...] = ()
     read: tuple[str, ...] = ()
+    filters: tuple[tuple[str, str], ...] = ()
 
     def __post_init__(self) -> None:
         check_user_name(self.name)
@@ -250,6 +284,10 @@ class MosquittoUser:
                 if "+" in topic or "#" in topic:
                     raise ConfigValueError(f"users[{self.name}].{field}", topic,
                                            "an ACL grants topic names, not filters: no + or #")
+        for access, pattern in self.filters:
+            if access not in ("read", "write", "readwrite"):
+                raise ConfigValueError(f"users[{self.name}].filters", access, "must be read, write or readwrite")
+            _check_token(f"users[{self.name}].filters", pattern)
 
 
 def check_user_name(name: object) -> str:
@@ -261,85 +299,7 @@ def check_user_name(name: object) -> str:
     return name
 
 
-def render_acl_file(users: Sequence[MosquittoUser], *, anonymous: bool = False) -> str:
-    """The ``acl_file`` text: a ``user`` section per user (sorted), a topic both written and read
-    as ``readwrite``. ``anonymous``: anonymous clients (a broker that still admits them) keep what
-    they could do without an ACL file, every topic and the ``$SYS`` tree (bridge states); else the
-    file grants them nothing."""
-    names = [u.name for u in users]
-    if len(set(names)) != len(names):
-        raise ConfigValueError("users", names, "two users with the same name")
-    lines = ["# Rendered by plantkg; edits are overwritten."]
-    if anonymous:
-        lines += ["# anonymous clients: every topic, as on a broker without users",
-                  "topic readwrite #", "topic read $SYS/#"]
-    for user in sorted(users, key=lambda u: u.name):
-        write, read = set(user.write), set(user.read)
-        lines += ["", f"user {user.name}"]
-        lines += [f"topic {_ACCESS[(t in write, t in read)]} {t}" for t in sorted(write | read)]
-    return "\n".join(lines) + "\n"
-
-
-_ACCESS = {(True, True): "readwrite", (True, False): "write", (False, True): "read"}
-
-
-def render_password_file(users: Sequence[tuple[str, str]], previous: str = "",
-                         salt: Callable[[], bytes] = lambda: os.urandom(PW_SALT_BYTES)) -> str:
-    """The ``password_file`` text for ``(name, password)`` pairs, sorted by name. A line of
-    ``previous`` (the file rendered last time) for the same name whose hash matches the password is
-    kept as it is; other users get a new ``salt()``. Errors never show a password."""
-    names = [name for name, _ in users]
-    if len(set(names)) != len(names):
-        raise ConfigValueError("users", names, "two users with the same name")
-    kept = _password_lines(previous)
-    lines = []
-    for name, password in sorted(users):
-        check_user_name(name)
-        _check_password(name, password)
-        old = kept.get(name)
-        lines.append(old if old is not None and password_matches(old, password)
-                     else password_line(name, password, salt()))
-    return "".join(f"{line}\n" for line in lines)
-
-
-def password_line(name: str, password: str, salt: bytes) -> str:
-    """``name:$7$101$<base64 salt>$<base64 PBKDF2-HMAC-SHA512 hash>`` (Mosquitto 2.x)."""
-    if len(salt) != PW_SALT_BYTES:
-        raise ConfigValueError("salt", len(salt), f"must be {PW_SALT_BYTES} bytes")
-    digest = hashlib.pbkdf2_hmac("sha512", password.encode("utf-8"), salt, PW_ITERATIONS)
-    return (f"{name}:${PW_HASH_TYPE}${PW_ITERATIONS}$"
-            f"{base64.b64encode(salt).decode()}${base64.b64encode(digest).decode()}")
-
-
-def password_matches(line: str, password: str) -> bool:
-    """True if ``line`` (a password file line of type 7) holds the hash of ``password``."""
-    _, _, encoded = line.partition(":")
-    parts = encoded.split("$")
-    if len(parts) != 5 or parts[0] or parts[1] != str(PW_HASH_TYPE) or not parts[2].isdigit():
-        return False
-    try:
-        salt = base64.b64decode(parts[3], validate=True)
-        expected = base64.b64decode(parts[4], validate=True)
-    except (binascii.Error, ValueError):
-        return False
-    iterations = int(parts[2])
-    if not 1 <= iterations <= 1_000_000:
-        return False
-    digest = hashlib.pbkdf2_hmac("sha512", password.encode("utf-8"), salt, iterations)
-    return hmac.compare_digest(digest, expected)
-
-
-def _password_lines(text: str) -> dict[str, str]:
-    """name -> line of a password file (unparsable lines are ignored: they get a new hash)."""
-    out: dict[str, str] = {}
-    for line in text.splitlines():
-        name, sep, _ = line.partition(":")
-        if sep and name and not line.startswith("#"):
-            out[name] = line
-    return out
-
-
-def _check_password(name: str, password: object) -> None:
+def check_password(name: str, password: object) -> None:
     field = f"users[{name}].password"
     if not isinstance(password, str) or not password:
         raise ConfigValueError(field, "(not shown)", "must be a non-empty string")

@@ -1,0 +1,37 @@
+"""plantkg's own principals: the clients plantkg itself runs against the plant's brokers.
+
+A closed broker admits only users, so every client plantkg runs needs a user there too. Their
+names start with ``plantkg.`` (a plant resource may not take such a ``pk:id``: engine.access
+refuses it), and their passwords are never configured: each is derived from the plant's principal
+key (:mod:`engine.security.principal_key`) on the machine that needs it, so nothing secret travels
+in a spec, a plan or a request.
+
+| principal | who | may |
+|---|---|---|
+| ``plantkg.agent`` | the broker's agent: health check, bridge states | read ``$SYS/#`` |
+| ``plantkg.observer`` | the dashboard's rates, ``check``'s taps, the demo's taps | read every topic (``#``) |
+| ``plantkg.check`` | ``plantkg check``'s probes | write every topic (``#``) |
+| ``plantkg.bridge.<local>.<remote>`` | a bridge, on the broker it connects to | exactly the topics it forwards there |
+
+The first three are the same on every broker (its driver adds them); a bridge's principal is
+derived from the bridge (engine.access) and shows in the plan like a plant user.
+"""
+
+from __future__ import annotations
+
+PREFIX = "plantkg."
+AGENT = "plantkg.agent"
+OBSERVER = "plantkg.observer"
+CHECK = "plantkg.check"
+#: The ``secret_ref`` of a principal whose password is derived from the principal key.
+PRINCIPAL_REF = "plantkg:principal-key"
+
+
+def bridge_principal(local_id: str, remote_id: str) -> str:
+    """The user a bridge carried by ``local_id`` has on the broker it connects to."""
+    return f"{PREFIX}bridge.{local_id}.{remote_id}"
+
+
+def is_reserved(name: str) -> bool:
+    """True for a name only plantkg's own principals may have."""
+    return name.startswith(PREFIX)
