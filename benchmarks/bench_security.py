@@ -1,28 +1,34 @@
-"""Benchmark: what broker users and ACLs cost a Mosquitto (issue 13), against the same Mosquitto
-open to anonymous clients, in the same run.
+"""Benchmark: what broker users, ACLs and TLS cost a Mosquitto and a Mosquitto bridge (issue 13),
+against the same brokers open and plain, in the same run.
 
-Issue 13 asks for "the cost of TLS and ACLs … with and without, same run; goal ≤ 15% throughput
-cost". TLS is not built yet and bridges at a closed broker are refused by the plan, so this
-measures what exists: two Mosquitto brokers rendered by the real driver
-(:class:`engine.drivers.mosquitto.driver.MosquittoDriver`, files 0600 as the agent writes them) on free
-loopback ports, both up for the whole run:
+Issue 13 asks for "the cost of TLS and ACLs … bridge throughput and publish→PUBACK p99 with and
+without, same run; goal ≤ 15% throughput cost". Five Mosquitto brokers rendered by the real driver
+(:class:`engine.drivers.mosquitto.driver.MosquittoDriver`, files 0600 as the agent writes them, a
+plant CA and a principal key in the run's temp dir), on free loopback ports, all up for the whole
+run, measured as five arms:
 
-- ``open``: no users (``allow_anonymous true``, no password or ACL file);
+- ``open``: no users (``allow_anonymous true``, no users file), plain MQTT;
 - ``closed``: ``BrokerSpec.users`` = a publisher that may write ``bench/t`` and a subscriber that
-  may read it, passwords from ``file:`` references in a temp dir (0600). Mosquitto then checks the
-  password at CONNECT and consults the ACL on every publish and every delivery. Before measuring,
-  the run checks that it refuses an anonymous client (and fails otherwise).
+  may read it, passwords from ``file:`` references (0600): Mosquitto checks the password at
+  CONNECT and the users file's ACLs (dynamic security plugin) on every publish and delivery;
+- ``closed-tls``: the same, and its listener speaks TLS only (``pk:tls``: a plant-CA certificate);
+  the clients verify it against the CA;
+- ``bridge-open``: a publisher on an open broker, Mosquitto's bridge to a second open broker, the
+  subscriber there (plain, anonymous: plantkg before issue 13);
+- ``bridge-closed-tls``: the same through two closed TLS brokers: the publisher and subscriber log
+  in over TLS, the bridge logs in to the remote as its principal over TLS (``bridge_cafile``).
 
-Per broker and repeat (the order alternates between repeats, so drift of the shared machine
-falls on both alike): N QoS-1 messages from one paho publisher with at most ``--window`` in
-flight, to one QoS-1 subscriber; publish → PUBACK latency (p50, p99), end-to-end throughput
-(distinct messages delivered / time from the first publish to the last delivery), and missing
-messages (must be 0). A short warm-up per broker precedes the repeats and is not counted.
-Reported: medians over the repeats, and closed / open ratios of throughput and p99.
+Before measuring, the run checks that each closed broker refuses an anonymous client (and fails
+otherwise). Per arm and repeat (the order rotates between repeats, so drift of the shared machine
+falls on all alike): N QoS-1 messages from one paho publisher with at most ``--window`` in flight,
+to one QoS-1 subscriber; publish → PUBACK latency (p50, p99), end-to-end throughput (distinct
+messages delivered / time from the first publish to the last delivery), and missing messages
+(must be 0). A short warm-up per arm precedes the repeats and is not counted. Reported: medians
+over the repeats, and ratios to the plain open arm of the same path (single broker, bridge).
 
 The clients are Python (paho), on the same 2 cores as the brokers: the client side is likely the
-bottleneck, so the ratio bounds what users and ACLs cost a plant's Python clients, not Mosquitto's
-own ceiling.
+bottleneck, so the ratio bounds what users, ACLs and TLS cost a plant's Python clients, not
+Mosquitto's own ceiling.
 
 Usage: ``python -m benchmarks.bench_security [--messages 20000] [--repeats 3] [--window 100] [--tiny]``.
 Results: ``benchmarks/results/security.{json,md}``.
@@ -31,6 +37,7 @@ Results: ``benchmarks/results/security.{json,md}``.
 from __future__ import annotations
 
 import argparse
+import os
 import secrets
 import statistics
 import tempfile
@@ -48,18 +55,30 @@ from benchmarks.common import RESULTS, command_line, machine, percentile, write_
 from engine import netutil, process
 from engine.agent.folder import RENDERED_MODE, write_atomic
 from engine.drivers.mosquitto.driver import MosquittoDriver
-from engine.model import BrokerSpec, BrokerUser
+from engine.model import BridgeDirection, BridgeEnd, BridgeMechanism, BridgeRoute, BridgeSpec, BrokerSpec, BrokerUser
+from engine.security import ca, principal_key, principals
 
 HOST = "127.0.0.1"
 TOPIC = "bench/t"
 GOAL_COST = 0.15  # issue 13: at most 15% throughput cost
-ARMS = ("open", "closed")
+ARMS = ("open", "closed", "closed-tls", "bridge-open", "bridge-closed-tls")
+#: arm -> the plain open arm of the same path, its baseline
+BASELINE = {"closed": "open", "closed-tls": "open", "bridge-closed-tls": "bridge-open"}
 
 
 @dataclass(frozen=True)
 class Credentials:
     user: str
     password: str
+
+
+@dataclass(frozen=True)
+class Client:
+    """How a bench client reaches its broker: port, login, TLS (the plant CA's certificate)."""
+
+    port: int
+    creds: Credentials | None = None
+    ca_file: Path | None = None
 
 
 @dataclass
@@ -69,9 +88,10 @@ class Broker:
     spec: BrokerSpec
     folder: Path
     child: process.Child | None = None
+    bridges: tuple[BridgeSpec, ...] = ()
 
     def start(self, driver: MosquittoDriver) -> Broker:
-        files = driver.render_config(self.spec, self.folder)
+        files = driver.render_config(self.spec, self.folder, self.bridges)
         driver.prepare(self.spec, self.folder)
         for name, text in files.items():
             write_atomic(self.folder / name, text, RENDERED_MODE)
@@ -86,9 +106,9 @@ class Broker:
             self.child = None
 
 
-def brokers(folder: Path) -> tuple[Broker, Broker, Credentials, Credentials]:
-    """The open and the closed broker's specs (not started), and the closed one's publisher and
-    subscriber, whose passwords are in 0600 files under ``folder/secrets``."""
+def brokers(folder: Path) -> tuple[dict[str, Broker], Credentials, Credentials]:
+    """The brokers of every arm (not started), and the closed ones' publisher and subscriber, whose
+    passwords are in 0600 files under ``folder/secrets``."""
     secret_dir = folder / "secrets"
     secret_dir.mkdir(parents=True, exist_ok=True)
     secret_dir.chmod(0o700)
@@ -97,32 +117,71 @@ def brokers(folder: Path) -> tuple[Broker, Broker, Credentials, Credentials]:
         password = secrets.token_urlsafe(16)
         write_atomic(secret_dir / name, password + "\n", 0o600)
         creds[name] = Credentials(name, password)
-    users = (BrokerUser("bench-pub", f"file:{secret_dir / 'bench-pub'}", write=(TOPIC,)),
-             BrokerUser("bench-sub", f"file:{secret_dir / 'bench-sub'}", read=(TOPIC,)))
+    pub_user = BrokerUser("bench-pub", f"file:{secret_dir / 'bench-pub'}", write=(TOPIC,))
+    sub_user = BrokerUser("bench-sub", f"file:{secret_dir / 'bench-sub'}", read=(TOPIC,))
 
-    def spec(arm: str, with_users: tuple[BrokerUser, ...]) -> BrokerSpec:
-        return BrokerSpec(id=f"bench-{arm}", iri=f"https://example.org/bench#{arm}", name=arm, kind="mosquitto",
-                          host=HOST, port=netutil.free_port(HOST), users=with_users)
+    def spec(name: str, users: tuple[BrokerUser, ...] = (), tls: bool = False) -> BrokerSpec:
+        return BrokerSpec(id=f"bench-{name}", iri=f"https://example.org/bench#{name}", name=name,
+                          kind="mosquitto", host=HOST, port=netutil.free_port(HOST), users=users,
+                          allow_anonymous=None if not users else False, tls=tls)
 
-    return (Broker(spec("open", ()), folder / "open"), Broker(spec("closed", users), folder / "closed"),
-            creds["bench-pub"], creds["bench-sub"])
+    out = {"open": spec("open"), "closed": spec("closed", (pub_user, sub_user)),
+           "closed-tls": spec("closed-tls", (pub_user, sub_user), tls=True),
+           "bridge-open-a": spec("bridge-open-a"), "bridge-open-b": spec("bridge-open-b"),
+           "bridge-tls-a": spec("bridge-tls-a", (pub_user,), tls=True)}
+    principal = BrokerUser(principals.bridge_principal("bench-bridge-tls-a", "bench-bridge-tls-b"),
+                           principals.PRINCIPAL_REF, write=(TOPIC,))
+    out["bridge-tls-b"] = spec("bridge-tls-b", (sub_user, principal), tls=True)
+
+    def bridge(a: BrokerSpec, b: BrokerSpec) -> BridgeSpec:
+        return BridgeSpec(local=BridgeEnd(a.id, a.kind, a.host, a.port, a.tls),
+                          remote=BridgeEnd(b.id, b.kind, b.host, b.port, b.tls),
+                          mechanism=BridgeMechanism.MOSQUITTO,
+                          routes=(BridgeRoute(TOPIC, BridgeDirection.OUT, 1),))
+
+    found = {name: Broker(s, folder / name) for name, s in out.items()}
+    for a, b in (("bridge-open-a", "bridge-open-b"), ("bridge-tls-a", "bridge-tls-b")):
+        found[a].bridges = (bridge(out[a], out[b]),)
+    return found, creds["bench-pub"], creds["bench-sub"]
+
+
+def clients(found: dict[str, Broker], pub: Credentials, sub: Credentials,
+            ca_file: Path) -> dict[str, tuple[Client, Client]]:
+    """arm -> (publisher, subscriber)."""
+    port = {name: b.spec.port for name, b in found.items()}
+    return {
+        "open": (Client(port["open"]), Client(port["open"])),
+        "closed": (Client(port["closed"], pub), Client(port["closed"], sub)),
+        "closed-tls": (Client(port["closed-tls"], pub, ca_file), Client(port["closed-tls"], sub, ca_file)),
+        "bridge-open": (Client(port["bridge-open-a"]), Client(port["bridge-open-b"])),
+        "bridge-closed-tls": (Client(port["bridge-tls-a"], pub, ca_file),
+                              Client(port["bridge-tls-b"], sub, ca_file)),
+    }
+
+
+def bridge_up(broker: Broker) -> bool:
+    """The bridge of ``broker`` reports itself connected (its retained $SYS state, read as the
+    agent reads it)."""
+    return all(MosquittoDriver().bridge_states(broker.spec, broker.bridges, 2.0).values()) \
+        and bool(broker.bridges)
 
 
 def closing_lines(folder: Path) -> list[str]:
     """The lines of the closed broker's rendered ``mosquitto.conf`` that close it (an error if
     one is missing: the run would measure an open broker twice)."""
-    keys = {ln.split(" ", 1)[0]: ln for ln in (folder / "mosquitto.conf").read_text().splitlines() if ln.strip()}
-    lines = [keys.get(k, f"(no {k})") for k in ("allow_anonymous", "password_file", "acl_file")]
+    keys = {ln.split(" ", 1)[0]: ln for ln in (folder / "mosquitto.conf").read_text().splitlines()
+            if ln.strip() and not ln.startswith("connection")}
+    lines = [keys.get(k, f"(no {k})") for k in ("allow_anonymous", "plugin", "plugin_opt_config_file")]
     if lines[0] != "allow_anonymous false" or any(ln.startswith("(no ") for ln in lines):
         raise RuntimeError(f"the closed broker's mosquitto.conf in {folder} does not close it: {lines}")
     return lines
 
 
-def connack(port: int, creds: Credentials | None) -> str:
-    """The CONNACK reason (paho's name) a client gets from the broker on ``port``."""
+def connack(target: Client) -> str:
+    """The CONNACK reason (paho's name) a client gets from the broker on ``target.port``."""
     client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"bench-probe-{uuid.uuid4().hex[:8]}")
-    if creds is not None:
-        client.username_pw_set(creds.user, creds.password)
+    _secure(client, target)
+    port = target.port
     answers: list[str] = []
     client.on_connect = lambda _c, _u, _f, reason, _p: answers.append(str(reason))
     client.connect(HOST, port, keepalive=10)
@@ -134,11 +193,17 @@ def connack(port: int, creds: Credentials | None) -> str:
         client.loop_stop()
 
 
-def _client(port: int, creds: Credentials | None, role: str) -> tuple[mqtt.Client, list[str]]:
+def _secure(client: mqtt.Client, target: Client) -> None:
+    if target.ca_file is not None:
+        client.tls_set(ca_certs=str(target.ca_file))
+    if target.creds is not None:
+        client.username_pw_set(target.creds.user, target.creds.password)
+
+
+def _client(target: Client, role: str) -> tuple[mqtt.Client, list[str]]:
     """A paho client (not connected yet) and the list its CONNACK reasons go to."""
     client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"bench-{role}-{uuid.uuid4().hex[:8]}")
-    if creds is not None:
-        client.username_pw_set(creds.user, creds.password)
+    _secure(client, target)
     answers: list[str] = []
     client.on_connect = lambda _c, _u, _f, reason, _p: answers.append(str(reason))
     return client, answers
@@ -150,11 +215,13 @@ def _admitted(port: int, answers: list[str], role: str) -> bool:
     return bool(answers)
 
 
-def one_run(port: int, count: int, window: int, pub: Credentials | None, sub: Credentials | None) -> dict[str, Any]:
-    """``count`` QoS-1 messages, at most ``window`` unacknowledged, to one subscriber."""
+def one_run(pub: Client, sub: Client, count: int, window: int) -> dict[str, Any]:
+    """``count`` QoS-1 messages, at most ``window`` unacknowledged, to one subscriber (on the
+    same broker, or on the far side of a bridge)."""
     got: list[int] = []
     last = [0.0]
-    subscriber, sub_up = _client(port, sub, "sub")
+    port = pub.port
+    subscriber, sub_up = _client(sub, "sub")
     granted: list[int] = []
     subscriber.on_subscribe = lambda _c, _u, _mid, codes, _p: granted.extend(c.value for c in codes)
 
@@ -163,7 +230,7 @@ def one_run(port: int, count: int, window: int, pub: Credentials | None, sub: Cr
         last[0] = time.perf_counter()
 
     subscriber.on_message = on_message
-    publisher, pub_up = _client(port, pub, "pub")
+    publisher, pub_up = _client(pub, "pub")
     publisher.max_inflight_messages_set(window)
     publisher.max_queued_messages_set(0)
     acks: list[tuple[int, float]] = []
@@ -174,12 +241,12 @@ def one_run(port: int, count: int, window: int, pub: Credentials | None, sub: Cr
         room.release()
 
     publisher.on_publish = on_publish
-    subscriber.connect(HOST, port, keepalive=30)
+    subscriber.connect(HOST, sub.port, keepalive=30)
     subscriber.loop_start()
-    publisher.connect(HOST, port, keepalive=30)
+    publisher.connect(HOST, pub.port, keepalive=30)
     publisher.loop_start()
     try:
-        process.wait_until(lambda: _admitted(port, sub_up, "subscriber") and _admitted(port, pub_up, "publisher"),
+        process.wait_until(lambda: _admitted(sub.port, sub_up, "subscriber") and _admitted(port, pub_up, "publisher"),
                            10.0, 0.005, what=f"both clients admitted on {port}")
         subscriber.subscribe(TOPIC, 1)
         process.wait_until(lambda: granted, 10.0, 0.005, what=f"the SUBACK on {port}")
@@ -242,48 +309,58 @@ def medians(runs: list[dict[str, Any]]) -> dict[str, float]:
             "missing": sum(r["missing"] for r in runs)}
 
 
-def _ratio(closed: float, open_: float) -> float | None:
-    """closed / open, or None when the open baseline measured nothing (then the run has failed)."""
-    return closed / open_ if open_ else None
+def _ratio(value: float, base: float) -> float | None:
+    """value / base, or None when the baseline measured nothing (then the run has failed)."""
+    return value / base if base else None
 
 
 def _fmt(ratio: float | None) -> str:
     return "n/a" if ratio is None else f"{ratio:.3f}"
 
 
+GOAL_NAMES = {"closed": "ACL throughput cost (a Mosquitto with users and ACLs vs open, same run)",
+              "closed-tls": "TLS + ACL throughput cost (one Mosquitto, vs open and plain, same run)",
+              "bridge-closed-tls": "TLS + ACL bridge throughput cost (two closed TLS Mosquittos and "
+                                   "their bridge, vs open and plain, same run)"}
+
+
 def goals(data: dict[str, Any]) -> list[dict[str, Any]]:
-    ratio = data["ratios"]["throughput_closed_over_open"]
-    if ratio is None:
-        return [{"goal": "ACL throughput cost (Mosquitto with users and ACLs vs open, same run)",
-                 "measured": "n/a (no open baseline)", "target": f"≤ {GOAL_COST * 100:.0f}%", "met": False}]
-    cost = 1 - ratio
-    return [{"goal": "ACL throughput cost (Mosquitto with users and ACLs vs open, same run)",
-             "measured": f"{cost * 100:+.1f}% (closed/open = {ratio:.3f})",
-             "target": f"≤ {GOAL_COST * 100:.0f}%", "met": cost <= GOAL_COST}]
+    out = []
+    for arm, name in GOAL_NAMES.items():
+        ratio = data["ratios"][arm]["throughput"]
+        if ratio is None:
+            out.append({"goal": name, "measured": "n/a (no baseline)", "target": f"≤ {GOAL_COST * 100:.0f}%",
+                        "met": False})
+            continue
+        cost = 1 - ratio
+        out.append({"goal": name, "measured": f"{cost * 100:+.1f}% ({arm}/{BASELINE[arm]} = {ratio:.3f})",
+                    "target": f"≤ {GOAL_COST * 100:.0f}%", "met": cost <= GOAL_COST})
+    return out
 
 
 def to_markdown(data: dict[str, Any]) -> str:
     med, ratios = data["medians"], data["ratios"]
     lines = [
-        "# security: a Mosquitto with users and ACLs against the same Mosquitto open",
+        "# security: users, ACLs and TLS on a Mosquitto and a bridge, against the same open and plain",
         "",
         f"Command: `{data['command']}` · machine: {data['machine']}",
         "",
         f"{data['messages']} QoS-1 messages per run, one publisher (at most {data['window']} in flight) → "
-        f"`{TOPIC}` → one QoS-1 subscriber; {data['repeats']} repeats per broker, order alternating; medians. "
-        "`closed`: anonymous refused (checked), password check at CONNECT, ACL on every publish and delivery. "
-        "TLS: not built yet, not measured.",
+        f"`{TOPIC}` → one QoS-1 subscriber (on the same broker, or on the far side of a Mosquitto bridge); "
+        f"{data['repeats']} repeats per arm, order rotating; medians. `closed`: anonymous refused (checked), "
+        "password check at CONNECT, ACL (dynamic security plugin) on every publish and delivery. `tls`: the "
+        "listener speaks TLS only, clients (and the bridge) verify a plant-CA certificate.",
         "",
-        "| broker | msg/s delivered | publish → PUBACK p50 ms | p99 ms | missing |",
-        "|---|---|---|---|---|",
+        "| arm | msg/s delivered | publish → PUBACK p50 ms | p99 ms | missing | throughput vs baseline | p99 vs baseline |",
+        "|---|---|---|---|---|---|---|",
     ]
     for arm in ARMS:
-        m = med[arm]
-        lines.append(f"| {arm} | {m['msg_per_s']:.0f} | {m['p50_ms']:.2f} | {m['p99_ms']:.2f} | {m['missing']} |")
-    lines += ["", f"Closed / open: throughput {_fmt(ratios['throughput_closed_over_open'])}, "
-              f"p99 {_fmt(ratios['p99_closed_over_open'])}, p50 {_fmt(ratios['p50_closed_over_open'])}. "
-              "Per repeat (throughput closed/open): "
-              + ", ".join(_fmt(r) for r in ratios["throughput_per_repeat"]) + ".", ""]
+        m, r = med[arm], ratios.get(arm)
+        lines.append(f"| {arm} | {m['msg_per_s']:.0f} | {m['p50_ms']:.2f} | {m['p99_ms']:.2f} | {m['missing']} | "
+                     + (f"{_fmt(r['throughput'])} | {_fmt(r['p99'])} |" if r else "baseline | baseline |"))
+    lines += ["", "Per repeat (throughput vs baseline): "
+              + "; ".join(f"{arm}: " + ", ".join(_fmt(x) for x in ratios[arm]["throughput_per_repeat"])
+                          for arm in BASELINE) + ".", ""]
     for g in data["goals"]:
         lines.append(f"Goal: {g['goal']}: {g['measured']}, target {g['target']}: "
                      f"{'met' if g['met'] else '**not met**'}.")
@@ -295,7 +372,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--messages", type=int, default=20_000)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--window", type=int, default=100, help="most QoS-1 messages in flight (default 100)")
-    parser.add_argument("--warmup", type=int, default=1000, help="uncounted messages per broker first")
+    parser.add_argument("--warmup", type=int, default=1000, help="uncounted messages per arm first")
     parser.add_argument("--tiny", action="store_true", help="300 messages, 2 repeats: seconds")
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
@@ -308,42 +385,60 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--warmup must be at least 0 (got {args.warmup})")
     info = machine()
     runs: dict[str, list[dict[str, Any]]] = {arm: [] for arm in ARMS}
-    driver = MosquittoDriver()
     with tempfile.TemporaryDirectory(prefix="plantkg-bench-security-") as tmp:
-        open_b, closed_b, pub, sub = brokers(Path(tmp))
+        # the run's own principal key and plant CA, never the user's
+        saved = {k: os.environ.get(k) for k in (principal_key.KEY_ENV, ca.CA_ENV)}
+        os.environ[principal_key.KEY_ENV] = str(Path(tmp) / "principal-key")
+        os.environ[ca.CA_ENV] = str(Path(tmp) / "ca")
+        driver = MosquittoDriver()
+        found, pub, sub = brokers(Path(tmp))
         started: list[Broker] = []
         try:
-            for b in (open_b, closed_b):
-                started.append(b.start(driver))
-            closed_conf = closing_lines(closed_b.folder)
-            refused = connack(closed_b.spec.port, None)
-            if refused == "Success":
-                raise RuntimeError("the closed broker admitted an anonymous client: nothing to measure")
-            creds = {"open": (None, None), "closed": (pub, sub)}
-            ports = {"open": open_b.spec.port, "closed": closed_b.spec.port}
+            for name in ("open", "closed", "closed-tls", "bridge-open-b", "bridge-tls-b",
+                         "bridge-open-a", "bridge-tls-a"):  # remotes first: the bridges connect at once
+                started.append(found[name].start(driver))
+            ca_file = ca.ca_cert_file()
+            targets = clients(found, pub, sub, ca_file)
+            closed_conf = {name: closing_lines(found[name].folder)
+                           for name in ("closed", "closed-tls", "bridge-tls-a", "bridge-tls-b")}
+            refused = {name: connack(Client(found[name].spec.port, None, ca_file if found[name].spec.tls else None))
+                       for name in closed_conf}
+            if "Success" in refused.values():
+                raise RuntimeError(f"a closed broker admitted an anonymous client ({refused}): nothing to measure")
+            for name in ("bridge-open-a", "bridge-tls-a"):
+                process.wait_until(lambda b=found[name]: bridge_up(b), 30.0, 0.1,
+                                   what=f"the bridge of {name} to connect")
             for arm in ARMS:
                 if args.warmup:
-                    one_run(ports[arm], args.warmup, args.window, *creds[arm])
+                    one_run(*targets[arm], args.warmup, args.window)
             for r in range(args.repeats):
-                for arm in (ARMS if r % 2 == 0 else ARMS[::-1]):
-                    runs[arm].append(one_run(ports[arm], args.messages, args.window, *creds[arm]))
+                order = ARMS[r % len(ARMS):] + ARMS[:r % len(ARMS)]
+                for arm in order:
+                    runs[arm].append(one_run(*targets[arm], args.messages, args.window))
         finally:
             for b in started:
                 b.stop()
+            for key, value in saved.items():
+                if value is None:
+                    os.environ.pop(key, None)
+                else:
+                    os.environ[key] = value
     med = {arm: medians(runs[arm]) for arm in ARMS}
+    ratios = {arm: {"throughput": _ratio(med[arm]["msg_per_s"], med[base]["msg_per_s"]),
+                    "p99": _ratio(med[arm]["p99_ms"], med[base]["p99_ms"]),
+                    "p50": _ratio(med[arm]["p50_ms"], med[base]["p50_ms"]),
+                    "throughput_per_repeat": [_ratio(a["msg_per_s"], b["msg_per_s"])
+                                              for a, b in zip(runs[arm], runs[base])]}
+              for arm, base in BASELINE.items()}
     data: dict[str, Any] = {
         "command": command_line("benchmarks.bench_security", argv), "machine": info,
         "messages": args.messages, "repeats": args.repeats, "window": args.window, "warmup": args.warmup,
         "anonymous_on_closed": refused, "closed_conf": closed_conf, "runs": runs, "medians": med,
-        "ratios": {"throughput_closed_over_open": _ratio(med["closed"]["msg_per_s"], med["open"]["msg_per_s"]),
-                   "p99_closed_over_open": _ratio(med["closed"]["p99_ms"], med["open"]["p99_ms"]),
-                   "p50_closed_over_open": _ratio(med["closed"]["p50_ms"], med["open"]["p50_ms"]),
-                   "throughput_per_repeat": [_ratio(c["msg_per_s"], o["msg_per_s"])
-                                             for o, c in zip(runs["open"], runs["closed"])]},
+        "ratios": ratios,
     }
     data["goals"] = goals(data)
     write_results(args.out, "security", data, to_markdown(data))
-    missing = med["open"]["missing"] + med["closed"]["missing"]
+    missing = sum(m["missing"] for m in med.values())
     if missing:
         print(f"{missing} message(s) missing: the figures above do not count them")
         return 1

@@ -30,7 +30,7 @@ SECTIONS = (
     ("fleet_tasks", "LoTLan transport orders over simulated AGVs against the ideal (the task planner)",
      ("fleet_tasks-paths.png", "fleet_tasks-gantt.png")),
     ("cli", "Command-line start-up against a bare Python start", ()),
-    ("security", "Mosquitto with users and ACLs against the same Mosquitto open (issue 13)", ()),
+    ("security", "Mosquitto and a Mosquitto bridge with users, ACLs and TLS against the same open and plain (issue 13)", ()),
     ("validate", "Validation against pySHACL", ()),
     ("reason", "Reasoning against HermiT", ()),
 )

@@ -28,7 +28,7 @@ MEASURES: dict[str, tuple[str, ...]] = {
     "fleet_join": ("fleet/manager", "fleet/discovery", "fleet/model", "engine/apply.py", "engine/agent"),
     "fleet_tasks": ("fleet/planner", "fleet/sim"),
     "cli": ("engine/cli",),
-    "security": ("engine/drivers/mosquitto",),
+    "security": ("engine/drivers/mosquitto", "engine/security"),
     "validate": ("kg", "shapes"),
     "reason": ("engine/reasoning/reason.py", "engine/reasoning/rules_fast.py", "engine/reasoning/rules_owlready.py", "ontology"),
 }

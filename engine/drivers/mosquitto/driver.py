@@ -100,9 +100,9 @@ class MosquittoDriver:
 
     def render_config(self, spec: BrokerSpec, broker_dir: Path,
                       bridges: tuple[BridgeSpec, ...] = ()) -> dict[str, str]:
-        """``mosquitto.conf``, and for a broker with users its password and ACL files (reading
-        each user's secret, and the previous password file so unchanged passwords keep their
-        hash: the same inputs render the same files)."""
+        """``mosquitto.conf``; for a broker with users (or closed) its users file (reading each
+        user's secret, and the previous file so unchanged passwords keep their hash: the same
+        inputs render the same files); for TLS its certificate and key, kept while current."""
         closed = is_closed(spec)
         files: dict[str, str] = {}
         if has_users(spec):
@@ -139,8 +139,9 @@ class MosquittoDriver:
         return mosquitto_runtime.mosquitto_command(binary, broker_dir / CONF_FILE)
 
     def prepare(self, spec: BrokerSpec, broker_dir: Path) -> None:
-        """The persistence folder (Mosquitto does not create it); the password and ACL files of
-        a broker that no longer has users are removed (no stale hashes left in the folder)."""
+        """The persistence folder (Mosquitto does not create it); the users file of a broker that
+        no longer has users, the TLS key of one that no longer speaks TLS, and an earlier
+        plantkg's password and ACL files are removed (no stale hashes or keys left behind)."""
         (broker_dir / DATA_DIR).mkdir(parents=True, exist_ok=True)
         for name in OLD_FILES:
             (broker_dir / name).unlink(missing_ok=True)
