@@ -1,6 +1,6 @@
 """The Kafka driver: a single-node KRaft cluster (broker and controller in one JVM).
 
-Config, storage format and command line come from :mod:`engine.kafka_runtime`. The controller
+Config, storage format and command line come from :mod:`engine.drivers.kafka.runtime`. The controller
 listener needs a second port the ontology does not model: :meth:`KafkaDriver.prepare` picks a free
 one at the first start and keeps it in ``<broker dir>/controller.port`` so restarts reuse it
 (``render_config`` reads it there, so it is pure given the folder). Topics are real Kafka topics,
@@ -26,7 +26,8 @@ from confluent_kafka.admin import (
     ResourceType,
 )
 
-from engine import kafka_runtime, netutil, parts, process
+from engine import netutil, parts, process
+from engine.drivers.kafka import runtime as kafka_runtime
 from engine.drivers.base import (
     DATA_DIR,
     KAFKA_TOPIC_FIELDS,
@@ -168,7 +169,7 @@ class KafkaDriver:
     def _describe(self, admin: AdminClient, name: str) -> ObservedTopic | None:
         # All topics, not list_topics(topic=name): a metadata request for one unknown topic
         # auto-creates it on a broker with auto.create.topics.enable (Kafka's default). Ours
-        # render it false (kafka_runtime), but an adopted or hand-edited broker may not.
+        # render it false (runtime.py), but an adopted or hand-edited broker may not.
         metadata = _call(lambda: admin.list_topics(timeout=self.admin_timeout),
                          f"describing topic {name!r}")
         found = metadata.topics.get(name)
