@@ -34,7 +34,7 @@ DATA_DIR = "data"
 AGENT_TOKEN_FILE_ENV = "PLANTKG_AGENT_TOKEN_FILE"
 
 #: Topic fields that only Kafka uses, and those that only MQTT uses.
-KAFKA_TOPIC_FIELDS = ("partitions", "replication_factor", "retention_ms")
+KAFKA_TOPIC_FIELDS = ("partitions", "replication_factor", "retention_ms", "min_insync_replicas")
 MQTT_TOPIC_FIELDS = ("qos", "retain")
 #: Topic fields that only an NGSI-v2 context broker uses (the topic's entity).
 NGSI_TOPIC_FIELDS = ("entity_id", "entity_type")
@@ -149,6 +149,7 @@ def check_topic_fields(topic: TopicSpec, kind: str, applicable: tuple[str, ...])
     _check_int(topic, "partitions", 1, 10_000)
     _check_int(topic, "replication_factor", 1, 32_767)
     _check_int(topic, "retention_ms", -1, 2**63 - 1)
+    _check_int(topic, "min_insync_replicas", 1, 32_767)
     _check_int(topic, "qos", 0, 2)
     if topic.retain is not None and not isinstance(topic.retain, bool):
         raise ConfigValueError("retain", topic.retain, "must be true or false")

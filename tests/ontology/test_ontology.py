@@ -56,6 +56,7 @@ OBJECT_PROPERTIES = {  # name: (domain, range)
     "subscribes": ("Resource", "Topic"),
     "mayWrite": ("Resource", "Topic"),
     "mayRead": ("Resource", "Topic"),
+    "nodeOf": ("Broker", "Broker"),
 }
 DATA_PROPERTIES = {  # name: (domain or None for all classes, range or None for rdfs:Literal, functional)
     "id": (None, ns.XSD.string, True),
@@ -84,6 +85,10 @@ DATA_PROPERTIES = {  # name: (domain or None for all classes, range or None for 
     "kafkaKey": ("Topic", ns.XSD.string, True),
     "entityId": ("Topic", ns.XSD.string, True),
     "entityType": ("Topic", ns.XSD.string, True),
+    "nodeId": ("Broker", ns.XSD.integer, True),
+    "kafkaRole": ("Broker", ns.XSD.string, False),
+    "controllerPort": ("Broker", ns.XSD.integer, True),
+    "minInsyncReplicas": (None, ns.XSD.integer, True),
 }
 #: Annotation properties of a plant's own owl:Ontology header (docs/operating.md).
 ANNOTATION_PROPERTIES = {"plantName"}
