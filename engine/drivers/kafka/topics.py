@@ -254,8 +254,10 @@ def driver_error(error: KafkaError | None, doing: str) -> DriverError:
         return BrokerUnavailableError(f"Kafka did not answer in time while {doing}",
                                       hint="the broker may be starting or busy; try again")
     text = f"Kafka error while {doing}: {error.str()} ({error.name()})"
+    # _DESTROY_BROKER: librdkafka (>= 2.10) drops the bootstrap connections once it has learned
+    # the cluster's brokers, failing what was in flight on them: a new client of a cluster meets it.
     if error.retriable() or error.code() in (KafkaError._TRANSPORT, KafkaError._TIMED_OUT,
-                                              KafkaError._ALL_BROKERS_DOWN):
+                                              KafkaError._ALL_BROKERS_DOWN, KafkaError._DESTROY_BROKER):
         return BrokerUnavailableError(text, hint="the broker may be starting; try again")
     if error.code() in (KafkaError.INVALID_REPLICATION_FACTOR, KafkaError.INVALID_PARTITIONS,
                         KafkaError.INVALID_CONFIG, KafkaError.POLICY_VIOLATION,
