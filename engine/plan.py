@@ -24,6 +24,12 @@ broker or changing a bridged topic updates the bridge, which the agent of its lo
 (a Mosquitto bridge by re-rendering and restarting that broker only, a worker by restarting the
 worker). A bridge whose local broker starts anew is created again, like its topics.
 
+A node of a Kafka cluster (``BrokerSpec.kafka``, docs/kafka.md) is a broker like the others; a
+change of what it renders replaces it (apply rolls a cluster's replaced nodes one at a time), a
+change of only its lead flag or broker list is made in place, and a change of a running cluster's
+controller quorum is refused. The cluster's topics are planned on its lead node only, and a node
+that leaves deletes none of them.
+
 Order: brokers, topics, bridges, then deletes (bridges and topics before their broker). Changes a
 broker cannot make (fewer Kafka partitions, another replication factor) are :class:`Refusal` s,
 and brokers on a host whose agent did not answer are left out and the host listed (what runs there
