@@ -161,8 +161,9 @@ class Call:
     host: str
     verb: str
     args: tuple[Any, ...]
-    #: put_bridge of an mqtt-ngsi bridge: the host whose agent's token goes along as the remote
-    #: token (the context broker's write token), looked up only when the call is made, so no
+    #: put_bridge of an mqtt-ngsi bridge, or of an mqtt-kafka bridge into a closed Kafka: the host
+    #: whose agent's token goes along as the remote token (the context broker's write token; the
+    #: agent derives plantkg's Kafka password from it), looked up only when the call is made, so no
     #: token is ever part of a plan, an operation or an event.
     remote_token_of: str | None = None
     #: the plant that owns what the call makes or deletes (DesiredState.owner): the agent records
@@ -251,7 +252,9 @@ def _bridge_calls(change: Change, desired: DesiredState) -> tuple[Call, ...]:
     if spec is None:
         raise EngineError(f"the plan creates {change.address}, which the plant does not describe",
                           hint="make the plan again from the same plant")
-    if spec.mechanism is BridgeMechanism.NGSI:
+    remote = desired.broker(spec.remote.id)
+    closed_kafka = spec.mechanism is BridgeMechanism.WORKER and remote is not None and bool(remote.users)
+    if spec.mechanism is BridgeMechanism.NGSI or closed_kafka:  # the worker logs in on the remote
         return (Call(spec.local.host, "put_bridge", (spec,), remote_token_of=spec.remote.host),)
     return (Call(spec.local.host, "put_bridge", (spec,)),)
 

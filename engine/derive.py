@@ -153,6 +153,9 @@ def derive(plant: PlantGraph) -> DesiredState:
     topics = _topics(plant, select(TOPICS), select(SETTINGS), by_iri)
     iri_of_id = {b.id: b.iri for b in brokers}
     users = broker_users(select, {(iri_of_id[t.broker_id], t.iri): t.name for t in topics})
+    for cluster, lead in leads.items():  # a cluster's clients are its nodes' users (refused below)
+        if cluster in users and lead.kafka is not None:
+            users |= {b.iri: users[cluster] for b in brokers if b.kafka and b.kafka.cluster == lead.kafka.cluster}
     said = frozenset(row["b"].value for row in select(ANONYMOUS_SAID))
     brokers = close_brokers(brokers, users, said)
     by_iri = {b.iri: b for b in brokers}

@@ -8,8 +8,10 @@ A worker bridge lives in ``<state-dir>/bridges/<local>--<remote>/``::
     worker.json   the worker's configuration (engine.bridge_worker.config.WorkerConfig, or
                   engine.bridge_worker.ngsi_config.NgsiWorkerConfig for mechanism mqtt-ngsi, or
                   engine.drivers.kafka.mirror_worker.MirrorWorkerConfig for kafka-mirror)
-    remote.token  mqtt-ngsi only: the context broker's write token (the token of the agent that
-                  runs it), mode 0600, given with the PUT; absent for an open context broker
+    remote.token  mqtt-ngsi: the context broker's write token (the token of the agent that runs
+                  it); mqtt-kafka to a closed Kafka: plantkg's password there, derived from that
+                  Kafka's agent token given with the PUT (engine.access.kafka_internal_password);
+                  mode 0600; absent for an open remote
     pid.json      pid, start time, argv, restarts, config hash (as for brokers)
     stats.json    what the worker reports: readiness, counters, forwarding rate, last error
     logs/bridge.log
@@ -35,11 +37,12 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 
 from engine import process
+from engine.access import kafka_internal_password
 from engine.agent.folder import SPEC_FILE, BrokerFolder, PidRecord, write_atomic
 from engine.agent.owners import Owners, claim
 from engine.agent.procs import (
@@ -154,7 +157,7 @@ def _bootstrap(end: BridgeEnd) -> tuple[str, ...]:
 def _config_text(spec: BridgeSpec, folder: Path, remote_token: str | None) -> str:
     if spec.mechanism is BridgeMechanism.MIRROR:
         if remote_token is not None:
-            raise ConfigValueError("remote_token", "(hidden)", "only an mqtt-ngsi bridge takes a remote token")
+            raise ConfigValueError("remote_token", "(hidden)", "only an mqtt-ngsi or mqtt-kafka bridge takes a remote token")
         if any(r.direction is not BridgeDirection.IN for r in spec.routes):
             raise ConfigValueError("routes", [r.direction.value for r in spec.routes],
                                    "a kafka-mirror bridge copies into its carrier only (direction in)")
@@ -162,9 +165,10 @@ def _config_text(spec: BridgeSpec, folder: Path, remote_token: str | None) -> st
     if spec.mechanism is BridgeMechanism.NGSI:
         token_file = folder / TOKEN_FILE if remote_token is not None else None
         return ngsi_worker_config(spec, folder, token_file).to_json()
-    if remote_token is not None:
-        raise ConfigValueError("remote_token", "(hidden)", "only an mqtt-ngsi bridge takes a remote token")
-    return worker_config(spec, folder).to_json()
+    cfg = worker_config(spec, folder)
+    if remote_token is not None:  # a closed Kafka: the worker's clients log in as plantkg
+        cfg = replace(cfg, kafka_password_file=folder / TOKEN_FILE)
+    return cfg.to_json()
 
 
 def _digest(folder: Path) -> str:
@@ -260,6 +264,8 @@ class WorkerManager:
         text = _config_text(spec, folder.path, remote_token)  # refuses bad values before anything changes
         with self._lock:
             w = self._workers.setdefault(key, _Worker(spec, folder))
+        if remote_token is not None and spec.mechanism is BridgeMechanism.WORKER:
+            remote_token = kafka_internal_password(remote_token)  # never the other agent's token
         with w.op:
             owner = claim(w.record().owner, owner, spec.address)
             files = {WORKER_FILE: text}

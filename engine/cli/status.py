@@ -265,7 +265,7 @@ def typed_broker_rows(desired: DesiredState, observed: ObservedState, now: float
 
 def _anonymous(spec: BrokerSpec) -> bool:
     """Whether a running broker admits clients without credentials (a context broker: writes)."""
-    return spec.allow_anonymous is not False or spec.kind == "kafka"
+    return spec.allow_anonymous is not False
 
 
 def _typed_bridge(row: dict[str, str], observed: ObservedState) -> dict[str, object]:

@@ -33,9 +33,10 @@ from engine.drivers.base import (
     refuse_bridges,
     spec_essence,
 )
+from engine.drivers.kafka import access
 from engine.drivers.kafka import runtime as kafka_runtime
 from engine.drivers.kafka.topics import Topics, admin_client, check_kafka_topic_name, in_sync
-from engine.errors import ConfigValueError, EngineError
+from engine.errors import ConfigValueError, DriverError, EngineError
 from engine.model import BridgeSpec, BrokerSpec, ObservedTopic, TopicSpec, to_dict
 from engine.values import check_host, check_port, host_in_url
 
@@ -69,6 +70,7 @@ class KafkaDriver:
             return kafka_runtime.KafkaNodeConfig(
                 host=spec.host, port=spec.port, controller_port=read_controller_port(broker_dir),
                 data_dir=broker_dir / DATA_DIR,
+                internal_password=access.internal_password(broker_dir) if access.is_closed(spec) else None,
             )
         return kafka_runtime.KafkaNodeConfig(
             host=spec.host, port=spec.port,
@@ -91,10 +93,15 @@ class KafkaDriver:
     def render_config(self, spec: BrokerSpec, broker_dir: Path,
                       bridges: tuple[BridgeSpec, ...] = ()) -> dict[str, str]:
         """``server.properties``; a node alone needs the controller port that :meth:`prepare`
-        stored. Kafka carries no native bridge (its bridges are workers)."""
+        stored. A closed broker (users) also gets the digest of its users' passwords, so a
+        changed password restarts it (engine.drivers.kafka.access). Kafka carries no native
+        bridge (its bridges are workers)."""
         refuse_bridges(self.kind, bridges)
         cfg = self.node_config(spec, broker_dir)
-        return {PROPERTIES_FILE: kafka_runtime.render_server_properties(cfg)}
+        files = {PROPERTIES_FILE: kafka_runtime.render_server_properties(cfg)}
+        if cfg.internal_password is not None:
+            files[access.DIGEST_FILE] = access.users_digest(spec.users, cfg.internal_password)
+        return files
 
     def command(self, spec: BrokerSpec, broker_dir: Path) -> list[str]:
         return kafka_runtime.broker_command(
@@ -129,12 +136,19 @@ class KafkaDriver:
         if node is not None and "broker" not in node.roles:
             return _accepts(spec.host, spec.port, timeout)
         try:
-            metadata = _admin(spec, quiet=True, own=True).list_topics(timeout=max(timeout, 0.1))
-        except (KafkaException, ValueError):
+            admin = _admin(spec, quiet=True, own=True)
+            metadata = admin.list_topics(timeout=max(timeout, 0.1))
+        except (KafkaException, ValueError, EngineError):
             return False
-        if node is None:
-            return bool(metadata.brokers)
-        return in_sync(metadata, node.node_id)
+        if node is None and not bool(metadata.brokers) or node is not None and not in_sync(metadata, node.node_id):
+            return False
+        if access.is_closed(spec):  # its users and ACLs as the spec says, before it counts as up
+            try:
+                access.sync_access(admin, spec.users, max(timeout, 5.0))
+            except (DriverError, ConfigValueError) as exc:
+                log.warning("broker %s: users and ACLs not set yet: %s", spec.id, exc)
+                return False
+        return True
 
     # --- topics (engine.drivers.kafka.topics) -----------------------------------------------
 
@@ -159,6 +173,9 @@ class KafkaDriver:
         """Kind, address and port; for a cluster node also what its config renders of the
         cluster (not the lead flag or the broker list, which restart nothing)."""
         out = spec_essence(spec)
+        if spec.users:  # a password's new content shows in the rendered digest, not here
+            out["users"] = [{"name": u.name, "secret_ref": u.secret_ref, "write": sorted(u.write),
+                             "read": sorted(u.read)} for u in sorted(spec.users, key=lambda u: u.name)]
         if spec.kafka is not None:
             node = to_dict(spec.kafka)
             out["kafka"] = {k: v for k, v in node.items() if k not in ("lead", "bootstrap")}
@@ -192,7 +209,8 @@ def _admin(spec: BrokerSpec, *, quiet: bool = False, own: bool = False) -> Admin
     node's listener only, for its health)."""
     here = f"{host_in_url(check_host('host', spec.host))}:{check_port('port', spec.port)}"
     bootstrap = spec.kafka.bootstrap if spec.kafka is not None and spec.kafka.bootstrap and not own else (here,)
-    return admin_client(bootstrap, quiet=quiet)
+    auth = access.client_config(access.internal_password()) if access.is_closed(spec) else {}
+    return admin_client(bootstrap, quiet=quiet, extra=auth)
 
 
 def _accepts(host: str, port: int, timeout: float) -> bool:

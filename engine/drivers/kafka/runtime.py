@@ -32,6 +32,12 @@ CLUSTER_ID_FILE = "cluster.id"
 DEFAULT_HEAP = "512m"
 _CLUSTER_ID = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]{21}")  # no leading "-": read as an option
 _HEAP = re.compile(r"[1-9][0-9]{0,5}[mMgG]")
+_PASSWORD = re.compile(r"[0-9a-f]{32,128}")
+#: The principal plantkg's own clients (the driver's AdminClient, the bridge workers, the nodes
+#: between themselves) use on a closed Kafka: a super user, authenticated with SASL/PLAIN.
+INTERNAL_USER = "plantkg"
+SCRAM = "SCRAM-SHA-512"
+AUTHORIZER = "org.apache.kafka.metadata.authorizer.StandardAuthorizer"
 
 
 @dataclass(frozen=True)
@@ -54,6 +60,7 @@ class KafkaNodeConfig:
     voters: tuple[tuple[int, str, int], ...] = ()
     replication: int = 1
     min_insync: int | None = None
+    internal_password: str | None = None  # closed: SASL on every listener (docs/security.md)
 
     def __post_init__(self) -> None:
         host = check_host("host", self.host)
@@ -86,6 +93,9 @@ class KafkaNodeConfig:
         if len({v[0] for v in voters}) != len(voters):
             raise ConfigValueError("voters", self.voters, "two voters share a node id")
         object.__setattr__(self, "voters", tuple(sorted(voters)))
+        if self.internal_password is not None and not _PASSWORD.fullmatch(self.internal_password):
+            raise ConfigValueError("internal_password", "(not shown)",
+                                   "expected 32 to 128 hex digits (engine.access.kafka_internal_password)")
         advertised = check_host("advertised_host", self.advertised_host or host)
         if advertised in ("0.0.0.0", "::"):
             raise ConfigValueError(
@@ -104,7 +114,9 @@ def render_server_properties(cfg: KafkaNodeConfig) -> str:
     host, adv = host_in_url(cfg.host), host_in_url(str(cfg.advertised_host))
     broker, controller = "broker" in cfg.roles, "controller" in cfg.roles
     voters = cfg.voters or ((cfg.node_id, str(cfg.advertised_host), cfg.controller_port),)
-    listeners = ([f"PLAINTEXT://{host}:{cfg.port}"] if broker else []) \
+    closed = cfg.internal_password is not None
+    client = "SASL_PLAINTEXT" if closed else "PLAINTEXT"
+    listeners = ([f"{client}://{host}:{cfg.port}"] if broker else []) \
         + ([f"CONTROLLER://{host}:{cfg.controller_port}"] if controller else [])
     lines = [
         "# Rendered by plantkg; edits are overwritten.",
@@ -114,13 +126,15 @@ def render_server_properties(cfg: KafkaNodeConfig) -> str:
         f"listeners={','.join(listeners)}",
     ]
     if broker:  # never advertise the controller listener (Kafka refuses it)
-        lines.append(f"advertised.listeners=PLAINTEXT://{adv}:{cfg.port}")
+        lines.append(f"advertised.listeners={client}://{adv}:{cfg.port}")
     lines += [
-        "listener.security.protocol.map=CONTROLLER:PLAINTEXT,PLAINTEXT:PLAINTEXT",
+        f"listener.security.protocol.map=CONTROLLER:{client},{client}:{client}",
         "controller.listener.names=CONTROLLER",
     ]
     if broker:
-        lines.append("inter.broker.listener.name=PLAINTEXT")
+        lines.append(f"inter.broker.listener.name={client}")
+    if closed:
+        lines += _sasl_lines(str(cfg.internal_password))
     replication = cfg.replication
     lines += [
         f"log.dirs={cfg.data_dir}",
@@ -141,6 +155,28 @@ def render_server_properties(cfg: KafkaNodeConfig) -> str:
     if cfg.min_insync is not None:
         lines.append(f"min.insync.replicas={cfg.min_insync}")
     return "\n".join(lines) + "\n"
+
+
+def _sasl_lines(password: str) -> list[str]:
+    """A closed Kafka (issue 13): clients authenticate with SCRAM-SHA-512 (the plant's users,
+    created through the AdminClient), plantkg's own principal with PLAIN (a static JAAS user, so
+    the nodes and the controller listener need no SCRAM credential before the metadata is up);
+    KRaft's StandardAuthorizer denies what no ACL allows, and plantkg is its only super user."""
+    plain = (f'org.apache.kafka.common.security.plain.PlainLoginModule required username="{INTERNAL_USER}" '
+             f'password="{password}" user_{INTERNAL_USER}="{password}";')
+    return [
+        f"sasl.enabled.mechanisms={SCRAM},PLAIN",
+        "sasl.mechanism.inter.broker.protocol=PLAIN",
+        "sasl.mechanism.controller.protocol=PLAIN",
+        f"listener.name.sasl_plaintext.plain.sasl.jaas.config={plain}",
+        f"listener.name.sasl_plaintext.{SCRAM.lower()}.sasl.jaas.config="
+        "org.apache.kafka.common.security.scram.ScramLoginModule required;",
+        "listener.name.controller.sasl.enabled.mechanisms=PLAIN",
+        f"listener.name.controller.plain.sasl.jaas.config={plain}",
+        f"authorizer.class.name={AUTHORIZER}",
+        f"super.users=User:{INTERNAL_USER}",
+        "allow.everyone.if.no.acl.found=false",
+    ]
 
 
 def new_cluster_id() -> str:

@@ -46,9 +46,12 @@ _TOPIC_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ01
 _TOLERATED = object()
 
 
-def admin_client(bootstrap: Sequence[str], *, quiet: bool = False) -> AdminClient:
-    """An AdminClient of the brokers at ``bootstrap`` (``host:port``, checked by the caller)."""
-    config: dict[str, Any] = {"bootstrap.servers": ",".join(bootstrap), "socket.timeout.ms": 10_000}
+def admin_client(bootstrap: Sequence[str], *, quiet: bool = False,
+                 extra: dict[str, Any] | None = None) -> AdminClient:
+    """An AdminClient of the brokers at ``bootstrap`` (``host:port``, checked by the caller);
+    ``extra``: more librdkafka settings (a closed Kafka's SASL)."""
+    config: dict[str, Any] = {"bootstrap.servers": ",".join(bootstrap), "socket.timeout.ms": 10_000,
+                              **(extra or {})}
     # librdkafka prints connection failures to stderr; a probe of a starting broker expects them.
     config["log_level"] = 0 if quiet else 3
     return AdminClient(config)
