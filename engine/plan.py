@@ -318,7 +318,7 @@ def _broker_change(spec: BrokerSpec, have: ObservedBroker | None) -> Change:
     before = broker_essence(have.spec)
     forced = [f for f in REPLACE_FIELDS if _rendered(f, before.get(f)) != _rendered(f, after.get(f))]
     if forced:
-        what = ", ".join(f"{f} {_show(before.get(f))} → {_show(after.get(f))}" for f in forced)
+        what = ", ".join(_forced(f, before.get(f), after.get(f)) for f in forced)
         if before["host"] != after["host"]:
             how = "the broker moves: stopped on the old host, started anew on the new one"
         elif before["kind"] != after["kind"]:
@@ -339,6 +339,14 @@ def _broker_change(spec: BrokerSpec, have: ObservedBroker | None) -> Change:
                       {**after, "status": BrokerStatus.RUNNING.value},
                       f"restart: the broker is {have.status.value}{detail}")
     return Change(spec.address, Action.NOOP, before, after)
+
+
+def _forced(field: str, old: Any, new: Any) -> str:
+    """A forced field's change for the reason; a cluster node's ``kafka`` by the keys that changed."""
+    if field == "kafka" and isinstance(old, Mapping) and isinstance(new, Mapping):
+        keys = [k for k in new if k not in KAFKA_IN_PLACE and old.get(k) != new[k]]
+        return ", ".join(f"kafka.{k} {_show(old.get(k))} → {_show(new[k])}" for k in keys)
+    return f"{field} {_show(old)} → {_show(new)}"
 
 
 def _rendered(field: str, value: Any) -> Any:
