@@ -134,8 +134,8 @@ def brokers(folder: Path) -> tuple[dict[str, Broker], Credentials, Credentials]:
     out["bridge-tls-b"] = spec("bridge-tls-b", (sub_user, principal), tls=True)
 
     def bridge(a: BrokerSpec, b: BrokerSpec) -> BridgeSpec:
-        return BridgeSpec(local=BridgeEnd(a.id, a.kind, a.host, a.port, a.tls),
-                          remote=BridgeEnd(b.id, b.kind, b.host, b.port, b.tls),
+        return BridgeSpec(local=BridgeEnd(a.id, a.kind, a.host, a.port, tls=a.tls),
+                          remote=BridgeEnd(b.id, b.kind, b.host, b.port, tls=b.tls),
                           mechanism=BridgeMechanism.MOSQUITTO,
                           routes=(BridgeRoute(TOPIC, BridgeDirection.OUT, 1),))
 

@@ -13,14 +13,19 @@ of its topics the broker carries. Nothing here decides who may do what: the rule
   logs in to (engine.security.principals): a Mosquitto bridge on its remote, a worker on its MQTT
   broker, with exactly the topics it forwards there;
 - :func:`check_access_supported` refuses, before anything is deployed, what plantkg cannot run
-  yet: users on a broker whose driver renders none (only Mosquitto does), a resource whose
-  ``pk:id`` is one of plantkg's principal names;
+  yet: users on a broker whose driver renders none (Mosquitto's and Kafka's do; not a Kafka
+  cluster's nodes), a resource whose ``pk:id`` is one of plantkg's principal names, and a
+  MirrorMaker 2 at a closed Kafka (a bridge worker into a closed Kafka authenticates as plantkg's
+  own principal, :func:`kafka_internal_password`; bridges at a closed Mosquitto as their bridge
+  principal);
 - :func:`open_broker_warnings` and :func:`access_label` say, in a plan and in ``status``, which
   brokers anyone on the network may use.
 """
 
 from __future__ import annotations
 
+import hashlib
+import hmac
 from collections import defaultdict
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import replace
@@ -32,7 +37,10 @@ from engine.model import BridgeDirection, BridgeMechanism, BridgeSpec, BrokerSpe
 from engine.security import mqtt_client, principals
 
 #: The broker kinds whose driver renders users and ACLs.
-USER_KINDS = mqtt_client.USER_KINDS
+USER_KINDS = frozenset({"mosquitto", "kafka"})
+#: The broker kinds closed by default (a Kafka is closed when its clients have users) and whose
+#: brokers plantkg's own MQTT principals log in to.
+CLOSED_BY_DEFAULT = mqtt_client.USER_KINDS
 
 USERS = """
 SELECT ?b ?r ?rid ?ref ?t ?mode WHERE {
@@ -73,14 +81,16 @@ def close_brokers(brokers: Iterable[BrokerSpec], users: Mapping[str, tuple[Broke
                   anonymous_said: frozenset[str]) -> list[BrokerSpec]:
     """The specs with their users. A Mosquitto with no ``pk:allowAnonymous`` of its own
     (``anonymous_said``: IRIs that state one) is closed (``allow_anonymous`` False): closed by
-    default, whether or not its clients have a ``pk:secretRef``."""
+    default, whether or not its clients have a ``pk:secretRef``. A Kafka is closed when its
+    clients have users (it has no ``pk:allowAnonymous``: the shapes refuse one)."""
     out = []
     for spec in brokers:
         mine = users.get(spec.iri, ())
-        if spec.kind in USER_KINDS and spec.iri not in anonymous_said:
+        said = spec.iri in anonymous_said
+        if spec.kind in CLOSED_BY_DEFAULT and not said:
             spec = replace(spec, allow_anonymous=False)
         if mine:
-            spec = replace(spec, users=mine)
+            spec = replace(spec, users=mine, allow_anonymous=spec.allow_anonymous if said else False)
         out.append(spec)
     return out
 
@@ -92,10 +102,14 @@ def with_bridge_principals(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
     it brings back). A broker that admits anonymous clients and has no plant users gets none: it
     has no users file, the bridge's login is not checked there, and a users file would cost its
     anonymous persistent sessions the messages that arrive between a restart and their
-    reconnection (docs/security.md). Users stay sorted by name."""
+    reconnection (docs/security.md). Only a Mosquitto takes these principals: a worker logs in to
+    a closed Kafka as plantkg's own principal (:func:`kafka_internal_password`). Users stay sorted
+    by name."""
     extra: dict[str, list[BrokerUser]] = defaultdict(list)
     for bridge in bridges:
         at = bridge.remote if bridge.mechanism is BridgeMechanism.MOSQUITTO else bridge.local
+        if at.kind not in CLOSED_BY_DEFAULT:
+            continue
         # seen from the broker it logs in to: a Mosquitto bridge sends OUT routes to the remote;
         # a worker reads OUT routes from its (local) MQTT broker
         sends = {BridgeDirection.OUT, BridgeDirection.BOTH}
@@ -115,14 +129,23 @@ def with_bridge_principals(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
 
 
 def is_closed(spec: BrokerSpec) -> bool:
-    """A Mosquitto that admits only its users."""
+    """A Mosquitto or a Kafka that admits only its users."""
     return spec.kind in USER_KINDS and spec.allow_anonymous is False
 
 
+def kafka_internal_password(agent_token: str) -> str:
+    """plantkg's own password on a closed Kafka (engine.drivers.kafka.access): derived from the
+    token of the broker's agent, so the engine (which knows every agent's token) can give it to a
+    bridge worker on another machine, and the password reveals nothing of the token."""
+    return hmac.new(agent_token.encode("utf-8"), b"plantkg kafka internal principal", hashlib.sha256).hexdigest()
+
+
 def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[BridgeSpec] = ()) -> None:
-    """Refuse users on a broker whose driver renders none, plant users named like plantkg's own
-    principals (``plantkg.``...), and an MQTT <-> NGSI bridge bringing entities back to a TLS
-    broker (the context broker publishes its notifications over plain MQTT)."""
+    """Refuse users on a broker whose driver renders none or on a Kafka cluster's nodes, plant
+    users named like plantkg's own principals (``plantkg.``...), a MirrorMaker 2 at a closed Kafka,
+    and an MQTT <-> NGSI bridge bringing entities back to a TLS broker (the context broker
+    publishes its notifications over plain MQTT)."""
+    bridges = tuple(bridges)
     by_id = {b.id: b for b in brokers}
     for bridge in bridges:
         if (bridge.mechanism is BridgeMechanism.NGSI and bridge.local.tls
@@ -145,11 +168,30 @@ def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
                 f"broker {spec.id!r}: the resource with pk:id {reserved[0]!r} has a pk:secretRef, "
                 f"but user names starting with {principals.PREFIX!r} are plantkg's own principals",
                 hint="give the resource another pk:id")
+        if spec.users and spec.kafka is not None:
+            raise AccessNotSupportedError(
+                f"broker {spec.id!r} is a node of Kafka cluster {spec.kafka.cluster!r}, whose clients "
+                "have a pk:secretRef: plantkg renders SASL users and ACLs for a Kafka broker of its "
+                "own only (yet); its nodes would need one shared secret for plantkg's own principal",
+                hint="remove pk:secretRef from the cluster's clients, or let them send to a Kafka "
+                     "broker of its own")
+    for bridge in bridges:
+        # a bridge logs in to a closed Mosquitto as its principal, a bridge worker to a closed
+        # Kafka as plantkg's own principal; MirrorMaker 2 has no credentials at a closed Kafka yet
+        closed = [end.id for end in (bridge.local, bridge.remote) if end.id in by_id and is_closed(by_id[end.id])
+                  and by_id[end.id].kind == "kafka" and bridge.mechanism is not BridgeMechanism.WORKER]
+        if closed:
+            raise AccessNotSupportedError(
+                f"{bridge.address}: Kafka broker {closed[0]!r} is closed to anonymous clients (its "
+                "clients have a pk:secretRef), and a MirrorMaker 2 at a closed Kafka needs plantkg's "
+                "own credentials there, which plantkg does not give it yet",
+                hint=f"remove pk:secretRef from the clients of {closed[0]!r} while it is mirrored, or "
+                     "route the topics through an MQTT broker")
 
 
 def access_label(spec: BrokerSpec) -> str:
     """Who may use the broker, in a word or two (``status``): ``users (N)`` for a closed
-    Mosquitto (N: the plant's users and the bridges' principals; plantkg's fixed principals not
+    Mosquitto or Kafka (N: the plant's users and the bridges' principals; plantkg's fixed principals not
     counted), ``token`` for a context broker whose writes need its agent's token, ``open``
     (anyone who reaches it) otherwise; ``, TLS`` when its listener speaks TLS only."""
     if spec.kind in USER_KINDS:
@@ -163,22 +205,22 @@ def access_label(spec: BrokerSpec) -> str:
 
 
 def open_broker_warnings(brokers: Iterable[BrokerSpec]) -> tuple[str, ...]:
-    """One line per deployed broker anyone on the network may use (a Mosquitto or a context broker
-    open to anonymous clients, any Kafka), saying why and how to close it (a plan shows them;
-    docs/security.md)."""
+    """One line per deployed broker anyone on the network may use (a Mosquitto or a Kafka open to
+    anonymous clients, a context broker open to writes), saying why and how to close it (a plan
+    shows them; docs/security.md)."""
     out = []
     for spec in sorted(brokers, key=lambda b: b.id):
         if spec.kind in USER_KINDS and spec.allow_anonymous is not False:
-            why = ("the plant says pk:allowAnonymous true" if spec.allow_anonymous
-                   else "its spec does not close it")
+            if spec.kind in CLOSED_BY_DEFAULT:
+                why = ("the plant says pk:allowAnonymous true" if spec.allow_anonymous
+                       else "its spec does not close it")
+                fix = "remove pk:allowAnonymous (closed by default) and give its clients a pk:secretRef"
+            else:
+                why, fix = "none of its clients has a pk:secretRef", "give its clients a pk:secretRef to close it"
             out.append(f"broker.{spec.id} admits anonymous clients ({why}): anyone who reaches "
-                       f"{spec.host}:{spec.port} may publish and read every topic; remove "
-                       "pk:allowAnonymous (closed by default) and give its clients a pk:secretRef")
+                       f"{spec.host}:{spec.port} may publish and read every topic; {fix}")
         elif spec.kind == "ngsi-v2" and spec.allow_anonymous:
             out.append(f"broker.{spec.id} (context broker) takes writes without its agent's token "
                        "(the plant says pk:allowAnonymous true): anyone who reaches "
                        f"{spec.host}:{spec.port} may change every entity")
-        elif spec.kind == "kafka":
-            out.append(f"broker.{spec.id} (Kafka) admits any client: plantkg does not run Kafka "
-                       "with SASL users and ACLs yet")
     return tuple(out)

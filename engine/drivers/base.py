@@ -22,7 +22,9 @@ from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 from engine.errors import ConfigValueError
-from engine.model import BridgeSpec, BrokerSpec, ObservedTopic, TopicSpec
+from engine.model import BridgeSpec, BrokerSpec, BrokerUser, ObservedTopic, TopicSpec
+from engine.security import principal_key, principals
+from engine.security.secrets import read_secret
 
 #: Folder of a broker's logs inside its broker folder; the agent spawns the process with its
 #: stdout/stderr appended to ``logs/<kind>.log`` (see :func:`log_file`).
@@ -34,7 +36,7 @@ DATA_DIR = "data"
 AGENT_TOKEN_FILE_ENV = "PLANTKG_AGENT_TOKEN_FILE"
 
 #: Topic fields that only Kafka uses, and those that only MQTT uses.
-KAFKA_TOPIC_FIELDS = ("partitions", "replication_factor", "retention_ms")
+KAFKA_TOPIC_FIELDS = ("partitions", "replication_factor", "retention_ms", "min_insync_replicas")
 MQTT_TOPIC_FIELDS = ("qos", "retain")
 #: Topic fields that only an NGSI-v2 context broker uses (the topic's entity).
 NGSI_TOPIC_FIELDS = ("entity_id", "entity_type")
@@ -149,6 +151,7 @@ def check_topic_fields(topic: TopicSpec, kind: str, applicable: tuple[str, ...])
     _check_int(topic, "partitions", 1, 10_000)
     _check_int(topic, "replication_factor", 1, 32_767)
     _check_int(topic, "retention_ms", -1, 2**63 - 1)
+    _check_int(topic, "min_insync_replicas", 1, 32_767)
     _check_int(topic, "qos", 0, 2)
     if topic.retain is not None and not isinstance(topic.retain, bool):
         raise ConfigValueError("retain", topic.retain, "must be true or false")
@@ -162,3 +165,14 @@ def _check_int(topic: TopicSpec, field: str, low: int, high: int) -> None:
         raise ConfigValueError(field, value, "must be an integer")
     if not low <= value <= high:
         raise ConfigValueError(field, value, f"must be in {low}..{high}")
+
+
+def resolve_secret(user: BrokerUser, environ: Mapping[str, str] | None = None) -> str:
+    """The password of ``user`` on this machine: derived from the principal key for plantkg's
+    principals (``plantkg:principal-key``), else what ``user.secret_ref`` points to (an
+    environment variable of this process, or a file's text without one trailing newline;
+    engine.security.secrets). A missing, empty or unreadable secret is a ConfigValueError naming
+    the user and the reference, never the secret. Shared by the Mosquitto and Kafka drivers."""
+    if user.secret_ref == principals.PRINCIPAL_REF:
+        return principal_key.password_for(user.name)
+    return read_secret(f"users[{user.name}].secret_ref", user.secret_ref, environ)

@@ -32,7 +32,6 @@ import getpass
 import os
 import secrets
 import time
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +41,8 @@ from paho.mqtt.enums import CallbackAPIVersion
 from engine import netutil, parts
 from engine.drivers.mosquitto import dynsec
 from engine.drivers.mosquitto import runtime as mosquitto_runtime
-from engine.drivers.base import (
+from engine.drivers.base import (  # resolve_secret: shared with the Kafka driver
+    resolve_secret,
     DATA_DIR,
     MQTT_TOPIC_FIELDS,
     check_text,
@@ -51,10 +51,9 @@ from engine.drivers.base import (
     spec_essence,
 )
 from engine.errors import ConfigValueError
-from engine.model import BridgeMechanism, BridgeSpec, BrokerSpec, BrokerUser, ObservedTopic, TopicSpec
+from engine.model import BridgeMechanism, BridgeSpec, BrokerSpec, ObservedTopic, TopicSpec
 from engine.security import ca, principal_key, principals
 from engine.security.mqtt_client import MqttLogin, apply_login, apply_tls, principal_login
-from engine.security.secrets import read_secret
 
 CONF_FILE = "mosquitto.conf"
 #: The users file of a broker with users (in its broker folder): the dynamic security plugin's,
@@ -276,17 +275,6 @@ def agent_login(spec: BrokerSpec) -> MqttLogin | None:
 def connack_answers(reason: str) -> bool:
     """True if a CONNACK with this reason (paho's name) shows a broker answering MQTT."""
     return reason in ANSWERING_CONNACKS
-
-
-def resolve_secret(user: BrokerUser, environ: Mapping[str, str] | None = None) -> str:
-    """The password of ``user`` on this machine: derived from the principal key for plantkg's
-    principals (``plantkg:principal-key``), else what ``user.secret_ref`` points to (an
-    environment variable of this process, or a file's text without one trailing newline). A
-    missing, empty or unreadable secret is a ConfigValueError naming the user and the reference,
-    never the secret."""
-    if user.secret_ref == principals.PRINCIPAL_REF:
-        return principal_key.password_for(user.name)
-    return read_secret(f"users[{user.name}].secret_ref", user.secret_ref, environ)
 
 
 def _previous(path: Path) -> str:
