@@ -17,7 +17,6 @@ from pathlib import Path
 from typing import Protocol
 
 from engine import process
-from engine.errors import WaitTimeoutError
 
 _CLK_TCK = os.sysconf("SC_CLK_TCK")
 
@@ -159,8 +158,7 @@ def stop_foreign(info: ProcInfo, grace: float) -> None:
             pass
 
     send(signal.SIGTERM)
-    try:
-        process.wait_until(lambda: not same(), grace, 0.02, what=f"pid {info.pid} to exit")
-    except WaitTimeoutError:
-        send(signal.SIGKILL)
-        process.wait_until(lambda: not same(), 10.0, 0.02, what=f"pid {info.pid} to die")
+    if not same() or process.wait_exit(info.pid, grace) or not same():
+        return
+    send(signal.SIGKILL)
+    process.wait_until(lambda: not same(), 10.0, 0.02, what=f"pid {info.pid} to die")

@@ -2,7 +2,9 @@
 
 The app is served by werkzeug's threaded WSGI server in a thread of its own (werkzeug comes
 with Flask; one engine talks to an agent over loopback or a plant network, a handful of requests
-at a time, so a production server such as waitress would add a dependency and buy nothing here).
+at a time, so a production server such as waitress would add a dependency and buy nothing here),
+with a request handler of our own that keeps connections open between requests
+(:mod:`engine.agent.keepalive`).
 The main thread waits for SIGTERM/SIGINT, then stops the server and the supervisor; brokers keep
 running unless ``stop_brokers_on_exit`` (they are the plant's, the agent only manages them).
 """
@@ -26,6 +28,7 @@ from typing import IO
 from werkzeug.serving import BaseWSGIServer, make_server
 
 from engine.agent.app import AgentState, create_app
+from engine.agent.keepalive import KeepAliveHandler, close_connections, keep_alive
 from engine.agent.manager import BrokerManager
 from engine.agent.workers import WorkerManager
 from engine.drivers.base import AGENT_TOKEN_FILE_ENV
@@ -148,6 +151,7 @@ class RunningAgent:
     def shutdown(self, *, stop_brokers: bool = False) -> None:
         self.server.shutdown()
         self.thread.join()
+        close_connections(self.server)
         self.server.server_close()
         if self.workers is not None:
             self.workers.close(stop_workers=stop_brokers)
@@ -174,7 +178,8 @@ def start_agent(
     workers = WorkerManager(state_dir).open()
     app = create_app(AgentState(manager, token, name or f"plantkg-agent@{listen.url}", workers))
     try:
-        server = make_server(listen.host, listen.port, app, threaded=True)
+        server = keep_alive(make_server(listen.host, listen.port, app, threaded=True,
+                                        request_handler=KeepAliveHandler))
     except (OSError, SystemExit) as exc:  # werkzeug exits when the port is taken
         workers.close()
         manager.close()
