@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any, Protocol
 
-from engine.agent.calls import AgentCall, BatchAnswer, CallResult
+from engine.agent.calls import AgentCall, BatchAnswer, CallResult, run_calls
 from engine.agents_config import AgentDirectory, AgentsConfigError
 from engine.apply_calls import Call, Operation, lanes, operations
 from engine.errors import DispatchError, EngineError, TemporaryDispatchError
@@ -234,7 +234,9 @@ class _Runner:
                             other.overlapped = request.overlapped = True
                     client = self.clients[request.agent]
                     calls = [[self._agent_call(call) for _, call in part] for _, part in request.parts]
-                    flying[pool.submit(client.batch, calls, observe=True)] = request
+                    batch = getattr(client, "batch", None)
+                    flying[pool.submit(batch, calls, observe=True) if batch is not None  # an agent
+                           else pool.submit(run_calls, client, calls)] = request  # a client with verbs only
                     busy.update(lane for lane, _ in request.parts)
                 waiting = [ln for ln in todo if not ln.finished and ln not in busy]
                 if not flying:

@@ -32,12 +32,12 @@ from typing import Literal as Lit
 
 import pyoxigraph as ox
 
-from engine.reasoning import rules_fast, rules_owlready
+from engine.reasoning import rules_fast, rules_owlready, tbox_cache
 from engine.reasoning.rules_errors import (
     InconsistentPlantError, ReasonerFailedError, ReasonerTimeoutError, ReasoningError,
     UnsupportedConstructError,
 )
-from engine.reasoning.rules_tbox import RESERVED_NAMESPACES, read_tbox
+from engine.reasoning.rules_tbox import RESERVED_NAMESPACES
 from kg.load import PlantGraph
 from kg.namespaces import GRAPH_INFERRED, GRAPH_ONTOLOGY, OWL, PK, RDF, RDFS, SWRL
 
@@ -152,9 +152,8 @@ def _where(plant: PlantGraph):  # noqa: ANN202 - a small closure
 def _run_fast(plant: PlantGraph) -> str:
     inputs = input_graphs(plant)
     where = _where(plant)
-    tbox = read_tbox(plant.store, inputs, where)
-    program = rules_fast.compile_tbox(tbox)
-    exported = derived_properties(plant)
+    known = tbox_cache.schema(plant, inputs, where, derived_properties)  # read once per process
+    program, exported = known.program, known.exported
     outcome = rules_fast.run(program, plant.store, inputs, INFERRED, where)
     # Keep what is read back (plantkg classes of named individuals, derived properties); the
     # rest (other classes, other super-properties, hasValue data) was only a step on the way.
