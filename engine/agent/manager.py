@@ -663,6 +663,7 @@ class BrokerManager:
         target = self.state_dir / REMOVED_DIR / f"{b.spec.id}.{stamp}"
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.move(str(b.folder.path), str(target))
+        b.folder.forget()
 
     # --- re-adoption -----------------------------------------------------------------------
 
