@@ -621,11 +621,8 @@ class BrokerManager:
                 listening[0] = True
             return driver.health(spec, 1.0)
 
-        def interval() -> float:
-            if listening[0]:
-                return slow
-            with self._lock:
-                return min(slow, READY_POLL * max(1, self._starting))
+        def interval() -> float:  # reads a counter (no lock: 100 starting brokers ask it often)
+            return slow if listening[0] else min(slow, READY_POLL * max(1, self._starting))
 
         with self._lock:
             self._starting += 1

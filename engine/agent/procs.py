@@ -10,6 +10,7 @@ Linux-only (``/proc``), like the agent.
 
 from __future__ import annotations
 
+import functools
 import os
 import signal
 from dataclasses import dataclass
@@ -48,7 +49,10 @@ def proc_info(pid: int) -> ProcInfo | None:
     return ProcInfo(pid=pid, start_ticks=int(rest[19]), pgid=int(rest[2]), argv=argv)
 
 
+@functools.cache
 def _boot_time() -> float:
+    """When the machine booted (it does not change while the agent runs: read once; every GET
+    /v1/brokers asked it for every broker)."""
     for line in Path("/proc/stat").read_text().splitlines():
         if line.startswith("btime "):
             return float(line.split()[1])

@@ -161,3 +161,26 @@ def test_lanes_start_their_brokers_together(tmp_path: Path) -> None:
     finally:
         manager.close(stop_brokers=True)
     assert not processes_mentioning(tmp_path)
+
+
+def test_a_broker_is_healthy_only_once_its_port_accepts_connections(tmp_path: Path) -> None:
+    """The agent asks the driver's health check only once the broker's port accepts TCP: a process
+    that never listens stays 'starting' (503 at the deadline), whatever its health check says."""
+    class NeverListens(MosquittoDriver):
+        start_deadline = 0.5
+
+        def command(self, spec, broker_dir):  # type: ignore[no-untyped-def]
+            return ["sleep", "30"]
+
+        def health(self, spec, timeout):  # type: ignore[no-untyped-def]
+            return True
+
+    manager = BrokerManager(tmp_path / "state", DriverRegistry([NeverListens()])).open()
+    try:
+        client = create_app(AgentState(manager, TOKEN)).test_client()
+        (result,) = batch(client, [[{"op": "put_broker", "spec": spec("a")}]]).get_json()["lanes"][0]
+        assert result["outcome"] == "failed" and result["status"] == 503, result
+        assert "still starting" in result["error"]["error"] and result["error"]["retryable"] is True
+    finally:
+        manager.close(stop_brokers=True)
+    assert not processes_mentioning(tmp_path)
