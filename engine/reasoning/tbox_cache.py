@@ -4,8 +4,9 @@ Reading the axioms and rules out of the store (:func:`rules_tbox.read_tbox`), co
 SPARQL (:func:`rules_fast.compile_tbox`) and finding the derived properties took most of reasoning
 a small plant (~60 % for one broker), and their result depends only on the TBox. A long-running
 process (``plantkg serve``, the fleet manager, the reconcile loop, a benchmark) reasons again and
-again over the same TBox, so the result is kept per process, keyed by the TBox files (path, size,
-modification time), and used when the plant files add no axiom of their own:
+again over the same TBox, so the result is kept per process, keyed by the SHA-256 of the TBox files
+as they were loaded into the store (``PlantGraph.tbox_digest``), and used when the plant files add
+no axiom of their own:
 
 - a plant file adds axioms when it has a triple whose predicate is one the reader turns into an
   axiom (``rdfs:subClassOf``, ``owl:inverseOf``, ``swrl:body``, ``rdf:first`` ...) or an
@@ -21,7 +22,6 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import pyoxigraph as ox
 
@@ -62,7 +62,7 @@ class _Entry:
     named_rules: tuple[ox.NamedNode, ...]
 
 
-_cache: dict[tuple[tuple[str, int, int], ...], _Entry] = {}
+_cache: dict[str, _Entry] = {}
 _lock = threading.Lock()
 
 
@@ -96,17 +96,9 @@ def schema(plant: PlantGraph, inputs: list[ox.NamedNode], where: Callable[[objec
     return found
 
 
-def _key(plant: PlantGraph) -> tuple[tuple[str, int, int], ...] | None:
-    """The TBox files as (path, size, modification time); None if one cannot be read."""
-    try:
-        return tuple((str(src.path), *_stat(src.path)) for src in plant.tbox)
-    except OSError:
-        return None
-
-
-def _stat(path: Path) -> tuple[int, int]:
-    info = path.stat()
-    return info.st_size, info.st_mtime_ns
+def _key(plant: PlantGraph) -> str | None:
+    """The digest of the TBox as it was loaded into the plant's store (None: not known)."""
+    return plant.tbox_digest
 
 
 def _adds_axioms(plant: PlantGraph, named_rules: tuple[ox.NamedNode, ...]) -> bool:
