@@ -141,6 +141,13 @@ def _bridges(state: AgentState) -> list[Any]:
     return to_dict(sorted(found, key=lambda b: b.spec.address))
 
 
+@v1.get("/state")
+def state() -> Response:
+    """What GET /v1/brokers and GET /v1/bridges answer, in one request (the engine's observation)."""
+    st = _state()
+    return jsonify({"brokers": to_dict(st.brokers.list()), "bridges": _bridges(st)})
+
+
 @v1.post("/batch")
 def batch() -> Response:
     """Many changes in one request (engine.agent.batch): lanes in parallel, items of a lane in

@@ -160,6 +160,15 @@ class AgentClient:
         self._request("DELETE", f"/v1/brokers/{_segment(local_id)}/bridges/{_segment(remote_id)}"
                                 f"{_owner_query(owner)}", timeout=self.broker_timeout)
 
+    def state(self) -> tuple[list[ObservedBroker], list[ObservedBridge]]:
+        """Every broker and every bridge of the agent, in one request (``GET /v1/state``)."""
+        data = self._request("GET", "/v1/state")
+        brokers, bridges = (data.get("brokers"), data.get("bridges")) if isinstance(data, dict) else (None, None)
+        if not isinstance(brokers, list) or not isinstance(bridges, list):
+            raise self._bad_answer("GET /v1/state", "no 'brokers' and 'bridges' arrays")
+        return ([self._parse(observed_broker_from_json, b, "GET /v1/state") for b in brokers],
+                [self._parse(observed_bridge_from_json, b, "GET /v1/state") for b in bridges])
+
     def batch(self, lanes: Sequence[Sequence[AgentCall]], *, observe: bool = False) -> BatchAnswer:
         """Make the calls of every lane (``POST /v1/batch``): lanes at the same time on the
         agent, a lane's calls in order, a result per call (a failed call's error is the one the

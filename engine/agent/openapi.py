@@ -418,6 +418,19 @@ def openapi_document(version: str) -> dict[str, Any]:
                                   **_error_responses(400, 401, 409, 503)},
                 },
             },
+            "/v1/state": {"get": {
+                "operationId": "state",
+                "summary": "Every broker and every bridge of this agent, in one answer",
+                "description": "What GET /v1/brokers and GET /v1/bridges answer, together: the "
+                               "engine observes an agent with one request.",
+                "responses": {
+                    "200": _json({"type": "object", "required": ["brokers", "bridges"], "properties": {
+                        "brokers": {"type": "array", "items": _ref("ObservedBroker")},
+                        "bridges": {"type": "array", "items": _ref("ObservedBridge")}}},
+                        "The brokers sorted by id, the bridges by address"),
+                    **_error_responses(401),
+                },
+            }},
             "/v1/batch": {"post": {
                 "operationId": "batch",
                 "summary": "Make many changes in one request, in lanes, with a result per item",

@@ -70,3 +70,11 @@ def test_an_agent_call_names_a_verb_and_hides_its_token() -> None:
     assert "secret-token" not in repr(call)
     assert call.kwargs() == {"owner": "cell", "remote_token": "secret-token"}
     assert AgentCall("delete_broker", ("a",)).kwargs() == {}
+
+
+def test_the_state_is_both_lists_in_one_request(client: AgentClient) -> None:
+    assert client.state() == ([], [])
+    client.batch([[AgentCall("put_broker", (mqtt("a"),))]])
+    brokers, bridges = client.state()
+    assert brokers == client.list_brokers() and bridges == client.list_bridges() == []
+    assert client.batch([[AgentCall("delete_broker", ("a",))]]).lanes[0][0].done
