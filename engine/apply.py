@@ -262,12 +262,13 @@ class _Runner:
             if lane.ready_at > now:
                 continue
             part = lane.wave()
-            self._start_ops(lane, part)
             try:
                 client = self.directory.client_for(part[0][1].host)
             except PlantKGError as exc:  # no agent or token known for the host
+                self._start_ops(lane, part[:1])
                 self._fail(lane, part[0][0], str(exc), attempts_add=1)
                 continue
+            self._start_ops(lane, part)
             key = id(client)
             self.clients[key] = client
             by_agent.setdefault(key, _Request(key, [])).parts.append((lane, part))
@@ -305,6 +306,10 @@ class _Runner:
             self._take(lane, part, results)
 
     def _take(self, lane: _Lane, part: list[tuple[int, Call]], results: Sequence[CallResult]) -> None:
+        if results and results[0].skipped:  # an agent that skips a lane without a failure
+            self._fail(lane, part[0][0], "the agent skipped the call without a failure before it",
+                       attempts_add=1)
+            return
         for (index, _), result in zip(part, results):
             if result.done:
                 lane.tally[index] = lane.tally.get(index, 0) + 1

@@ -129,3 +129,25 @@ def test_the_checks_merge_of_answered_and_asked_agents_finds_what_is_left() -> N
     assert asked == [{"127.0.0.3"}] and counts["127.0.0.2"] == 1
     assert not result.ok and "broker.kafka" in [u.address for u in result.unexpected]
     assert result.after is not None and not result.after.empty
+
+
+def test_an_agent_skipping_a_lane_without_a_failure_fails_its_change_instead_of_looping() -> None:
+    from engine.agent.calls import SKIPPED
+
+    fleet = FakeFleet()
+    original = fleet.client
+
+    def odd(url: str, token: str):  # type: ignore[no-untyped-def]
+        client = original(url, token)
+        if client.host == "127.0.0.3":
+            client.batch = lambda lanes, observe=False: BatchAnswer(  # type: ignore[method-assign]
+                tuple(tuple(SKIPPED for _ in lane) for lane in lanes))
+        return client
+
+    fleet.client = odd  # type: ignore[method-assign]
+    asked: list[set[str]] = []
+    result = run(fleet, robot_cell(), asked)
+    failed = {o.change.address: o.error for o in result.failed}
+    assert list(failed) == ["broker.kafka"] and "skipped the call without a failure" in failed["broker.kafka"]
+    assert {o.change.address for o in result.skipped} == {
+        "topic.kafka.robot.abb-irb120.energy", "topic.kafka.robot.abb-irb120.position"}
