@@ -240,6 +240,7 @@ def one_size(n: int, args: argparse.Namespace, work: Path, raw: list[BurstResult
         "hand_up_s": hand_up_s, "plantkg_up_s": up_s, "up_ratio": up_s / hand_up_s,
         "hand_down_s": hand_down_s, "plantkg_down_s": down_s, "down_ratio": down_s / hand_down_s,
         "plantkg_up_split_s": {k: statistics.median(u[k] for u in ups) for k in ups[0]},
+        "plantkg_down_split_s": {k: statistics.median(d.get(k, 0.0) for d in downs) for k in downs[0]},
         "runs": {"hand_up_s": hand_ups, "plantkg_up_s": [u["total"] for u in ups],
                  "hand_down_s": hand_downs, "plantkg_down_s": [d["total"] for d in downs]}},
         "memory": {**mem, "agent_idle_rss_mb": idle_agent_mb}, "cells": cells}
@@ -363,6 +364,17 @@ def to_markdown(data: dict[str, object]) -> str:
                      f"{b['plantkg_up_split_s']['pipeline']:.3f} | {b['hand_down_s']:.3f} | {b['plantkg_down_s']:.3f} | "
                      f"{b['down_ratio']:.2f} | {m['broker_rss_mb_mean']:.1f} | "
                      f"{m['agent_idle_rss_mb']:.0f} → {m['agent_rss_mb']:.0f} |")
+    split = [(r["brokers"], r["bringup"].get("plantkg_up_split_s"), r["bringup"].get("plantkg_down_split_s"))
+             for r in rows]  # type: ignore[union-attr]
+    if any(up and down for _, up, down in split):
+        lines += ["", "Where one apply's and one destroy's time goes (median s; pipeline = the stages before "
+                  "dispatch, dispatch = the batch and the check):", ""]
+        for n, up, down in split:
+            if up and down:
+                lines.append(f"- {n} brokers: apply " + ", ".join(f"{k.removeprefix('stage_')} {v:.3f}"
+                                                                  for k, v in up.items() if k != "total")
+                             + "; destroy " + ", ".join(f"{k.removeprefix('stage_')} {v:.3f}"
+                                                       for k, v in down.items() if k != "total"))
     lines += ["", f"## Latency per message, ms ({data['size']} B payload, QoS 1)", "",
               "| mode | brokers | messages | send burst ms | ack mean | ack p50 | ack p99 | delivery mean | "
               "delivery p50 | delivery p99 | stdev of burst means (ack / delivery) | lost |",
