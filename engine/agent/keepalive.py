@@ -94,7 +94,8 @@ class KeepAliveHandler(WSGIRequestHandler):
         length_text = environ.get("CONTENT_LENGTH") or "0"
         length = int(length_text) if length_text.isdigit() else -1
         chunked = "wsgi.input_terminated" in environ  # werkzeug saw Transfer-Encoding: chunked
-        keep = (not self.close_connection and not chunked and 0 <= length <= MAX_DRAIN)
+        keep = (not self.close_connection and self.request_version == "HTTP/1.1" and not chunked
+                and 0 <= length <= MAX_DRAIN)
         body = None
         if keep:
             body = _Body(self.rfile, length)
