@@ -177,8 +177,10 @@ class BrokerFolder:
     # rendered files
     def write_rendered(self, files: dict[str, str]) -> None:
         for name, text in files.items():
-            target = (self.path / name).resolve()
-            if target.parent != self.path.resolve() or name in (SPEC_FILE, PID_FILE, TOPICS_FILE, BRIDGES_FILE):
+            # A plain file name in this folder (no path, no symlink followed: the file is written
+            # aside and renamed over the name), and none of the agent's own files.
+            if not name or "/" in name or "\0" in name or name in (".", "..") \
+                    or name in (SPEC_FILE, PID_FILE, TOPICS_FILE, BRIDGES_FILE):
                 raise EngineError(f"driver tried to write {name!r} outside its config files",
                                   hint="fix the driver's render_config")
-            write_atomic(target, text, RENDERED_MODE)
+            write_atomic(self.path / name, text, RENDERED_MODE)
