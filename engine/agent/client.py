@@ -176,7 +176,7 @@ class AgentClient:
         holds the agent's brokers and bridges afterwards. Many lanes go as several requests at
         once; the agent's state is then not known for after all of them (``observed`` False).
         A failure of the request itself (unreachable, 401, 400) raises as a single call would."""
-        chunks = _chunks([[_item(c) for c in lane] for lane in lanes])
+        chunks = _chunks([(len(lane), json.dumps([_item(c) for c in lane])) for lane in lanes])
         if not chunks:
             return BatchAnswer(())
         if len(chunks) == 1:
@@ -189,12 +189,9 @@ class AgentClient:
                                                         False), range(len(chunks))))
         return BatchAnswer(tuple(r for part in parts for r in part.lanes))
 
-    def _batch(self, items: list[list[dict[str, Any]]], lanes: list[Sequence[AgentCall]],
-               observe: bool) -> BatchAnswer:
-        body: dict[str, Any] = {"lanes": items}
-        if observe:
-            body["observe"] = True
-        data = self._request("POST", "/v1/batch", body, timeout=self.broker_timeout)
+    def _batch(self, encoded: list[str], lanes: list[Sequence[AgentCall]], observe: bool) -> BatchAnswer:
+        body = '{"lanes": [' + ", ".join(encoded) + "]" + (', "observe": true' if observe else "") + "}"
+        data = self._request("POST", "/v1/batch", raw=body.encode("utf-8"), timeout=self.broker_timeout)
         results = data.get("lanes") if isinstance(data, dict) else None
         if not isinstance(results, list) or len(results) != len(lanes) or any(
                 not isinstance(r, list) or len(r) != len(lane) for r, lane in zip(results, lanes)):
@@ -231,9 +228,10 @@ class AgentClient:
             conn.close()
 
     def _request(self, method: str, path: str, body: Any = None, *, timeout: float | None = None,
-                 missing_ok: bool = False) -> Any:
+                 missing_ok: bool = False, raw: bytes | None = None) -> Any:
+        """``body`` as JSON, or ``raw`` (JSON already encoded); the answer's JSON (None: empty)."""
         what = f"{method} {path}"
-        data = json.dumps(body).encode("utf-8") if body is not None else None
+        data = raw if raw is not None else json.dumps(body).encode("utf-8") if body is not None else None
         headers = {"Authorization": f"Bearer {self._token}", "Accept": "application/json"}
         if data is not None:
             headers["Content-Type"] = "application/json"
@@ -379,17 +377,17 @@ def _what(call: AgentCall) -> str:
     }[call.verb]()
 
 
-def _chunks(lanes: list[list[dict[str, Any]]]) -> list[list[list[dict[str, Any]]]]:
-    """Lanes grouped into requests the agent takes (BATCH_LANES, BATCH_ITEMS, BATCH_BYTES)."""
-    out: list[list[list[dict[str, Any]]]] = []
+def _chunks(lanes: list[tuple[int, str]]) -> list[list[str]]:
+    """Lanes, each (its number of items, its JSON), grouped into requests the agent takes
+    (BATCH_LANES, BATCH_ITEMS, BATCH_BYTES)."""
+    out: list[list[str]] = []
     items = size = 0
-    for lane in lanes:
-        lane_size = sum(len(json.dumps(i)) for i in lane)
-        if not out or len(out[-1]) >= BATCH_LANES or items + len(lane) > BATCH_ITEMS \
-                or size + lane_size > BATCH_BYTES:
+    for count, lane in lanes:
+        if not out or len(out[-1]) >= BATCH_LANES or items + count > BATCH_ITEMS \
+                or size + len(lane) > BATCH_BYTES:
             out.append([])
             items = size = 0
         out[-1].append(lane)
-        items += len(lane)
-        size += lane_size
+        items += count
+        size += len(lane)
     return out
