@@ -45,11 +45,13 @@ MAX_TOKEN = 4096
 
 
 def check_remote_token(value: Any, mechanism: BridgeMechanism, where: str = REMOTE_TOKEN) -> str | None:
-    """A bridge PUT's ``remote_token`` (None if absent): only an mqtt-ngsi bridge takes one."""
+    """A bridge PUT's ``remote_token`` (None if absent): the remote broker's agent token, which only
+    an mqtt-ngsi bridge (a context broker's write token) or an mqtt-kafka one (a closed Kafka's,
+    from which the worker derives plantkg's password there) takes."""
     if value is None:
         return None
-    if mechanism is not BridgeMechanism.NGSI:
-        raise WireError(where, f"only an mqtt-ngsi bridge takes one, not {mechanism.value}")
+    if mechanism not in (BridgeMechanism.NGSI, BridgeMechanism.WORKER):
+        raise WireError(where, f"only an mqtt-ngsi or mqtt-kafka bridge takes one, not {mechanism.value}")
     if not isinstance(value, str) or not value.strip() or not value.isprintable() or len(value) > MAX_TOKEN:
         raise WireError(where, f"must be a non-empty printable string of at most {MAX_TOKEN} characters")
     return value.strip()
@@ -80,8 +82,8 @@ class Changes:
         self.brokers.delete_topic(broker_id, name, owner)
 
     def put_bridge(self, spec: BridgeSpec, owner: str | None, remote_token: str | None) -> ObservedBridge:
-        """In the local broker's own config (Mosquitto) or as a worker; ``remote_token`` (mqtt-ngsi
-        only, checked by the caller) is kept in the worker's folder."""
+        """In the local broker's own config (Mosquitto) or as a worker; ``remote_token`` (mqtt-ngsi,
+        or mqtt-kafka into a closed Kafka; checked by the caller) is kept in the worker's folder."""
         if spec.mechanism is BridgeMechanism.MOSQUITTO:
             return self.brokers.put_native_bridge(spec, owner)
         broker_id = spec.local.id
