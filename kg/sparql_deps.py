@@ -80,6 +80,8 @@ class Pattern:
     pvar: str | None
     o: str | Term
     unsafe: bool = False
+    #: the conditional parts (OPTIONAL, UNION branch, EXISTS, MINUS) it sits in, outermost first
+    scopes: tuple[int, ...] = ()
 
     def variables(self) -> set[str]:
         return {x for x in (self.s, self.o, self.pvar) if isinstance(x, str)}
@@ -118,19 +120,38 @@ class Deps:
         return out
 
     def _walk(self, target: str, start: int, t: Triple, lookup: Lookup) -> set[Term] | None:
+        """Target values reached from the changed triple. First along the patterns that hold in
+        every solution that uses it (the same conjunctive part, or one enclosing it), level by
+        level, stopping at the first level that reaches the target: every such solution binds
+        all of them, so one chain is enough. Failing that, along every pattern."""
         try:
-            values = _seeds(self.patterns[start], t, lookup)
-            if target in values:
-                return set(values[target])
-            if not self._reachable(target, set(values), start):
+            seeds = _seeds(self.patterns[start], t, lookup)
+            if target in seeds:
+                return set(seeds[target])
+            mine = self.patterns[start].scopes
+            usable = [i for i, p in enumerate(self.patterns)
+                      if i != start and p.scopes == mine[:len(p.scopes)]]
+            if self._reachable(target, set(seeds), start, usable):
+                return self._levels(target, seeds, usable, lookup)
+            if not self._reachable(target, set(seeds), start):
                 return ALL
-            queue = list(values)
-            while queue:
-                var = queue.pop()
-                for i, p in enumerate(self.patterns):
-                    if i == start or var not in p.variables():
+            return self._levels(target, seeds, [i for i in range(len(self.patterns)) if i != start], lookup,
+                                stop=False)
+        except _TooMany:
+            return ALL
+
+    def _levels(self, target: str, seeds: dict[str, set[Term]], usable: list[int], lookup: Lookup,
+                stop: bool = True) -> set[Term]:
+        values = {k: set(v) for k, v in seeds.items()}
+        frontier = {k: set(v) for k, v in seeds.items()}
+        while frontier:
+            nxt: dict[str, set[Term]] = {}
+            for var, vals in frontier.items():
+                for i in usable:
+                    p = self.patterns[i]
+                    if var not in p.variables():
                         continue
-                    for other, found in _step(p, var, values[var], lookup).items():
+                    for other, found in _step(p, var, vals, lookup).items():
                         if other == var:
                             continue
                         have = values.setdefault(other, set())
@@ -140,18 +161,20 @@ class Deps:
                             if len(have) > LIMIT:
                                 raise _TooMany
                             if other != target:
-                                queue.append(other)
-            return set(values.get(target, set()))
-        except _TooMany:
-            return ALL
+                                nxt.setdefault(other, set()).update(new)
+            if stop and values.get(target):
+                break
+            frontier = nxt
+        return set(values.get(target, set()))
 
-    def _reachable(self, target: str, seeds: set[str], start: int) -> bool:
+    def _reachable(self, target: str, seeds: set[str], start: int, usable: list[int] | None = None) -> bool:
         """Whether a chain of patterns (not expressions) leads from ``seeds`` to ``target``."""
         seen, todo = set(seeds), list(seeds)
+        allowed = set(range(len(self.patterns)) if usable is None else usable) - {start}
         while todo:
             var = todo.pop()
             for i, p in enumerate(self.patterns):
-                if i != start and var in p.variables():
+                if i in allowed and var in p.variables():
                     for other in p.variables() - seen:
                         seen.add(other)
                         todo.append(other)
@@ -289,7 +312,7 @@ def store_lookup(store: ox.Store, graphs: list[ox.NamedNode]) -> Lookup:
 # -- reading a query ---------------------------------------------------------------------------------
 
 #: Bumped when the reading changes, so cached readings of an older one are not used.
-_VERSION = "1"
+_VERSION = "2"
 
 
 def analyse(query: str) -> Deps:
@@ -352,7 +375,7 @@ def _path_back(x: object) -> Path | None:
 
 def _store(key: str, deps: Deps) -> None:
     data = {"opaque": deps.opaque, "links": [sorted(x) for x in deps.links],
-            "patterns": [[_term_json(p.s), _path_json(p.path), p.pvar, _term_json(p.o), p.unsafe]
+            "patterns": [[_term_json(p.s), _path_json(p.path), p.pvar, _term_json(p.o), p.unsafe, list(p.scopes)]
                          for p in deps.patterns]}
     try:
         folder = _cache_dir()
@@ -367,8 +390,8 @@ def _store(key: str, deps: Deps) -> None:
 def _load(key: str) -> Deps | None:
     try:
         data = json.loads((_cache_dir() / f"{key}.json").read_text(encoding="utf-8"))
-        return Deps([Pattern(_term_back(s), _path_back(path), pvar, _term_back(o), unsafe)  # type: ignore[arg-type]
-                     for s, path, pvar, o, unsafe in data["patterns"]],
+        return Deps([Pattern(_term_back(s), _path_back(path), pvar, _term_back(o), unsafe, tuple(scopes))  # type: ignore[arg-type]
+                     for s, path, pvar, o, unsafe, scopes in data["patterns"]],
                     [set(x) for x in data["links"]], bool(data["opaque"]))
     except (OSError, ValueError, KeyError, TypeError, IndexError):
         return None
@@ -399,10 +422,20 @@ class _Reader:
         self.deps = deps
         self.scopes = itertools.count()
         self.top_done = False
+        self.conditional: list[int] = []
+        self.parts = itertools.count()
+
+    def inside(self, node, rename):  # noqa: ANN001, ANN201
+        """Walk ``node`` as a conditional part (its patterns need not hold in a solution)."""
+        self.conditional.append(next(self.parts))
+        try:
+            return self.walk(node, rename)
+        finally:
+            self.conditional.pop()
 
     def mark_unsafe(self, start: int) -> None:
         pats = self.deps.patterns
-        pats[start:] = [Pattern(p.s, p.path, p.pvar, p.o, True) for p in pats[start:]]
+        pats[start:] = [Pattern(p.s, p.path, p.pvar, p.o, True, p.scopes) for p in pats[start:]]
 
     def check(self, left: tuple[set[str], set[str]], right: tuple[set[str], set[str]], start: int) -> None:
         """The right part (patterns from ``start`` on) joins the left one: some variable they
@@ -438,7 +471,8 @@ class _Reader:
             cb: set[str] = set()
             for s, p, o in node.triples:
                 pat = Pattern(self.term(s, rename), None if isinstance(p, Variable) else _path(p),
-                              rename(str(p)) if isinstance(p, Variable) else None, self.term(o, rename))
+                              rename(str(p)) if isinstance(p, Variable) else None, self.term(o, rename),
+                              scopes=tuple(self.conditional))
                 self.deps.patterns.append(pat)
                 cb |= pat.variables()
             return cb, set(cb)
@@ -452,16 +486,16 @@ class _Reader:
         if name == "LeftJoin":
             left = self.walk(node.p1, rename)
             start = len(self.deps.patterns)
-            right = self.walk(node.p2, rename)
+            right = self.inside(node.p2, rename)
             self.expression(node.expr, rename, right[0], right[1] | left[1])
             self.check(left, right, start)
             return left[0], left[1] | right[1]
         if name == "Minus":
             left = self.walk(node.p1, rename)
-            right = self.walk(node.p2, rename)
+            right = self.inside(node.p2, rename)
             return left[0], left[1] | right[1]
         if name == "Union":
-            a, b = self.walk(node.p1, rename), self.walk(node.p2, rename)
+            a, b = self.inside(node.p1, rename), self.inside(node.p2, rename)
             return a[0] & b[0], a[1] | b[1]
         if name == "Filter":
             cb, vs = self.walk(node.p, rename)
@@ -490,8 +524,9 @@ class _Reader:
                 vs = vs | {res}
             return cb, vs
         if name == "values":
-            names = {rename(str(v)) for row in node.res for v in row}
-            return set(), names
+            rows = [{rename(str(v)) for v, term in row.items() if term is not None} for row in node.res]
+            names = set().union(*rows) if rows else set()
+            return (set.intersection(*rows) if rows else set()), names
         raise _Opaque(name)
 
     def term(self, t, rename):  # noqa: ANN001, ANN201
@@ -523,7 +558,7 @@ class _Reader:
             elif isinstance(e, CompValue):
                 if e.name in ("Builtin_EXISTS", "Builtin_NOTEXISTS"):
                     start = len(self.deps.patterns)
-                    inner = self.walk(_translated(e.graph), rename)
+                    inner = self.inside(_translated(e.graph), rename)
                     shared = inner[1] & vs
                     if not (shared & cb):
                         self.mark_unsafe(start)

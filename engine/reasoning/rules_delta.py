@@ -123,7 +123,9 @@ class Rereasoner:
             table = " ".join("(" + " ".join(str(dict(row)[n]) for n in names) + ")" for row in rows)  # type: ignore[arg-type]
             values = f"VALUES ({' '.join('?' + n for n in names)}) {{ {table} }} "
             s, p, o = (x if isinstance(x, str) else str(x) for x in rule.head)
-            minus = f" MINUS {{ {s} {p} {o} }}" if new_only and rule.variables else ""
+            # FILTER NOT EXISTS, not the full run's MINUS: the rows are few, and MINUS would
+            # evaluate its side over the whole store
+            minus = f" FILTER NOT EXISTS {{ {s} {p} {o} }}" if new_only and rule.variables else ""
             if not rule.variables:
                 if bool(self._select(f"ASK {{ {values}{rule.body} }}")):
                     out.add(tuple(rule.head))  # type: ignore[arg-type]
