@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import re
 from collections import defaultdict
-from dataclasses import fields, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import Iterable
 
 import pyoxigraph as ox
@@ -50,7 +50,8 @@ from engine.values import check_ngsi_id
 from kg.load import PlantGraph
 from kg.namespaces import PK, XSD
 
-__all__ = ["DeriveError", "NotReasonedError", "default_entity_id", "derive"]
+__all__ = ["DeriveError", "NotReasonedError", "Parts", "PartsConflict", "assemble", "default_entity_id", "derive",
+           "derive_parts"]
 
 #: The inferred class of brokers whose topics are NGSI entities, and the entity defaults.
 CONTEXT_BROKER = "pk:ContextBroker"
@@ -134,12 +135,75 @@ class DeriveError(EngineError):
 
 def derive(plant: PlantGraph) -> DesiredState:
     """The desired state the reasoned ``plant`` asks for (see the module docstring)."""
+    return assemble(derive_parts(plant))
+
+
+@dataclass
+class Parts:
+    """What derive concludes per deployed broker (by IRI), before the steps that look at all of
+    them (bridge pairs, cycles, access, order): an incremental derive (engine.replan) recomputes
+    the parts of the brokers an edit can reach and keeps the others."""
+
+    brokers: dict[str, BrokerSpec] = field(default_factory=dict)
+    external: set[str] = field(default_factory=set)
+    classes: dict[str, frozenset[str]] = field(default_factory=dict)
+    topics: dict[str, list[TopicSpec]] = field(default_factory=dict)
+    #: broker -> topic IRI -> its spec on that context broker (the NGSI entity a bridge needs)
+    entities: dict[str, dict[str, TopicSpec]] = field(default_factory=dict)
+    #: bridge source broker -> topic name -> what its bridges need of the topic
+    options: dict[str, dict[str, TopicOptions]] = field(default_factory=dict)
+    directed: dict[str, list[DirectedBridge]] = field(default_factory=dict)
+    #: a full derive's options by topic name, the last row of a name winning, as derive always
+    #: did; None once parts were recomputed apart (then the sources must agree: PartsConflict)
+    in_row_order: dict[str, TopicOptions] | None = None
+
+    def without(self, iris: frozenset[str]) -> "Parts":
+        """These parts but those of ``iris``."""
+        def keep(d: dict) -> dict:  # type: ignore[type-arg]
+            return {k: v for k, v in d.items() if k not in iris}
+        return Parts(keep(self.brokers), self.external - iris, keep(self.classes), keep(self.topics),
+                     keep(self.entities), keep(self.options), keep(self.directed), None)
+
+    def merged(self, other: "Parts") -> "Parts":
+        return Parts({**self.brokers, **other.brokers}, self.external | other.external,
+                     {**self.classes, **other.classes}, {**self.topics, **other.topics},
+                     {**self.entities, **other.entities}, {**self.options, **other.options},
+                     {**self.directed, **other.directed}, None)
+
+
+class PartsConflict(EngineError):
+    """Parts derived apart disagree where a full derive picks by row order (two topics of one
+    name with different bridge options): only a full derive gives its answer."""
+
+
+def anchor(query: str) -> str:
+    """The variable a derive query is restricted by for some brokers: ``?b`` (a broker), else
+    ``?a`` (a bridge's source)."""
+    if re.search(r"\?b\b", query):
+        return "b"
+    if re.search(r"\?a\b", query):
+        return "a"
+    raise PartsConflict(f"a derive query names neither ?b nor ?a: {query[:80]}")
+
+
+def derive_parts(plant: PlantGraph, only: frozenset[str] | None = None, known: Parts | None = None,
+                 queries: list[str] | None = None) -> Parts:
+    """The per-broker parts of the desired state: of every deployed broker, or (``only``) of the
+    brokers with these IRIs, every query restricted to them (``known``: the parts of the others,
+    for the far end of a bridge and a topic's entity). ``queries`` collects the text of each
+    query run (with the ``pk:`` prefix declared), for an incremental run to read."""
     if not is_reasoned(plant):
         raise NotReasonedError()
     store = plant.store
     options = dataset_options(store, [*input_graphs(plant), INFERRED])
+    restrict = "" if only is None else " ".join(str(ox.NamedNode(iri)) for iri in sorted(only))
 
     def select(query: str) -> Iterable[ox.QuerySolution]:
+        if queries is not None and only is None:
+            queries.append(f"PREFIX pk: <{PK}>\n{query}")
+        if only is not None:
+            brace = query.index("{")
+            query = f"{query[:brace + 1]} VALUES ?{anchor(query)} {{ {restrict} }} {query[brace + 1:]}"
         return store.query(query, prefixes=_PREFIXES, **options)  # type: ignore[arg-type]
 
     classes: dict[str, set[str]] = defaultdict(set)
@@ -156,35 +220,63 @@ def derive(plant: PlantGraph) -> DesiredState:
     iri_of = {b.id: b.iri for b in brokers}
     topics = [_with_entity(plant, t) if CONTEXT_BROKER in classes[iri_of[t.broker_id]] else t
               for t in topics]
+    parts = Parts(brokers=by_iri, external=set(external),
+                  classes={b.iri: frozenset(classes[b.iri]) for b in brokers})
+    for t in topics:
+        parts.topics.setdefault(iri_of[t.broker_id], []).append(t)
+        if t.entity_id is not None:
+            parts.entities.setdefault(iri_of[t.broker_id], {})[t.iri] = t
     names = {t.iri: t.name for t in topics}
-    entities = {t.iri: t for t in topics if t.entity_id is not None}
+    entities = {iri: t for es in (known.entities if known else {}).values() for iri, t in es.items()}
+    entities.update({t.iri: t for t in topics if t.entity_id is not None})
     shared: dict[tuple[str, str], set[str]] = defaultdict(set)
-    topic_options: dict[str, TopicOptions] = {}
+    if only is None:
+        parts.in_row_order = {}
     for row in select(SHARED):
         t = row["t"].value
         if t in names:
             shared[(row["a"].value, row["c"].value)].add(names[t])
             entity = entities.get(t)
-            topic_options[names[t]] = TopicOptions(
+            opts = TopicOptions(
                 qos=int(row["qos"].value) if row["qos"] is not None else None,
                 kafka_key=row["key"].value if row["key"] is not None else None,
                 entity_id=entity.entity_id if entity else None,
                 entity_type=entity.entity_type if entity else None)
-    directed = []
+            parts.options.setdefault(row["a"].value, {})[names[t]] = opts
+            if parts.in_row_order is not None:
+                parts.in_row_order[names[t]] = opts
+    ends = {**(known.brokers if known else {}), **by_iri}
     for row in select(BRIDGES):
         a, c = row["a"].value, row["c"].value
-        if a not in by_iri or c not in by_iri:  # both ends are deployed by definition
-            raise DeriveError(_name(plant, row["a" if a not in by_iri else "c"]),
+        if a not in ends or c not in ends:  # both ends are deployed by definition
+            raise DeriveError(_name(plant, row["a" if a not in ends else "c"]),
                               "is at one end of a required bridge but is not a deployed broker")
-        directed.append(DirectedBridge(by_iri[a].id, by_iri[c].id, frozenset(shared[(a, c)]),
-                                       asserted=row["asserted"].value == "true"))
+        parts.directed.setdefault(a, []).append(DirectedBridge(ends[a].id, ends[c].id, frozenset(shared[(a, c)]),
+                                                               asserted=row["asserted"].value == "true"))
+    return parts
+
+
+def assemble(parts: Parts) -> DesiredState:
+    """The desired state from the parts of every deployed broker: bridge pairs and their
+    mechanisms, the refusals that look at all brokers (cycles, access), sorted by address."""
+    brokers = list(parts.brokers.values())
+    topics = [t for ts in parts.topics.values() for t in ts]
+    options: dict[str, TopicOptions] = {}
+    if parts.in_row_order is not None:
+        options = parts.in_row_order
+    else:
+        for per_source in parts.options.values():
+            for name, opts in per_source.items():
+                if options.setdefault(name, opts) != opts:
+                    raise PartsConflict(f"topic name {name!r} has two sets of bridge options")
+    directed = [d for ds in parts.directed.values() for d in ds]
     check_no_cycles(directed)  # a topic forwarded round 3+ brokers loops for ever (docs/bridges.md)
     bridges = pair_bridges(directed, {b.id: b for b in brokers},
-                           {b.id: frozenset(classes[b.iri]) for b in brokers}, topic_options,
-                           external=frozenset(by_iri[iri].id for iri in external))
-    deployed = [b for b in brokers if b.iri not in external]
+                           {b.id: parts.classes[b.iri] for b in brokers}, options,
+                           external=frozenset(parts.brokers[iri].id for iri in parts.external))
+    deployed = [b for b in brokers if b.iri not in parts.external]
     check_access_supported(deployed, bridges)
-    outside = {by_iri[iri].id for iri in external}
+    outside = {parts.brokers[iri].id for iri in parts.external}
     return DesiredState(
         brokers=tuple(sorted(deployed, key=lambda b: b.address)),
         topics=tuple(sorted((t for t in topics if t.broker_id not in outside), key=lambda t: t.address)),

@@ -152,10 +152,23 @@ def ownership(owner: str | None, mine: str | None) -> Ownership:
     return Ownership.NOBODY if owner is None else Ownership.OTHER
 
 
-def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False) -> Plan:
+class PlanMemo:
+    """What :func:`plan` concluded per desired broker, keyed by everything that conclusion reads
+    (the broker's spec and topics, what its agent reported, the owner, ``prune``), so a re-plan
+    after a small edit recomputes only the brokers whose inputs changed (engine.replan). The
+    inputs are compared for equality; kept specs are the same objects, so that is quick."""
+
+    def __init__(self) -> None:
+        self.brokers: dict[str, tuple[tuple[object, ...], tuple[object, ...]]] = {}
+
+
+def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False,
+         memo: PlanMemo | None = None) -> Plan:
     """The ordered changes that turn ``observed`` into ``desired`` (pure).
 
-    Only the things ``desired.owner`` owns are changed; ``prune`` also deletes what nobody owns."""
+    Only the things ``desired.owner`` owns are changed; ``prune`` also deletes what nobody owns.
+    ``memo`` (kept by the caller between plans) reuses each broker's conclusion while its inputs
+    are unchanged; the plan is the same with or without it."""
     owner = desired.owner
     unreachable = frozenset(observed.unreachable)
     changes: list[Change] = []
@@ -164,26 +177,33 @@ def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False)
     foreign: list[Foreign] = []
     fresh_brokers: set[str] = set()
     claimed: set[str] = set()
+    seen: dict[str, tuple[tuple[object, ...], tuple[object, ...]]] = {}
     for spec in desired.brokers:
         if spec.host in unreachable:
             continue  # its state is unknown: no change is planned, the host is listed
         have = observed.broker(spec.id)
-        if have is not None and ownership(have.owner, owner) is not Ownership.MINE:
-            refusals.append(_claimed_refusal(spec.address, have.owner, importable=True))
+        wanted_topics = desired.topics_of(spec.id)
+        key = (spec, wanted_topics, have, owner, prune)
+        cached = memo.brokers.get(spec.id) if memo is not None else None
+        if cached is not None and cached[0] == key:
+            done = cached[1]
+        else:
+            done = _plan_broker(spec, wanted_topics, have, owner, prune)
+        seen[spec.id] = (key, done)
+        claim, broker_change, fresh, topics = done
+        if claim is not None:
+            refusals.append(claim)  # type: ignore[arg-type]
             claimed.add(spec.id)
             continue
-        broker_change = _broker_change(spec, have)
-        changes.append(broker_change)
-        fresh = broker_change.action is Action.CREATE or (
-            broker_change.action is Action.REPLACE and _starts_empty(broker_change)
-        )
+        changes.append(broker_change)  # type: ignore[arg-type]
         if fresh:
             fresh_brokers.add(spec.id)
-        topics = _topic_changes(spec, desired.topics_of(spec.id), have, fresh, owner, prune)
-        changes.extend(topics.changes)
-        refusals.extend(topics.refusals)
-        deletes.extend(topics.deletes)
-        foreign.extend(topics.foreign)
+        changes.extend(topics.changes)  # type: ignore[union-attr]
+        refusals.extend(topics.refusals)  # type: ignore[union-attr]
+        deletes.extend(topics.deletes)  # type: ignore[union-attr]
+        foreign.extend(topics.foreign)  # type: ignore[union-attr]
+    if memo is not None:
+        memo.brokers = seen
     wanted = {b.id for b in desired.brokers}
     for have in observed.brokers:
         if have.spec.id in wanted:
@@ -228,6 +248,20 @@ def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False)
         foreign=tuple(sorted(foreign, key=lambda f: f.address)),
         warnings=open_broker_warnings(desired.brokers),
     )
+
+
+def _plan_broker(spec: BrokerSpec, wanted_topics: tuple[TopicSpec, ...], have: ObservedBroker | None,
+                 owner: str | None, prune: bool) -> tuple[object, ...]:
+    """One desired broker's part of the plan: (refusal when another plant or nobody holds it,
+    its change, whether it starts empty, its topics' changes)."""
+    if have is not None and ownership(have.owner, owner) is not Ownership.MINE:
+        return (_claimed_refusal(spec.address, have.owner, importable=True), None, False, None)
+    broker_change = _broker_change(spec, have)
+    fresh = broker_change.action is Action.CREATE or (
+        broker_change.action is Action.REPLACE and _starts_empty(broker_change)
+    )
+    topics = _topic_changes(spec, wanted_topics, have, fresh, owner, prune)
+    return (None, broker_change, fresh, topics)
 
 
 def destroy_plan(desired: DesiredState, observed: ObservedState) -> Plan:

@@ -23,18 +23,19 @@ from pathlib import Path
 
 import pyoxigraph as ox
 
-from engine.derive import derive
+from engine.derive import Parts, anchor, assemble, derive_parts
 from engine.model import ObservedState
 from engine.owner import plant_owner
 from engine.pipeline import Pipeline
-from engine.plan import plan as make_plan
-from engine.reasoning.reason import UnsupportedConstructError, input_graphs, reason
+from engine.plan import PlanMemo, plan as make_plan
+from engine.reasoning.reason import INFERRED, UnsupportedConstructError, input_graphs, reason
 from engine.reasoning.rules_delta import NeedsFullRun, Rereasoner, touches_tbox
 from kg.errors import InputError, NotAPlantError
 from kg.file_delta import Delta, FileText, graph_delta, turtle_delta
 from kg.load import PlantGraph, Source, _uses_plantkg_terms, load_plant
 from kg.namespaces import GRAPH_REASONING_SCRATCH, PK
 from kg.validate import load_default_shapes
+from kg.sparql_deps import ALL, analyse, store_lookup
 from kg.validate_delta import Revalidator
 
 SCRATCH = ox.NamedNode(GRAPH_REASONING_SCRATCH)
@@ -66,6 +67,10 @@ class ReplanSession:
         report = self.validator.full()
         timings["validate"] = time.perf_counter() - t
         self.rereasoner: Rereasoner | None = None
+        self.parts: Parts | None = None
+        self.derive_queries: list[str] = []
+        self.pending: set[str] | None = set()  # brokers to derive again (None: all)
+        self.plan_memo = PlanMemo()
         self.result = Pipeline(self.plant, report, timings=timings)
         self._finish(self.result, reasoned=False)
         self.last = {"timings": timings, "full": ["load", "validate", "reason"]}
@@ -90,9 +95,51 @@ class ReplanSession:
             return
         if not reasoned:
             self._reason_fully(result)
+            self.pending = None
         t = time.perf_counter()
-        result.desired = replace(derive(self.plant), owner=plant_owner(self.plant))
-        result.timings["derive"] = time.perf_counter() - t
+        result.desired = replace(self._derive(), owner=plant_owner(self.plant))
+        result.timings["derive"] = result.timings.get("derive", 0.0) + time.perf_counter() - t
+
+    def _derive(self):  # noqa: ANN202 - DesiredState
+        """The desired state: the parts of the brokers an edit can reach derived again, the
+        others kept; in full at the start, when that cannot be narrowed down, or when parts
+        derived apart do not fit together (the full derive then gives its answer or its error)."""
+        only, self.pending = self.pending, set()
+        if only is not None and self.parts is not None:
+            try:
+                kept = self.parts.without(frozenset(only))
+                parts = kept.merged(derive_parts(self.plant, frozenset(only), known=kept)) if only else self.parts
+                desired = assemble(parts)
+                self.parts = parts
+                return desired
+            except Exception:  # noqa: BLE001 - any refusal: the full derive says it exactly
+                pass
+        self.parts = None
+        self.derive_queries = []
+        parts = derive_parts(self.plant, queries=self.derive_queries)
+        self.parts = parts
+        self.last.setdefault("full", []).append("derive")
+        return assemble(parts)
+
+    def _derive_reach(self, facts: list[tuple]) -> None:
+        """Add the brokers whose derive rows ``facts`` can change (on the store as it is now) to
+        those to derive again."""
+        if self.pending is None or not facts:
+            return
+        if not self.derive_queries:
+            self.pending = None
+            return
+        lookup = store_lookup(self.plant.store, [*input_graphs(self.plant), INFERRED])
+        for query in self.derive_queries:
+            deps = analyse(query)
+            relevant = [f for f in facts if deps.reads(f)]
+            if not relevant:
+                continue
+            found = deps.affected(anchor(query), relevant, lookup)
+            if found is ALL or any(not isinstance(x, ox.NamedNode) for x in found):
+                self.pending = None
+                return
+            self.pending |= {x.value for x in found}
 
     # -- an edit -----------------------------------------------------------------------------------
     def refresh(self, observed: ObservedState | None = None) -> Pipeline:
@@ -119,7 +166,7 @@ class ReplanSession:
         result = self.result
         if observed is not None and result.desired is not None:
             t = time.perf_counter()
-            result.plan = make_plan(result.desired, observed)
+            result.plan = make_plan(result.desired, observed, memo=self.plan_memo)
             timings["plan"] = time.perf_counter() - t
         timings["total"] = time.perf_counter() - t0
         self.last["validation"] = dict(self.validator.last)
@@ -142,6 +189,9 @@ class ReplanSession:
             except NeedsFullRun:
                 doomed = None
         timings["reason"] = time.perf_counter() - t
+        t = time.perf_counter()
+        self._derive_reach([*changes, *(doomed or ())])
+        timings["derive"] = time.perf_counter() - t
         for s, p, o, g in removed:
             store.remove(ox.Quad(s, p, o, g))
         store.extend([ox.Quad(s, p, o, g) for s, p, o, g in added])
@@ -163,7 +213,12 @@ class ReplanSession:
                 pass
         if not reasoned:
             self.rereasoner = None  # stale: the next valid state reasons in full
+            self.pending = None
         timings["reason"] += time.perf_counter() - t
+        t = time.perf_counter()
+        if reasoned:
+            self._derive_reach(changed)
+        timings["derive"] += time.perf_counter() - t
         if report.conforms and not reasoned:
             full.append("reason")
         self._finish(result, reasoned=reasoned)

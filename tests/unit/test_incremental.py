@@ -20,7 +20,9 @@ from typing import Callable
 import pytest
 
 from benchmarks import synthetic
+from engine.model import BridgeStatus, BrokerStatus, ObservedBridge, ObservedBroker, ObservedState, ObservedTopic
 from engine.pipeline import run_pipeline
+from engine.plan import plan
 from engine.reasoning.reason import INFERRED
 from engine.replan import ReplanSession
 from kg.file_delta import FileText, turtle_delta
@@ -179,17 +181,33 @@ def _results(report) -> Counter:  # noqa: ANN001
     return Counter((r.key(), r.file) for r in report.results)
 
 
+def _observed_as(desired) -> ObservedState:  # noqa: ANN001
+    """What agents running ``desired`` would report (the state before the edit, for the plan)."""
+    if desired is None:
+        return ObservedState(())
+    return ObservedState(tuple(
+        ObservedBroker(b, BrokerStatus.RUNNING, tuple(
+            ObservedTopic(t.name, t.partitions, t.replication_factor, t.retention_ms, t.qos, t.retain,
+                          owner=desired.owner) for t in desired.topics_of(b.id)), owner=desired.owner)
+        for b in desired.brokers),
+        bridges=tuple(ObservedBridge(b, BridgeStatus.RUNNING, owner=desired.owner) for b in desired.bridges))
+
+
 def _same_as_full(session: ReplanSession, path: Path) -> None:
-    """The session's refresh equals a full run; a plant the full run refuses (a bridge no
+    """The session's refresh equals a full run — report, inferred graph, desired state, and the
+    plan against what the agents ran before the edit; a plant the full run refuses (a bridge no
     mechanism supports, say) the session refuses with the same error."""
+    observed = _observed_as(session.result.desired)
     try:
         full = run_pipeline([path], observe=False)
     except Exception as exc:  # noqa: BLE001 - whatever the full run raises, the session must too
         with pytest.raises(type(exc)) as raised:
-            session.refresh()
+            session.refresh(observed)
         assert str(raised.value) == str(exc)
         return
-    got = session.refresh()
+    got = session.refresh(observed)
+    if full.desired is not None:
+        assert got.plan == plan(full.desired, observed)
     assert _results(got.report) == _results(full.report)
     assert got.report.conforms == full.report.conforms
     assert got.desired == full.desired
@@ -254,7 +272,8 @@ def test_each_edit_kind_matches_a_full_run(tmp_path: Path, edit: Edit) -> None:
         path.write_text(text)
         _same_as_full(session, path)
         assert session.last["cut"] == ["cut"], "a one-statement edit is read from the statement"
-        assert "reason" not in session.last["full"] or not session.result.report.conforms
+        if session.result.report.conforms and session.result.desired is not None:
+            assert session.last["full"] == [], "a valid one-statement edit is done incrementally"
 
 
 def test_the_statement_cut_equals_comparing_whole_files(tmp_path: Path) -> None:
