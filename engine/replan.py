@@ -17,7 +17,8 @@ the fast reasoner refuses) is done by the full step instead, and says so in ``la
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -41,6 +42,23 @@ from kg.validate_delta import Revalidator
 SCRATCH = ox.NamedNode(GRAPH_REASONING_SCRATCH)
 
 
+class Clock:
+    """Wall and CPU seconds per stage (summed when a stage runs in several pieces)."""
+
+    def __init__(self) -> None:
+        self.wall: dict[str, float] = {}
+        self.cpu: dict[str, float] = {}
+
+    @contextmanager
+    def stage(self, name: str) -> Iterator[None]:
+        wall, cpu = time.perf_counter(), time.process_time()
+        try:
+            yield
+        finally:
+            self.wall[name] = self.wall.get(name, 0.0) + time.perf_counter() - wall
+            self.cpu[name] = self.cpu.get(name, 0.0) + time.process_time() - cpu
+
+
 @dataclass
 class ReplanSession:
     """The plant files, the store and every stage's state, kept current edit by edit."""
@@ -57,26 +75,28 @@ class ReplanSession:
 
     # -- the full path -----------------------------------------------------------------------------
     def _start(self) -> None:
-        timings: dict[str, float] = {}
-        t = time.perf_counter()
-        self.plant = load_plant(self.files)
-        self.texts = {src.path: FileText.read(src.path) for src in self.plant.sources}
-        timings["load"] = time.perf_counter() - t
-        t = time.perf_counter()
-        self.validator = Revalidator(self.plant, load_default_shapes(), input_graphs(self.plant))
-        report = self.validator.full()
-        timings["validate"] = time.perf_counter() - t
+        self.clock = clock = Clock()
+        with clock.stage("load"):
+            self.plant = load_plant(self.files)
+            self.texts = {src.path: FileText.read(src.path) for src in self.plant.sources}
+        with clock.stage("validate"):
+            self.validator = Revalidator(self.plant, load_default_shapes(), input_graphs(self.plant))
+            report = self.validator.full()
         self.rereasoner: Rereasoner | None = None
         self.parts: Parts | None = None
         self.derive_queries: list[str] = []
         self.pending: set[str] | None = set()  # brokers to derive again (None: all)
         self.plan_memo = PlanMemo()
-        self.result = Pipeline(self.plant, report, timings=timings)
+        self.last: dict[str, object] = {"full": ["load", "validate", "reason"]}
+        self.result = Pipeline(self.plant, report, timings=clock.wall)
         self._finish(self.result, reasoned=False)
-        self.last = {"timings": timings, "full": ["load", "validate", "reason"]}
+        self.last.update(timings=clock.wall, cpu=clock.cpu)
 
     def _reason_fully(self, result: Pipeline) -> None:
-        t = time.perf_counter()
+        with self.clock.stage("reason"):
+            self._reason_fully_now(result)
+
+    def _reason_fully_now(self, result: Pipeline) -> None:
         self.rereasoner = None
         try:
             result.inferences = reason(self.plant, engine="fast", scratch=SCRATCH)
@@ -87,7 +107,6 @@ class ReplanSession:
                 self.rereasoner = Rereasoner(self.plant, SCRATCH)
             except (NeedsFullRun, UnsupportedConstructError):
                 self.rereasoner = None
-        result.timings["reason"] = time.perf_counter() - t
 
     def _finish(self, result: Pipeline, *, reasoned: bool) -> None:
         """Reason (fully unless ``reasoned``) and derive, for a valid plant."""
@@ -96,9 +115,8 @@ class ReplanSession:
         if not reasoned:
             self._reason_fully(result)
             self.pending = None
-        t = time.perf_counter()
-        result.desired = replace(self._derive(), owner=plant_owner(self.plant))
-        result.timings["derive"] = result.timings.get("derive", 0.0) + time.perf_counter() - t
+        with self.clock.stage("derive"):
+            result.desired = replace(self._derive(), owner=plant_owner(self.plant))
 
     def _derive(self):  # noqa: ANN202 - DesiredState
         """The desired state: the parts of the brokers an edit can reach derived again, the
@@ -144,8 +162,11 @@ class ReplanSession:
     # -- an edit -----------------------------------------------------------------------------------
     def refresh(self, observed: ObservedState | None = None) -> Pipeline:
         """Read the files again and bring every stage up to date; plan against ``observed``."""
-        t0 = time.perf_counter()
-        timings: dict[str, float] = {}
+        self.clock = clock = Clock()
+        total = clock.stage("total")
+        total.__enter__()
+        read = clock.stage("read")
+        read.__enter__()
         deltas: list[tuple[Source, Delta, FileText]] = []
         for src in self.plant.sources:
             data = src.path.read_bytes()
@@ -158,67 +179,61 @@ class ReplanSession:
             else:
                 delta, text = cut
             deltas.append((src, delta, text))
-        timings["read"] = time.perf_counter() - t0
+        read.__exit__(None, None, None)
         full: list[str] = []
-        self.last = {"timings": timings, "full": full, "cut": [d.how for _, d, _ in deltas]}
+        self.last = {"timings": clock.wall, "cpu": clock.cpu, "full": full, "cut": [d.how for _, d, _ in deltas]}
         if deltas:
-            self._apply(deltas, timings, full)
+            self._apply(deltas, full)
         result = self.result
         if observed is not None and result.desired is not None:
-            t = time.perf_counter()
-            result.plan = make_plan(result.desired, observed, memo=self.plan_memo)
-            timings["plan"] = time.perf_counter() - t
-        timings["total"] = time.perf_counter() - t0
+            with clock.stage("plan"):
+                result.plan = make_plan(result.desired, observed, memo=self.plan_memo)
+        total.__exit__(None, None, None)
         self.last["validation"] = dict(self.validator.last)
         return result
 
-    def _apply(self, deltas: list[tuple[Source, Delta, FileText]], timings: dict[str, float], full: list[str]) -> None:
-        store = self.plant.store
+    def _apply(self, deltas: list[tuple[Source, Delta, FileText]], full: list[str]) -> None:
+        store, clock = self.plant.store, self.clock
         removed = [(s, p, o, ox.NamedNode(src.graph)) for src, d, _ in deltas for s, p, o in d.removed]
         added = [(s, p, o, ox.NamedNode(src.graph)) for src, d, _ in deltas for s, p, o in d.added]
         changes = [(s, p, o) for s, p, o, _ in removed + added]
-        t = time.perf_counter()
-        before = self.validator.affected(changes)
-        timings["validate"] = time.perf_counter() - t
-        t = time.perf_counter()
+        with clock.stage("validate"):
+            before = self.validator.affected(changes)
         rr = self.rereasoner
         doomed = None
-        if rr is not None and not touches_tbox(changes):
-            try:
-                doomed = rr.overdelete([(s, p, o) for s, p, o, _ in removed])
-            except NeedsFullRun:
-                doomed = None
-        timings["reason"] = time.perf_counter() - t
-        t = time.perf_counter()
-        self._derive_reach([*changes, *(doomed or ())])
-        timings["derive"] = time.perf_counter() - t
-        for s, p, o, g in removed:
-            store.remove(ox.Quad(s, p, o, g))
-        store.extend([ox.Quad(s, p, o, g) for s, p, o, g in added])
-        self.texts.update({src.path: text for src, _, text in deltas})
-        self._recount(deltas)
-        t = time.perf_counter()
-        report = self.validator.update(before, self.validator.affected(changes))
-        timings["validate"] += time.perf_counter() - t
-        result = Pipeline(self.plant, report, timings=timings)
+        with clock.stage("reason"):
+            if rr is not None and not touches_tbox(changes):
+                try:
+                    doomed = rr.overdelete([(s, p, o) for s, p, o, _ in removed])
+                except NeedsFullRun:
+                    doomed = None
+        with clock.stage("derive"):
+            self._derive_reach([*changes, *(doomed or ())])
+        with clock.stage("read"):
+            for s, p, o, g in removed:
+                store.remove(ox.Quad(s, p, o, g))
+            store.extend([ox.Quad(s, p, o, g) for s, p, o, g in added])
+            self.texts.update({src.path: text for src, _, text in deltas})
+            self._recount(deltas)
+        with clock.stage("validate"):
+            report = self.validator.update(before, self.validator.affected(changes))
+        result = Pipeline(self.plant, report, timings=clock.wall)
         self.result = result
-        t = time.perf_counter()
         reasoned = False
-        if doomed is not None and rr is not None:
-            try:
-                changed = rr.insert(doomed, [(s, p, o) for s, p, o, _ in added])
-                rr.check(changed)
-                reasoned = True
-            except NeedsFullRun:
-                pass
-        if not reasoned:
-            self.rereasoner = None  # stale: the next valid state reasons in full
-            self.pending = None
-        timings["reason"] += time.perf_counter() - t
-        t = time.perf_counter()
-        if reasoned:
-            self._derive_reach(changed)
-        timings["derive"] += time.perf_counter() - t
+        with clock.stage("reason"):
+            if doomed is not None and rr is not None:
+                try:
+                    changed = rr.insert(doomed, [(s, p, o) for s, p, o, _ in added])
+                    rr.check(changed)
+                    reasoned = True
+                except NeedsFullRun:
+                    pass
+            if not reasoned:
+                self.rereasoner = None  # stale: the next valid state reasons in full
+                self.pending = None
+        with clock.stage("derive"):
+            if reasoned:
+                self._derive_reach(changed)
         if report.conforms and not reasoned:
             full.append("reason")
         self._finish(result, reasoned=reasoned)
