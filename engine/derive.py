@@ -32,6 +32,7 @@ it (the shapes catch this first on a validated plant). The output is sorted by a
 from __future__ import annotations
 
 import re
+from bisect import insort
 from collections import defaultdict
 from dataclasses import dataclass, field, fields, replace
 from typing import Iterable
@@ -42,7 +43,7 @@ from engine.access import broker_users, check_access_supported, close_brokers
 from engine.errors import ConfigValueError, EngineError
 from engine.bridge_cycles import check_no_cycles
 from engine.bridge_pairs import DirectedBridge, TopicOptions, pair_bridges
-from engine.model import BrokerSpec, DesiredState, TopicSpec
+from engine.model import BridgeSpec, BrokerSpec, DesiredState, TopicSpec
 from engine.reasoning.reason import INFERRED, input_graphs, is_reasoned
 from engine.reasoning.rules_fast import short_name
 from engine.reasoning.rules_tbox import dataset_options
@@ -50,8 +51,8 @@ from engine.values import check_ngsi_id
 from kg.load import PlantGraph
 from kg.namespaces import PK, XSD
 
-__all__ = ["DeriveError", "NotReasonedError", "Parts", "PartsConflict", "assemble", "default_entity_id", "derive",
-           "derive_parts"]
+__all__ = ["Assembled", "DeriveError", "NotReasonedError", "Parts", "PartsConflict", "assemble", "assemble_from",
+           "default_entity_id", "derive", "derive_parts"]
 
 #: The inferred class of brokers whose topics are NGSI entities, and the entity defaults.
 CONTEXT_BROKER = "pk:ContextBroker"
@@ -256,11 +257,31 @@ def derive_parts(plant: PlantGraph, only: frozenset[str] | None = None, known: P
     return parts
 
 
+@dataclass
+class Assembled:
+    """What :func:`assemble` made, and what a later assemble of mostly the same parts reuses:
+    each bridge pair's inputs and spec, and the hops that forward each topic name."""
+
+    desired: DesiredState
+    pairs: dict[frozenset[str], tuple[object, BridgeSpec]] = field(default_factory=dict)
+    hops: dict[str, frozenset[tuple[str, str]]] = field(default_factory=dict)
+    ids: dict[str, str] = field(default_factory=dict)  # broker IRI -> id
+
+
 def assemble(parts: Parts) -> DesiredState:
     """The desired state from the parts of every deployed broker: bridge pairs and their
     mechanisms, the refusals that look at all brokers (cycles, access), sorted by address."""
+    return assemble_from(parts).desired
+
+
+def assemble_from(parts: Parts, previous: Assembled | None = None,
+                  changed: frozenset[str] = frozenset()) -> Assembled:
+    """:func:`assemble`, reusing ``previous`` where its inputs are unchanged: the parts of the
+    brokers ``changed`` (IRIs) were derived again, the others are those ``previous`` was made of.
+    A pair's bridge is made again only when its directed bridges, brokers, classes or topic
+    options changed; cycles are looked for only among the topics whose hops changed; the other
+    brokers' topics keep their (sorted) place. The result equals a full assemble's."""
     brokers = list(parts.brokers.values())
-    topics = [t for ts in parts.topics.values() for t in ts]
     options: dict[str, TopicOptions] = {}
     if parts.in_row_order is not None:
         options = parts.in_row_order
@@ -270,18 +291,58 @@ def assemble(parts: Parts) -> DesiredState:
                 if options.setdefault(name, opts) != opts:
                     raise PartsConflict(f"topic name {name!r} has two sets of bridge options")
     directed = [d for ds in parts.directed.values() for d in ds]
-    check_no_cycles(directed)  # a topic forwarded round 3+ brokers loops for ever (docs/bridges.md)
-    bridges = pair_bridges(directed, {b.id: b for b in brokers},
-                           {b.id: parts.classes[b.iri] for b in brokers}, options,
-                           external=frozenset(parts.brokers[iri].id for iri in parts.external))
+    hops: dict[str, set[tuple[str, str]]] = defaultdict(set)
+    for d in directed:
+        for name in d.topics:
+            hops[name].add((d.source, d.target))
+    frozen_hops = {name: frozenset(h) for name, h in hops.items()}
+    if previous is None:
+        check_no_cycles(directed)  # a topic forwarded round 3+ brokers loops for ever (docs/bridges.md)
+    else:
+        moved = {n for n in frozen_hops.keys() | previous.hops.keys() if frozen_hops.get(n) != previous.hops.get(n)}
+        check_no_cycles(replace(d, topics=d.topics & moved) for d in directed if d.topics & moved)
+    by_id = {b.id: b for b in brokers}
+    external = frozenset(parts.brokers[iri].id for iri in parts.external)
+    classes = {b.id: parts.classes[b.iri] for b in brokers}
+    per_pair: dict[frozenset[str], list[DirectedBridge]] = defaultdict(list)
+    for d in directed:
+        per_pair[frozenset((d.source, d.target))].append(d)
+    pairs: dict[frozenset[str], tuple[object, BridgeSpec]] = {}
+    todo: list[DirectedBridge] = []
+    for pair, ds in per_pair.items():
+        key = (tuple(sorted(ds, key=lambda d: (d.source, d.target))), tuple((by_id.get(i), classes.get(i), i in external)
+                                                                             for i in sorted(pair)),
+               tuple(sorted((n, options.get(n)) for d in ds for n in d.topics)))
+        old = previous.pairs.get(pair) if previous is not None else None
+        if old is not None and old[0] == key:
+            pairs[pair] = old
+        else:
+            pairs[pair] = (key, None)  # type: ignore[assignment]
+            todo.extend(ds)
+    for spec in pair_bridges(todo, by_id, classes, options, external=external):
+        pair = frozenset((spec.local.id, spec.remote.id))
+        pairs[pair] = (pairs[pair][0], spec)
+    bridges = sorted((spec for _, spec in pairs.values()), key=lambda s: s.address)
     deployed = [b for b in brokers if b.iri not in parts.external]
     check_access_supported(deployed, bridges)
     outside = {parts.brokers[iri].id for iri in parts.external}
-    return DesiredState(
+    ids = {b.iri: b.id for b in brokers}
+    if previous is None:
+        topics = sorted((t for ts in parts.topics.values() for t in ts if t.broker_id not in outside),
+                        key=lambda t: t.address)
+    else:
+        again = {previous.ids[i] for i in changed if i in previous.ids} | {ids[i] for i in changed if i in ids}
+        topics = [t for t in previous.desired.topics if t.broker_id not in again]
+        for iri in changed:
+            for t in parts.topics.get(iri, ()):
+                if t.broker_id not in outside:
+                    insort(topics, t, key=lambda t: t.address)
+    desired = DesiredState(
         brokers=tuple(sorted(deployed, key=lambda b: b.address)),
-        topics=tuple(sorted((t for t in topics if t.broker_id not in outside), key=lambda t: t.address)),
+        topics=tuple(topics),
         bridges=tuple(bridges),
     )
+    return Assembled(desired, pairs, frozen_hops, ids)
 
 
 def default_entity_id(entity_type: str, topic_name: str) -> str:

@@ -160,6 +160,21 @@ class PlanMemo:
 
     def __init__(self) -> None:
         self.brokers: dict[str, tuple[tuple[object, ...], tuple[object, ...]]] = {}
+        self.bridges: dict[str, tuple[tuple[object, ...], tuple[object, ...]]] = {}
+        self._keys: dict[int, tuple[Change, tuple[int, str]]] = {}
+
+    def sort_key(self, change: Change) -> tuple[int, str]:
+        """:func:`_sort_key`, remembered per change object (the memo keeps the object alive,
+        so its id is not reused while the entry is)."""
+        entry = self._keys.get(id(change))
+        if entry is None or entry[0] is not change:
+            entry = (change, _sort_key(change))
+            self._keys[id(change)] = entry
+        return entry[1]
+
+    def forget_old_keys(self, changes: Iterable[Change]) -> None:
+        """Keep the sort keys of ``changes`` only."""
+        self._keys = {id(c): self._keys[id(c)] for c in changes if id(c) in self._keys}
 
 
 def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False,
@@ -217,17 +232,22 @@ def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False,
             foreign.append(_foreign(have.spec.address, have.owner))
     hosts = {b.id: b.host for b in desired.brokers}
     held = {b.spec.id for b in observed.brokers if b.status is BrokerStatus.STOPPED_BY_OPERATOR}
+    bridges_seen: dict[str, tuple[tuple[object, ...], tuple[object, ...]]] = {}
     for bridge in desired.bridges:
         if hosts.get(bridge.local.id) in unreachable or bridge.local.id in claimed:
             continue
         have = None if bridge.local.id in fresh_brokers else observed.bridge(bridge.address)
-        whose = Ownership.MINE if have is None else ownership(have.owner, owner)
-        if whose is Ownership.OTHER:
-            refusals.append(_claimed_refusal(bridge.address, have.owner if have else None,
-                                             importable=False))
-            continue
-        change = _bridge_change(bridge, have, bridge.local.id in held)
-        changes.append(_adopted(change, owner) if whose is Ownership.NOBODY else change)
+        key = (bridge, have, bridge.local.id in held, owner)
+        cached = memo.bridges.get(bridge.address) if memo is not None else None
+        done = cached[1] if cached is not None and cached[0] == key else _plan_bridge(bridge, have, key[2], owner)
+        bridges_seen[bridge.address] = (key, done)
+        refusal, change = done
+        if refusal is not None:
+            refusals.append(refusal)  # type: ignore[arg-type]
+        else:
+            changes.append(change)  # type: ignore[arg-type]
+    if memo is not None:
+        memo.bridges = bridges_seen
     wanted_bridges = {b.address for b in desired.bridges}
     for seen in observed.bridges:
         if seen.spec.address in wanted_bridges:
@@ -239,7 +259,9 @@ def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False,
             deletes.append(_bridge_delete(seen.spec, _PRUNED))
         else:
             foreign.append(_foreign(seen.spec.address, seen.owner))
-    changes.sort(key=_sort_key)
+    changes.sort(key=_sort_key if memo is None else memo.sort_key)
+    if memo is not None and len(memo._keys) > 2 * len(changes) + 1000:
+        memo.forget_old_keys(changes)
     deletes.sort(key=_delete_key)
     return Plan(
         changes=tuple(changes) + tuple(deletes),
@@ -262,6 +284,16 @@ def _plan_broker(spec: BrokerSpec, wanted_topics: tuple[TopicSpec, ...], have: O
     )
     topics = _topic_changes(spec, wanted_topics, have, fresh, owner, prune)
     return (None, broker_change, fresh, topics)
+
+
+def _plan_bridge(bridge: BridgeSpec, have: ObservedBridge | None, held: bool,
+                 owner: str | None) -> tuple[Refusal | None, Change | None]:
+    """One desired bridge's part of the plan: a refusal (another plant's) or its change."""
+    whose = Ownership.MINE if have is None else ownership(have.owner, owner)
+    if whose is Ownership.OTHER:
+        return _claimed_refusal(bridge.address, have.owner if have else None, importable=False), None
+    change = _bridge_change(bridge, have, held)
+    return None, (_adopted(change, owner) if whose is Ownership.NOBODY else change)
 
 
 def destroy_plan(desired: DesiredState, observed: ObservedState) -> Plan:

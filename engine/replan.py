@@ -24,7 +24,7 @@ from pathlib import Path
 
 import pyoxigraph as ox
 
-from engine.derive import Parts, anchor, assemble, derive_parts
+from engine.derive import Assembled, Parts, anchor, assemble_from, derive_parts
 from engine.model import ObservedState
 from engine.owner import plant_owner
 from engine.pipeline import Pipeline
@@ -84,6 +84,7 @@ class ReplanSession:
             report = self.validator.full()
         self.rereasoner: Rereasoner | None = None
         self.parts: Parts | None = None
+        self.assembled: Assembled | None = None
         self.derive_queries: list[str] = []
         self.pending: set[str] | None = set()  # brokers to derive again (None: all)
         self.plan_memo = PlanMemo()
@@ -123,21 +124,23 @@ class ReplanSession:
         others kept; in full at the start, when that cannot be narrowed down, or when parts
         derived apart do not fit together (the full derive then gives its answer or its error)."""
         only, self.pending = self.pending, set()
-        if only is not None and self.parts is not None:
+        if only is not None and self.parts is not None and self.assembled is not None:
             try:
-                kept = self.parts.without(frozenset(only))
-                parts = kept.merged(derive_parts(self.plant, frozenset(only), known=kept)) if only else self.parts
-                desired = assemble(parts)
-                self.parts = parts
-                return desired
+                changed = frozenset(only)
+                kept = self.parts.without(changed)
+                parts = kept.merged(derive_parts(self.plant, changed, known=kept)) if only else self.parts
+                assembled = assemble_from(parts, self.assembled, changed)
+                self.parts, self.assembled = parts, assembled
+                return assembled.desired
             except Exception:  # noqa: BLE001 - any refusal: the full derive says it exactly
                 pass
-        self.parts = None
+        self.parts = self.assembled = None
         self.derive_queries = []
         parts = derive_parts(self.plant, queries=self.derive_queries)
-        self.parts = parts
         self.last.setdefault("full", []).append("derive")
-        return assemble(parts)
+        assembled = assemble_from(parts)
+        self.parts, self.assembled = parts, assembled
+        return assembled.desired
 
     def _derive_reach(self, facts: list[tuple]) -> None:
         """Add the brokers whose derive rows ``facts`` can change (on the store as it is now) to
@@ -210,11 +213,17 @@ class ReplanSession:
         with clock.stage("derive"):
             self._derive_reach([*changes, *(doomed or ())])
         with clock.stage("read"):
-            for s, p, o, g in removed:
-                store.remove(ox.Quad(s, p, o, g))
-            store.extend([ox.Quad(s, p, o, g) for s, p, o, g in added])
+            counts = {src.graph: 0 for src, _, _ in deltas}
+            for quad in (ox.Quad(*q) for q in removed):
+                if quad in store:
+                    store.remove(quad)
+                    counts[quad.graph_name.value] -= 1
+            for quad in (ox.Quad(*q) for q in added):
+                if quad not in store:
+                    store.add(quad)
+                    counts[quad.graph_name.value] += 1
             self.texts.update({src.path: text for src, _, text in deltas})
-            self._recount(deltas)
+            self._recount(deltas, counts)
         with clock.stage("validate"):
             report = self.validator.update(before, self.validator.affected(changes))
         result = Pipeline(self.plant, report, timings=clock.wall)
@@ -238,14 +247,14 @@ class ReplanSession:
             full.append("reason")
         self._finish(result, reasoned=reasoned)
 
-    def _recount(self, deltas: list[tuple[Source, Delta, FileText]]) -> None:
-        """The sources' triple counts after the edit; an emptied file or a plant left with no
-        plantkg term is refused as loading refuses it."""
-        changed = {src.path: src for src, _, _ in deltas}
+    def _recount(self, deltas: list[tuple[Source, Delta, FileText]], counts: dict[str, int]) -> None:
+        """The sources' triple counts after the edit (``counts``: the change of each graph's
+        size); an emptied file or a plant left with no plantkg term is refused as loading
+        refuses it."""
         sources = []
         for src in self.plant.sources:
-            if src.path in changed:
-                count = sum(1 for _ in self.plant.store.quads_for_pattern(None, None, None, ox.NamedNode(src.graph)))
+            if src.graph in counts:
+                count = src.triples + counts[src.graph]
                 if count == 0:
                     raise InputError(src.path, "holds no triples",
                                      hint="an empty plant deploys nothing; add resources and brokers")

@@ -207,12 +207,15 @@ def value_query(shape: Shape, focus: str | None, constraints: list[CoreConstrain
             f"{scope}{values} FILTER({either}) }} }} {binds} }}")
 
 
-def class_query(shape: Shape, c: CoreConstraint, focus: str | None = None) -> str:
+def class_query(shape: Shape, c: CoreConstraint, focus: str | None = None, per_row: bool = False) -> str:
     """A property shape's ``sh:class`` alone, without the focus nodes: the path's values that are
     no SHACL instance of the class. ``MINUS`` anti-joins the class's instances (found once) by
     hash, where ``FILTER NOT EXISTS`` walked ``rdf:type/rdfs:subClassOf*`` per value (~20x slower
     on 100k values). The two agree here: the right side binds ``?value`` only, never to a literal."""
     scope = "" if focus is None else f"{{ SELECT DISTINCT ?this WHERE {{ {focus} }} }} "
+    if per_row:  # a few focus nodes: test each value, rather than finding every instance
+        return (f"SELECT DISTINCT ?this ?value WHERE {{ {scope}{_path_triple(shape)} "
+                f"FILTER NOT EXISTS {{ ?value {_TYPE} {term(c.value)} }} }}")  # type: ignore[arg-type]
     return (f"SELECT DISTINCT ?this ?value WHERE {{ {scope}{_path_triple(shape)} "
             f"MINUS {{ ?value {_TYPE} {term(c.value)} }} }}")  # type: ignore[arg-type]
 
@@ -339,11 +342,13 @@ class Unit:
             return None
         return self.shape.path.predicate
 
-    def query(self, focus: str | None) -> str:
+    def query(self, focus: str | None, few: bool = False) -> str:
+        """``few``: the focus is a few nodes (an incremental run), where per-row tests beat
+        set operations."""
         if self.kind == "values":
             return value_query(self.shape, focus, list(self.constraints))
         if self.kind == "class":
-            return class_query(self.shape, self.constraints[0], focus)
+            return class_query(self.shape, self.constraints[0], focus, per_row=few)
         if self.kind == "count":
             return core_query(self.shape, focus or "", self.constraints[0], focus is not None)
         if focus is None:
@@ -419,7 +424,7 @@ def run_unit(store: ox.Store, unit: Unit, focus: Focus, options: dict[str, objec
         chosen = [n for n in nodes if keep(n)]
         if not chosen:
             return
-        text = unit.query(f"VALUES ?this {{ {' '.join(str(n) for n in chosen)} }}")
+        text = unit.query(f"VALUES ?this {{ {' '.join(str(n) for n in chosen)} }}", few=True)
         for row in store.query(text, **options):  # type: ignore[arg-type]
             yield from unit.violations(row)
         return

@@ -206,7 +206,12 @@ class Rereasoner:
                 texts.append(f"SELECT DISTINCT ?x WHERE {{ {c.trigger} FILTER(?x NOT IN ({members})) }} LIMIT 5")
             else:
                 cond, _ = pattern(c.condition, "?x", fresh)
-                texts.append(f"SELECT DISTINCT ?x WHERE {{ {c.trigger} MINUS {{ {cond} }} }} LIMIT 3")
+                # FILTER NOT EXISTS for the few individuals checked, not the full run's MINUS
+                # (which evaluates the condition over the whole store); the two agree here: the
+                # condition binds ?x, the only variable it shares with the trigger. An empty
+                # condition keeps MINUS, whose answer for it differs.
+                negation = "FILTER NOT EXISTS" if cond.strip() else "MINUS"
+                texts.append(f"SELECT DISTINCT ?x WHERE {{ {c.trigger} {negation} {{ {cond} }} }} LIMIT 3")
         for text in texts:
             deps: Deps = analyse(text)
             relevant = [f for f in changed if deps.reads(f)]  # type: ignore[arg-type]
