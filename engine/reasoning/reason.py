@@ -161,7 +161,7 @@ def _run_fast(plant: PlantGraph, scratch: ox.NamedNode | None = None) -> str:
     tbox = read_tbox(plant.store, inputs, where)
     program = rules_fast.compile_tbox(tbox)
     exported = derived_properties(plant)
-    outcome = rules_fast.run(program, plant.store, inputs, INFERRED, where)
+    outcome = rules_fast.run(program, plant.store, inputs, INFERRED, where, trace=False)
     # Keep what is read back (plantkg classes of named individuals, derived properties); the
     # rest (other classes, other super-properties, hasValue data) was only a step on the way.
     keep = exported_test(exported)
