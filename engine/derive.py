@@ -266,6 +266,15 @@ class Assembled:
     pairs: dict[frozenset[str], tuple[object, BridgeSpec]] = field(default_factory=dict)
     hops: dict[str, frozenset[tuple[str, str]]] = field(default_factory=dict)
     ids: dict[str, str] = field(default_factory=dict)  # broker IRI -> id
+    #: broker id -> its topics in address order (DesiredState.topics_of's index, kept current)
+    index: dict[str, tuple[TopicSpec, ...]] = field(default_factory=dict)
+
+    def with_owner(self, owner: str | None) -> DesiredState:
+        """The desired state with ``owner``, its per-broker topic index already filled (building
+        it walks every topic: 0.2 s at 100k resources)."""
+        desired = replace(self.desired, owner=owner)
+        desired.__dict__["_topics_by_broker"] = self.index  # DesiredState's cached_property
+        return desired
 
 
 def assemble(parts: Parts) -> DesiredState:
@@ -330,19 +339,27 @@ def assemble_from(parts: Parts, previous: Assembled | None = None,
     if previous is None:
         topics = sorted((t for ts in parts.topics.values() for t in ts if t.broker_id not in outside),
                         key=lambda t: t.address)
+        grouped: dict[str, list[TopicSpec]] = {}
+        for t in topics:
+            grouped.setdefault(t.broker_id, []).append(t)
+        index = {k: tuple(v) for k, v in grouped.items()}
     else:
         again = {previous.ids[i] for i in changed if i in previous.ids} | {ids[i] for i in changed if i in ids}
         topics = [t for t in previous.desired.topics if t.broker_id not in again]
+        index = {k: v for k, v in previous.index.items() if k not in again}
         for iri in changed:
-            for t in parts.topics.get(iri, ()):
-                if t.broker_id not in outside:
-                    insort(topics, t, key=lambda t: t.address)
+            mine = sorted((t for t in parts.topics.get(iri, ()) if t.broker_id not in outside),
+                          key=lambda t: t.address)
+            for t in mine:
+                insort(topics, t, key=lambda t: t.address)
+            if mine:
+                index[mine[0].broker_id] = tuple(mine)
     desired = DesiredState(
         brokers=tuple(sorted(deployed, key=lambda b: b.address)),
         topics=tuple(topics),
         bridges=tuple(bridges),
     )
-    return Assembled(desired, pairs, frozen_hops, ids)
+    return Assembled(desired, pairs, frozen_hops, ids, index)
 
 
 def default_entity_id(entity_type: str, topic_name: str) -> str:

@@ -161,20 +161,6 @@ class PlanMemo:
     def __init__(self) -> None:
         self.brokers: dict[str, tuple[tuple[object, ...], tuple[object, ...]]] = {}
         self.bridges: dict[str, tuple[tuple[object, ...], tuple[object, ...]]] = {}
-        self._keys: dict[int, tuple[Change, tuple[int, str]]] = {}
-
-    def sort_key(self, change: Change) -> tuple[int, str]:
-        """:func:`_sort_key`, remembered per change object (the memo keeps the object alive,
-        so its id is not reused while the entry is)."""
-        entry = self._keys.get(id(change))
-        if entry is None or entry[0] is not change:
-            entry = (change, _sort_key(change))
-            self._keys[id(change)] = entry
-        return entry[1]
-
-    def forget_old_keys(self, changes: Iterable[Change]) -> None:
-        """Keep the sort keys of ``changes`` only."""
-        self._keys = {id(c): self._keys[id(c)] for c in changes if id(c) in self._keys}
 
 
 def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False,
@@ -193,6 +179,7 @@ def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False,
     fresh_brokers: set[str] = set()
     claimed: set[str] = set()
     seen: dict[str, tuple[tuple[object, ...], tuple[object, ...]]] = {}
+    sort_keys: list[tuple[int, str]] = []  # with a memo: the sort key of each change, in order
     for spec in desired.brokers:
         if spec.host in unreachable:
             continue  # its state is unknown: no change is planned, the host is listed
@@ -204,8 +191,14 @@ def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False,
             done = cached[1]
         else:
             done = _plan_broker(spec, wanted_topics, have, owner, prune)
+            if memo is not None:
+                claim, broker_change, _, topics = done
+                if claim is None:
+                    done = (*done, [_sort_key(c) for c in (broker_change, *topics.changes)])  # type: ignore[union-attr]
         seen[spec.id] = (key, done)
-        claim, broker_change, fresh, topics = done
+        claim, broker_change, fresh, topics = done[:4]
+        if memo is not None and claim is None:
+            sort_keys.extend(done[4])  # type: ignore[arg-type]
         if claim is not None:
             refusals.append(claim)  # type: ignore[arg-type]
             claimed.add(spec.id)
@@ -246,6 +239,8 @@ def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False,
             refusals.append(refusal)  # type: ignore[arg-type]
         else:
             changes.append(change)  # type: ignore[arg-type]
+            if memo is not None:
+                sort_keys.append(_sort_key(change))  # type: ignore[arg-type]
     if memo is not None:
         memo.bridges = bridges_seen
     wanted_bridges = {b.address for b in desired.bridges}
@@ -259,9 +254,10 @@ def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False,
             deletes.append(_bridge_delete(seen.spec, _PRUNED))
         else:
             foreign.append(_foreign(seen.spec.address, seen.owner))
-    changes.sort(key=_sort_key if memo is None else memo.sort_key)
-    if memo is not None and len(memo._keys) > 2 * len(changes) + 1000:
-        memo.forget_old_keys(changes)
+    if memo is None:
+        changes.sort(key=_sort_key)
+    else:  # the memo's keys, sorted by index: no Python call per change
+        changes = [changes[i] for i in sorted(range(len(changes)), key=sort_keys.__getitem__)]
     deletes.sort(key=_delete_key)
     return Plan(
         changes=tuple(changes) + tuple(deletes),

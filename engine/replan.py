@@ -117,9 +117,9 @@ class ReplanSession:
             self._reason_fully(result)
             self.pending = None
         with self.clock.stage("derive"):
-            result.desired = replace(self._derive(), owner=plant_owner(self.plant))
+            result.desired = self._derive().with_owner(plant_owner(self.plant))
 
-    def _derive(self):  # noqa: ANN202 - DesiredState
+    def _derive(self) -> Assembled:
         """The desired state: the parts of the brokers an edit can reach derived again, the
         others kept; in full at the start, when that cannot be narrowed down, or when parts
         derived apart do not fit together (the full derive then gives its answer or its error)."""
@@ -131,7 +131,7 @@ class ReplanSession:
                 parts = kept.merged(derive_parts(self.plant, changed, known=kept)) if only else self.parts
                 assembled = assemble_from(parts, self.assembled, changed)
                 self.parts, self.assembled = parts, assembled
-                return assembled.desired
+                return assembled
             except Exception:  # noqa: BLE001 - any refusal: the full derive says it exactly
                 pass
         self.parts = self.assembled = None
@@ -140,7 +140,7 @@ class ReplanSession:
         self.last.setdefault("full", []).append("derive")
         assembled = assemble_from(parts)
         self.parts, self.assembled = parts, assembled
-        return assembled.desired
+        return assembled
 
     def _derive_reach(self, facts: list[tuple]) -> None:
         """Add the brokers whose derive rows ``facts`` can change (on the store as it is now) to

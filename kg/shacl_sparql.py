@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from typing import Iterable, Iterator
+from typing import Callable, Iterable, Iterator
 
 import pyoxigraph as ox
 from rdflib import Literal, URIRef
@@ -409,9 +409,11 @@ def units(shapes: ShapesGraph) -> list[Unit]:
 
 
 def run_unit(store: ox.Store, unit: Unit, focus: Focus, options: dict[str, object],
-             nodes: Iterable[ox.NamedNode | ox.BlankNode | ox.Literal] | None = None) -> Iterator[Violation]:
+             nodes: Iterable[ox.NamedNode | ox.BlankNode | ox.Literal] | None = None,
+             rewrite: Callable[[str, list], str] | None = None) -> Iterator[Violation]:
     """The violations ``unit`` finds: for every focus node, or for the focus nodes among
-    ``nodes`` only (the query then starts from them, a ``VALUES`` block of the few)."""
+    ``nodes`` only (the query then starts from them, a ``VALUES`` block of the few; ``rewrite``
+    may restrict the query further for them, giving the same rows: kg.subquery_reduce)."""
     targets = unit.targets
 
     def keep(node: object) -> bool:
@@ -425,6 +427,8 @@ def run_unit(store: ox.Store, unit: Unit, focus: Focus, options: dict[str, objec
         if not chosen:
             return
         text = unit.query(f"VALUES ?this {{ {' '.join(str(n) for n in chosen)} }}", few=True)
+        if rewrite is not None:
+            text = rewrite(text, chosen)
         for row in store.query(text, **options):  # type: ignore[arg-type]
             yield from unit.violations(row)
         return

@@ -22,6 +22,7 @@ from kg.shacl_sparql import Unit, Violation, dataset, run_unit, units
 from kg.shapes import ShapesGraph
 from kg.namespaces import RDF, RDFS
 from kg.sparql_deps import ALL, Deps, Path, Pattern, Triple, analyse, store_lookup
+from kg.subquery_reduce import reduce_subqueries
 from kg.validate import ValidationReport, report_of
 
 Affected = dict[int, set | None]
@@ -111,6 +112,10 @@ class Revalidator:
             self._deps[i] = _sparql_deps(unit) if unit.kind == "sparql" else core_deps(unit)
         return self._deps[i]  # type: ignore[return-value]
 
+    def _reducer(self, i: int) -> Callable[[str, list], str]:
+        deps, lookup = self.deps(i), store_lookup(self.plant.store, self.graphs)
+        return lambda text, chosen: reduce_subqueries(text, deps, chosen, lookup)
+
     def full(self) -> ValidationReport:
         """Validate every unit (the store's ``graphs`` only) and remember the violations."""
         store, options = self.plant.store, dataset(self.graphs)
@@ -149,7 +154,8 @@ class Revalidator:
                 full += 1
             elif nodes:
                 kept = [v for v in self.found[i] if v.focus not in nodes]
-                self.found[i] = kept + list(run_unit(store, unit, focus, options, nodes))
+                rewrite = self._reducer(i) if unit.kind == "sparql" else None
+                self.found[i] = kept + list(run_unit(store, unit, focus, options, nodes, rewrite))
                 partial += 1
         self.last = {"units_full": full, "units_partial": partial}
         return self.report()

@@ -58,6 +58,19 @@ def mend_topic_name(text: str, rng: random.Random) -> str | None:
     return _sub(rf'pk:name "plant sensor {i}"', f'pk:name "plant.sensor-{i}.value"', text)
 
 
+def kafka_collision(text: str, rng: random.Random) -> str | None:
+    """A topic of a Kafka broker renamed to another of its topics' name with . written _: Kafka
+    treats the two as one (pks:Topic-kafkaCollision, a grouped sub-query)."""
+    brokers = max(1, -(-N // 20))
+    kafka = [b for b in range(brokers) if b % 2 == 1]
+    if not kafka:
+        return None
+    b = rng.choice(kafka)
+    mine = [i for i in range(N) if i % brokers == b]
+    i, j = rng.sample(mine, 2)
+    return _sub(rf'pk:name "plant\.sensor-{i}\.value"', f'pk:name "plant_sensor-{j}_value"', text)
+
+
 def subscribe_across(text: str, rng: random.Random) -> str | None:
     """A resource subscribes to a topic published on another broker, which its broker then
     carries: rule R1 requires a bridge."""
@@ -161,7 +174,7 @@ def mend_clash(text: str, rng: random.Random) -> str | None:
     return _sub(r"a pk:Resource , pk:Broker", "a pk:Resource", text)
 
 
-EDITS: list[Edit] = [rename_resource, break_topic_name, mend_topic_name, subscribe_across, unsubscribe,
+EDITS: list[Edit] = [rename_resource, break_topic_name, mend_topic_name, kafka_collision, subscribe_across, unsubscribe,
                      drop_carried, duplicate_id, restore_ids, bad_port, good_port, switch_broker_type,
                      add_resource, delete_resource, subclass_axiom, long_description, blank_node,
                      type_clash, mend_clash]
@@ -258,7 +271,7 @@ def test_random_edits_replan_as_a_full_run_does(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("edit", [subscribe_across, unsubscribe, drop_carried, duplicate_id, add_resource,
-                                  delete_resource, switch_broker_type, rename_resource])
+                                  delete_resource, switch_broker_type, rename_resource, kafka_collision])
 def test_each_edit_kind_matches_a_full_run(tmp_path: Path, edit: Edit) -> None:
     path = synthetic.write_file(N, tmp_path)
     session = ReplanSession([path])
@@ -299,3 +312,29 @@ def test_the_statement_cut_equals_comparing_whole_files(tmp_path: Path) -> None:
     assert set(delta.added) == after - before
     assert (ox.NamedNode("urn:x#a"), ox.NamedNode("urn:x#q"), ox.Literal("1", datatype=ox.NamedNode(
         "http://www.w3.org/2001/XMLSchema#integer"))) not in delta.removed
+
+
+def test_a_grouped_subquery_is_restricted_to_the_focus_nodes_values(tmp_path: Path, monkeypatch) -> None:  # noqa: ANN001
+    """pks:Topic-kafkaCollision groups every Kafka broker's topics in a sub-query; re-run for the
+    topics an edit reaches, the sub-query is restricted to their brokers (kg.subquery_reduce),
+    and the collision it finds is the full run's."""
+    from kg import subquery_reduce
+
+    rewritten: list[str] = []
+    real = subquery_reduce.reduce_subqueries
+
+    def spy(query, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN202
+        out = real(query, *args, **kwargs)
+        if out != query:
+            rewritten.append(out)
+        return out
+
+    monkeypatch.setattr("kg.validate_delta.reduce_subqueries", spy)
+    path = synthetic.write_file(N, tmp_path)
+    session = ReplanSession([path])
+    text = kafka_collision(path.read_text(), random.Random(SEED))
+    assert text is not None
+    path.write_text(text)
+    _same_as_full(session, path)
+    assert any(r.shape.endswith("Topic-kafkaCollision") for r in session.result.report.results)
+    assert any("VALUES ?broker" in q for q in rewritten)
