@@ -17,7 +17,7 @@ the fast reasoner refuses) is done by the full step instead, and says so in ``la
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -266,8 +266,3 @@ class ReplanSession:
             raise NotAPlantError(f"{names}: uses no term of the plantkg ontology ({PK})",
                                  hint="declare `@prefix pk: <https://w3id.org/plantkg/ontology#> .` and type "
                                  "individuals as pk:Resource, pk:Broker, pk:Topic, ...")
-
-
-def session(files: Iterable[Path | str]) -> ReplanSession:
-    """A :class:`ReplanSession` over ``files`` (its first, full run done)."""
-    return ReplanSession([Path(f) for f in files])

@@ -159,11 +159,3 @@ class Revalidator:
                 partial += 1
         self.last = {"units_full": full, "units_partial": partial}
         return self.report()
-
-
-def apply_and_revalidate(validator: Revalidator, changes: list[Triple],
-                         apply: Callable[[], None]) -> ValidationReport:
-    """``affected`` before, ``apply()`` the edit to the store, ``affected`` after, ``update``."""
-    before = validator.affected(changes)
-    apply()
-    return validator.update(before, validator.affected(changes))
