@@ -143,10 +143,14 @@ class Receiver:
                 self.proc.wait()
 
 
-def mqtt_subscriber(host: str, port: int, topic: str, client_id: str, out: Path) -> Receiver:
+def mqtt_subscriber(host: str, port: int, topic: str, client_id: str, out: Path,
+                    persistent: bool = False, append: bool = False) -> Receiver:
+    """``persistent``: a session that outlives the connection (``-c``), so messages published
+    while the subscriber reconnects wait for it on the broker. ``append``: add to ``out`` (a
+    subscriber coming back) instead of starting it anew."""
     argv = [need("mosquitto_sub"), "-h", host, "-p", str(port), "-t", topic, "-q", "1",
-            "--nodelay", "-i", client_id, "-F", "%U %p"]
-    return Receiver(_spawn(argv, out, stdout_to_log=True), out)
+            "--nodelay", "-i", client_id, "-F", "%U %p", *(["-c"] if persistent else [])]
+    return Receiver(_spawn(argv, out, stdout_to_log=True, append=append), out)
 
 
 def kafka_reader(bootstrap: str, topic: str, out: Path, partitions: int = 1) -> Receiver:
@@ -165,9 +169,9 @@ def kafka_reader(bootstrap: str, topic: str, out: Path, partitions: int = 1) -> 
 
 
 def _spawn(argv: list[str], log: Path, stdin: int | None = subprocess.DEVNULL,
-           stdout_to_log: bool = False, cwd: Path | None = None) -> subprocess.Popen[bytes]:
+           stdout_to_log: bool = False, cwd: Path | None = None, append: bool = False) -> subprocess.Popen[bytes]:
     log.parent.mkdir(parents=True, exist_ok=True)
-    with open(log, "wb") as out:
+    with open(log, "ab" if append else "wb") as out:
         err = open(log.with_suffix(log.suffix + ".err"), "wb") if stdout_to_log else subprocess.STDOUT
         try:
             return subprocess.Popen(argv, stdin=stdin, stdout=out, stderr=err, cwd=cwd,
@@ -285,6 +289,78 @@ def _kafka_write(bootstrap: str, topic: str, partition: int) -> int:
     return 1 if failed or left else 0
 
 
+def acked_publisher(host: str, port: int, topic: str, count: int, rate: float, out: Path) -> subprocess.Popen[bytes]:
+    """A paho publisher process that sends ``count`` QoS-1 messages at ``rate`` msg/s and writes
+    the index of each message the broker acknowledged to ``out``: what a fault may not lose is what
+    a publisher got a PUBACK for (mosquitto_pub cannot tell which). It reconnects by itself and
+    exits once every message is acknowledged."""
+    argv = [sys.executable, "-m", "benchmarks.bridge_load", "mqtt-pub", "--host", host, "--port", str(port),
+            "--topic", topic, "--count", str(count), "--rate", str(rate), "--out", str(out)]
+    return _spawn(argv, out.with_suffix(".log"), cwd=Path(__file__).resolve().parent.parent)
+
+
+def read_acked(path: Path) -> set[int]:
+    try:
+        return {int(x) for x in path.read_bytes().split()}
+    except FileNotFoundError:
+        return set()
+
+
+def _mqtt_pub(host: str, port: int, topic: str, count: int, rate: float, out: Path) -> int:
+    import paho.mqtt.client as mqtt  # noqa: PLC0415 - only in this process
+
+    pending: dict[int, int] = {}      # mid -> index, for messages in flight
+    early: set[int] = set()           # mids acknowledged before publish() returned their index
+    lock = threading.Lock()           # never held while calling paho: its callback holds paho's lock
+    done = threading.Event()
+    written = 0
+    with open(out, "wb") as f:
+        def record(index: int) -> None:  # the caller holds lock
+            nonlocal written
+            f.write(b"%d\n" % index)
+            written += 1
+            if written % 200 == 0 or written == count:
+                f.flush()
+            if written == count:
+                done.set()
+
+        def on_publish(_c: object, _u: object, mid: int, *_rest: object) -> None:
+            with lock:
+                index = pending.pop(mid, None)
+                if index is None:
+                    early.add(mid)
+                else:
+                    record(index)
+
+        client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"bench-acked-{os.getpid()}",
+                             clean_session=False)
+        client.max_inflight_messages_set(1000)
+        client.max_queued_messages_set(0)
+        client.reconnect_delay_set(0.1, 1)
+        client.on_publish = on_publish
+        client.connect(host, port)
+        client.loop_start()
+        start = time.monotonic()
+        pause = threading.Event()
+        for i in range(count):
+            ahead = start + i / rate - time.monotonic()
+            if ahead > 0.002:
+                pause.wait(ahead)  # pacing the sender
+            mid = client.publish(topic, line(i, time.time_ns())[:-1], qos=1).mid
+            with lock:
+                if mid in early:
+                    early.discard(mid)
+                    record(i)
+                else:
+                    pending[mid] = i
+        done.wait(600)
+        with lock:
+            f.flush()
+        client.loop_stop()
+        client.disconnect()
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="bridge benchmark helper processes")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -297,7 +373,16 @@ def main(argv: list[str] | None = None) -> int:
     write.add_argument("--bootstrap", required=True)
     write.add_argument("--topic", required=True)
     write.add_argument("--partition", type=int, default=0)
+    pub = sub.add_parser("mqtt-pub", help="publish paced QoS-1 messages, write the acknowledged indexes")
+    pub.add_argument("--host", required=True)
+    pub.add_argument("--port", type=int, required=True)
+    pub.add_argument("--topic", required=True)
+    pub.add_argument("--count", type=int, required=True)
+    pub.add_argument("--rate", type=float, required=True)
+    pub.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
+    if args.command == "mqtt-pub":
+        return _mqtt_pub(args.host, args.port, args.topic, args.count, args.rate, args.out)
     if args.command == "kafka-write":
         return _kafka_write(args.bootstrap, args.topic, args.partition)
     return _kafka_read(args.bootstrap, args.topic, args.partitions, args.out)

@@ -14,6 +14,12 @@ waiting (the owner knows: ``on_disconnect``); nothing is sent again by this clie
 Callbacks run on the I/O thread and must not block: ``on_connect(connack)``, ``on_disconnect(why)``
 (None when :meth:`stop` ended it), ``on_message(publish)``, ``on_puback(mid)``,
 ``on_suback(reason codes)``, ``on_connect_failed(why)``.
+
+Receiving keeps to a window too: Mosquitto 2.0.11 does not hold to the client's Receive Maximum
+(it had 9,991 QoS-1 messages unacknowledged towards a worker that asked for at most 1,000), so
+the client handles no further PUBLISH while ``can_read()`` says no (what it already read waits in
+order) and stops reading, so TCP holds the broker back; PINGREQs still leave meanwhile, so the
+broker keeps the connection.
 """
 
 from __future__ import annotations
@@ -32,8 +38,9 @@ from engine.bridge_worker import mqtt_wire as wire
 
 log = logging.getLogger("plantkg.bridge.mqtt")
 
-READ_SIZE = 1 << 18          # bytes asked of the socket per read
+READ_SIZE = 1 << 16          # bytes asked of the socket per read
 TICK = 0.5                   # seconds between keep-alive checks when nothing happens
+WRITE_EVERY = 64             # packets handled between writes of what other threads queued
 CONNECT_TIMEOUT = 10.0       # seconds for TCP connect + CONNACK
 
 
@@ -57,6 +64,9 @@ class MqttClient:
         self.on_puback: Callable[[int], None] = lambda mid: None
         self.on_suback: Callable[[list[int]], None] = lambda reasons: None
         self.on_connect_failed: Callable[[str], None] = lambda why: None
+        #: Asked before each read: False holds back reading (TCP then holds the broker back)
+        #: while the owner has as many messages unacknowledged as it takes.
+        self.can_read: Callable[[], bool] = lambda: True
         self._lock = threading.Lock()            # guards everything below
         self._out = bytearray()
         self._connected = False
@@ -225,24 +235,23 @@ class MqttClient:
         if self.subscriptions:
             self.subscribe(self.subscriptions)
         keepalive = max(1, self.keepalive)
-        last_sent = last_heard = time.monotonic()
         ping_sent: float | None = None
-        for packet in self._early:
-            self._handle(packet)
+        self._backlog = deque(self._early)
+        self._sock = sock
+        self._last_sent = time.monotonic()
         while True:
-            with self._lock:
-                out = bytes(self._out)
-                self._out.clear()
             if self._stopping.is_set():
-                _send_all(sock, out + wire.DISCONNECT_PACKET)
+                self._write_out(wire.DISCONNECT_PACKET)
                 return
-            if out:
-                _send_all(sock, out)
-                last_sent = time.monotonic()
-            if isinstance(sock, ssl.SSLSocket) and sock.pending():
+            self._write_out()
+            self._handle_backlog()
+            reading = not self._backlog and self.can_read()
+            if not reading:
+                ping_sent = None   # no answer can be read now: time it from the next PINGREQ
+            if reading and isinstance(sock, ssl.SSLSocket) and sock.pending():
                 readable, woke = True, False   # TLS bytes already decrypted: no select needed
             else:
-                ready = select.select([sock, self._wake_r], [], [], TICK)[0]
+                ready = select.select([sock, self._wake_r] if reading else [self._wake_r], [], [], TICK)[0]
                 readable, woke = sock in ready, self._wake_r in ready
             if woke:
                 try:
@@ -257,17 +266,41 @@ class MqttClient:
                 if data == b"":
                     raise ConnectionLost("connection closed by the broker")
                 if data:
-                    last_heard = time.monotonic()
                     ping_sent = None
-                    for packet in self._decoder.feed(data):
-                        self._handle(packet)
+                    self._backlog.extend(self._decoder.feed(data))
+                    self._handle_backlog()
             now = time.monotonic()
-            if ping_sent is not None and now - ping_sent > keepalive:
+            if reading and ping_sent is not None and now - ping_sent > keepalive:
                 raise ConnectionLost(f"no answer from the broker for {keepalive} s (keep-alive)")
-            if ping_sent is None and (now - last_sent >= keepalive / 2 or now - last_heard >= keepalive):
+            if now - self._last_sent >= keepalive / 2:  # the broker hears from us, reading or not
                 with self._lock:
                     self._out += wire.PINGREQ_PACKET
-                ping_sent = now
+                if ping_sent is None and reading:
+                    ping_sent = now
+
+    def _write_out(self, extra: bytes = b"") -> None:
+        """Write what other threads queued (and ``extra``) now."""
+        with self._lock:
+            out = bytes(self._out) + extra
+            self._out.clear()
+        if out:
+            _send_all(self._sock, out)
+            self._last_sent = time.monotonic()
+
+    def _handle_backlog(self) -> None:
+        """Handle the packets read, in order, up to a PUBLISH that would take more than the
+        owner's window (``can_read``): it and those after it wait for the window to open.
+        What other threads queued meanwhile (PUBACKs) leaves every WRITE_EVERY packets, so the
+        messages the broker counts as unacknowledged stay close to the owner's window."""
+        backlog = self._backlog
+        handled = 0
+        while backlog:
+            if backlog[0].kind == wire.PUBLISH and not self.can_read():
+                return
+            self._handle(backlog.popleft())
+            handled += 1
+            if handled % WRITE_EVERY == 0 and self._out:
+                self._write_out()
 
     def _handle(self, packet: wire.Packet) -> None:
         kind = packet.kind

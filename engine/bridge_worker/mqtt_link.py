@@ -87,6 +87,11 @@ class MqttLink:
     def flush(self) -> None:
         self.client.flush()
 
+    def hold_reading_while(self, full: Callable[[], bool]) -> None:
+        """Read no more messages while ``full()``: the half has as many unacknowledged messages
+        as it takes (the broker may send more than the Receive Maximum asked for)."""
+        self.client.can_read = lambda: not full()
+
     def unsubscribe(self, topic: str) -> None:
         self.client.unsubscribe([topic])
 

@@ -34,7 +34,7 @@ from confluent_kafka import KafkaError, KafkaException, Message, Producer
 from engine.bridge_worker.config import Direction, KeyMode, Route, WorkerConfig
 from engine.bridge_worker.health import Health
 from engine.bridge_worker.ledgers import InOrderAcks, PendingAck
-from engine.bridge_worker.mqtt_link import MqttLink
+from engine.bridge_worker.mqtt_link import RECEIVE_MAXIMUM, MqttLink
 from engine.bridge_worker.mqtt_wire import Publish
 
 log = logging.getLogger("plantkg.bridge.mqtt-to-kafka")
@@ -100,6 +100,7 @@ class MqttToKafka:
         self._thread = threading.Thread(target=self._poll_loop, name="kafka-producer", daemon=True)
         mqtt_link.on_message = self.on_message
         mqtt_link.on_connection.append(self._connection_changed)
+        mqtt_link.hold_reading_while(lambda: len(self.acks) >= RECEIVE_MAXIMUM)
 
     def start(self) -> None:
         self._thread.start()

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 
 from engine.bridge_worker.ledgers import InOrderAcks, PendingAck
-from engine.bridge_worker.mqtt_link import MqttLink
+from engine.bridge_worker.mqtt_link import RECEIVE_MAXIMUM, MqttLink
 from engine.bridge_worker.mqtt_wire import Publish
 from engine.bridge_worker.ngsi_client import NgsiClient, NgsiRefused, NgsiUnavailable
 from engine.bridge_worker.ngsi_config import NgsiDirection, NgsiRoute, NgsiWorkerConfig
@@ -69,6 +69,7 @@ class MqttToNgsi:
         self._taking = True
         link.on_message = self.on_message
         link.on_connection.append(self._connection_changed)
+        link.hold_reading_while(lambda: len(self.acks) >= RECEIVE_MAXIMUM)
 
     def start(self) -> None:
         for thread in self._threads:
