@@ -210,23 +210,45 @@ def subscriber(broker: rig.Mosquitto, name: str, work: Path, stops: list[Callabl
     return arrivals
 
 
+COST_CAP = 60.0   # seconds a throughput run may take: a slow policy's rate is clear by then
+
+
 def policy_cost(work: Path, policy: Policy, n: int) -> dict[str, object]:
+    """``n`` messages as fast as mosquitto_pub sends them across the bridge: distinct messages
+    received per second (over at most COST_CAP s)."""
     stops: list[Callable[[], object]] = []
     try:
         source, target = bridge_pair(work, policy, stops)
         arrivals = subscriber(target, "cost-sub", work, stops)
         feeder = load.mqtt_publisher(source.host, source.port, TOPIC, "cost-pub", work / "cost-pub.log")
-        stops.append(feeder.close)
+        stops.append(feeder.proc.kill)  # what it still holds is not measured
         arrivals.read()
         first, start_ns, _ = feeder.send(n, None)
-        until_done_or_idle(arrivals, lambda: all(i in arrivals.first for i in range(first, first + n)))
+        cap = time.monotonic() + COST_CAP
+        until_done_or_idle(arrivals, lambda: time.monotonic() > cap
+                           or all(i in arrivals.first for i in range(first, first + n)))
         got = [arrivals.first[i][1] for i in range(first, first + n) if i in arrivals.first]
         seconds = (max(got) - start_ns) / 1e9 if got else float("nan")
         return {"received": len(got), "missing": n - len(got), "seconds": seconds,
+                "capped": len(got) < n and time.monotonic() > cap,
                 "msg_per_s": len(got) / seconds if got else 0.0}
     finally:
         for stop in reversed(stops):
             stop()
+
+
+def policy_costs(work: Path, policies: list[Policy], n: int, repeats: int) -> dict[str, dict[str, object]]:
+    """Each policy's throughput ``repeats`` times, the order reversed every other round (the
+    machine's load drifts): the median run of each, and every rate."""
+    runs: dict[str, list[dict[str, object]]] = {p.name: [] for p in policies}
+    for r in range(repeats):
+        for i, policy in enumerate(policies if r % 2 == 0 else list(reversed(policies))):
+            runs[policy.name].append(policy_cost(work / f"cost-{r}-{i}", policy, n))
+    out = {}
+    for name, results in runs.items():
+        ordered = sorted(results, key=lambda x: float(x["msg_per_s"]))  # type: ignore[arg-type]
+        out[name] = {**ordered[len(ordered) // 2], "rates": [round(float(x["msg_per_s"])) for x in results]}  # type: ignore[arg-type]
+    return out
 
 
 def policy_target_killed(work: Path, policy: Policy, count: int, rate: float,
@@ -418,10 +440,12 @@ def to_markdown(data: dict[str, object]) -> str:
         base = next((r["cost"]["msg_per_s"] for r in rows if r["policy"] == UNSAFE), rows[0]["cost"]["msg_per_s"])  # type: ignore[index]
         lines += [
             f"## Save policies on a Mosquitto bridge A -> B ({data['messages']} messages as fast as "
-            f"mosquitto_pub sends them; the kill: {data['stream']} messages at {data['rate']:.0f} msg/s)",
+            f"mosquitto_pub sends them, median of {data['repeats']} runs in alternating order, at most "
+            f"{COST_CAP:.0f} s each; the kill: {data['stream']} messages at {data['rate']:.0f} msg/s)",
             "",
-            f"`default` is no pk:persistEvery: a save every {DEFAULT_SAVE_SECONDS} s. A number N: a save "
-            f"after every N changes. Ratio against `{UNSAFE}`.",
+            f"`default` is no pk:persistEvery: `autosave_interval {DEFAULT_SAVE_SECONDS}` (Mosquitto saves when "
+            f"its clock's whole second is more than {DEFAULT_SAVE_SECONDS} past the last save's). A number N: "
+            f"a save after every N changes. `tick:S`: SIGUSR1 every S s. Ratio against `{UNSAFE}`.",
             "",
             "| save policy | msg/s, no kill | vs " + UNSAFE + " | target killed: missing of acked (duplicates) "
             "| same, subscriber offline | sessions present after the kill | MQTT -> Kafka: worker, then "
@@ -433,7 +457,8 @@ def to_markdown(data: dict[str, object]) -> str:
             d = r.get("double_fault")
             present = "yes" if k["session_present"] and o["session_present"] else "no"
             double = "-" if d is None else f"{d['missing']} of {d['acked']} ({d['duplicates']})"
-            lines.append(f"| {r['policy']} | {c['msg_per_s']:.0f} | {c['msg_per_s'] / base:.2f} | "
+            lines.append(f"| {r['policy']} | {c['msg_per_s']:.0f}{' (capped)' if c.get('capped') else ''} | "
+                         f"{c['msg_per_s'] / base:.2f} | "
                          f"{k['missing']} of {k['acked']} ({k['duplicates']}) | "
                          f"{o['missing']} of {o['acked']} ({o['duplicates']}) | {present} | {double} |")
         lines.append("")
@@ -456,6 +481,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--messages", type=int, default=20_000, help="per throughput run (at most 60000)")
     parser.add_argument("--stream", type=int, default=15_000, help="messages per fault run")
     parser.add_argument("--rate", type=float, default=3000.0, help="msg/s of the fault runs")
+    parser.add_argument("--repeats", type=int, default=3, help="throughput runs per policy")
     parser.add_argument("--policies", nargs="*", default=[UNSAFE, "default", "10", "100", "1", "tick:0.25"])
     parser.add_argument("--parts", nargs="+", type=int, choices=(1, 2, 3), default=[1, 2, 3],
                         help="1: policies on a Mosquitto bridge; 2: plantkg's paths with the default "
@@ -466,25 +492,25 @@ def main(argv: list[str] | None = None) -> int:
     policies, faults = [], []
     with tempfile.TemporaryDirectory(prefix="plantkg-bench-durability-") as tmp:
         if 1 in args.parts:
-            for i, policy in enumerate(args.policies):
-                chosen = Policy.parse(policy)
+            chosen = [Policy.parse(p) for p in args.policies]
+            costs = policy_costs(Path(tmp) / "costs", chosen, args.messages, args.repeats)
+            for i, policy in enumerate(chosen):
                 folder = Path(tmp) / f"p{i}"
-                policies.append({"policy": policy,
-                                 "cost": policy_cost(folder / "cost", chosen, args.messages),
-                                 "killed": policy_target_killed(folder / "kill", chosen, args.stream,
+                policies.append({"policy": policy.name, "cost": costs[policy.name],
+                                 "killed": policy_target_killed(folder / "kill", policy, args.stream,
                                                                 args.rate, offline=False),
-                                 "killed_offline": policy_target_killed(folder / "offline", chosen,
+                                 "killed_offline": policy_target_killed(folder / "offline", policy,
                                                                         args.stream, args.rate, offline=True)})
                 if 3 in args.parts:
                     policies[-1]["double_fault"] = mqtt_to_kafka(folder / "double", DOUBLE, args.stream,
-                                                                 args.rate, chosen)
+                                                                 args.rate, policy)
         if 2 in args.parts:
             for i, (path, fault) in enumerate(PATH_FAULTS):
                 run = mqtt_to_kafka if path == "mqtt-kafka" else kafka_to_mqtt
                 faults.append({"path": path, "fault": fault,
                                **run(Path(tmp) / f"f{i}", fault, args.stream, args.rate)})
     data = {"command": command_line("benchmarks.bench_durability", argv), "machine": info,
-            "messages": args.messages, "stream": args.stream, "rate": args.rate,
+            "messages": args.messages, "repeats": args.repeats, "stream": args.stream, "rate": args.rate,
             "policies": policies, "faults": faults, "goals": goals(policies, faults)}
     write_results(args.out, "durability", data, to_markdown(data))
     return 0

@@ -54,13 +54,14 @@ from engine.values import check_host, check_path, check_port, check_user
 MAX_QUEUED_MESSAGES = 1_000_000
 #: QoS 1/2 messages in flight to one client at once (its default: 20).
 MAX_INFLIGHT_MESSAGES = 1000
-#: Seconds between saves of the in-memory database when the plant sets no ``pk:persistEvery``
-#: (also saved on a clean stop). Mosquitto's own default, 1800 s (plantkg had 60 s), lost thousands
+#: ``autosave_interval`` when the plant sets no ``pk:persistEvery``: a save by time (Mosquitto counts
+#: whole seconds and saves once the current one is more than this past the last save's, so every
+#: 1-2 s; also on a clean stop). Mosquitto's own default, 1800 s (plantkg had 60 s), lost thousands
 #: of acknowledged messages through a SIGKILL; saving after every 10 changes (plantkg's default
-#: before issue 16) lost fewer, but every save writes the whole database and fsyncs it, so with a
-#: backlog (an offline or slow subscriber) the broker did little else: 1,230 msg/s instead of
-#: 12,835 (benchmarks/bench_durability). A time-based save costs one save per second whatever the
-#: backlog.
+#: before issue 16) lost fewer, but every save writes the whole database and syncs it, and with a
+#: backlog every queued message is a change: the broker did little but save (a bridge at full
+#: speed: 0.06x the unsafe setting's throughput, benchmarks/bench_durability). A save by time costs
+#: the same whatever the backlog.
 DEFAULT_SAVE_SECONDS = 1
 #: Bridge reconnection backoff: first delay and cap, in seconds.
 BRIDGE_RESTART_TIMEOUT = (1, 10)

@@ -138,7 +138,7 @@ def test_bridge_benchmark_runs(tmp_path: Path) -> None:
 def test_durability_benchmark_runs(tmp_path: Path) -> None:
     from benchmarks import bench_durability
 
-    assert bench_durability.main(["--messages", "300", "--stream", "600", "--rate", "1000",
+    assert bench_durability.main(["--messages", "300", "--stream", "600", "--rate", "1000", "--repeats", "1",
                                   "--policies", "default", "1", "--parts", "1", "--out", str(tmp_path)]) == 0
     rows = {r["policy"]: r for r in json.loads((tmp_path / "durability.json").read_text())["policies"]}
     assert set(rows) == {"default", "1"}
