@@ -144,12 +144,12 @@ def test_durability_benchmark_runs(tmp_path: Path) -> None:
     assert set(rows) == {"default", "1"}
     assert all(r["cost"]["missing"] == 0 for r in rows.values())  # no kill: nothing lost
     for r in rows.values():
-        # the subscriber connected: what the target acknowledged it had already passed on
-        assert r["killed"]["acked"] == 600 and r["killed"]["missing"] == 0
-        # saved within a second (default) or at once (1): sessions outlive a SIGKILL
+        assert r["killed"]["acked"] == r["killed_offline"]["acked"] == 600
+        # saved within two seconds (default) or at once (1): sessions outlive a SIGKILL
         assert r["killed"]["session_present"] and r["killed_offline"]["session_present"]
-    # the subscriber offline: what waits for it lives in memory until the next save. Mosquitto
-    # sends the PUBACK of a message before the save that follows its pass of the event loop, so
-    # even a save after every change can lose the message of that pass (seen in CI): at most one.
-    assert rows["1"]["killed_offline"]["missing"] <= 1
+    # What the target acknowledged and had neither delivered nor saved is lost: with the default
+    # that can be anything of the last 1-2 s (a subscriber that lags, or is offline), so no bound
+    # is asserted. With a save after every change, only the message of the pass the kill came in:
+    # Mosquitto sends its PUBACK before the save that ends the pass (seen in CI): at most one.
+    assert rows["1"]["killed"]["missing"] <= 1 and rows["1"]["killed_offline"]["missing"] <= 1
     assert "| 1 |" in (tmp_path / "durability.md").read_text()
