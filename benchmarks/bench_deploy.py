@@ -48,7 +48,8 @@ from confluent_kafka.admin import AdminClient, NewTopic
 from benchmarks import netns
 from benchmarks.delay_proxy import DelayProxy
 from benchmarks.common import RESULTS, command_line, machine, summarize, write_results
-from engine import kafka_runtime, netutil, parts, process
+from engine import netutil, parts, process
+from engine.drivers.kafka import runtime as kafka_runtime
 from engine.agent.local import start_local_agents
 from engine.agents_config import AgentDirectory
 from engine.apply import apply

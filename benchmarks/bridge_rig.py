@@ -18,7 +18,8 @@ from pathlib import Path
 
 from confluent_kafka.admin import AdminClient, NewTopic
 
-from engine import kafka_runtime, netutil, parts, process
+from engine import netutil, parts, process
+from engine.drivers.kafka import runtime as kafka_runtime
 from engine.bridge_worker.config import WorkerConfig
 from engine.bridge_worker.stats import WorkerStats, read_stats
 from engine.mosquitto_runtime import MosquittoBridge, MosquittoConfig, default_run_as, mosquitto_command, render_mosquitto_conf

@@ -31,6 +31,7 @@ SECTIONS = (
      ("fleet_tasks-paths.png", "fleet_tasks-gantt.png")),
     ("cli", "Command-line start-up against a bare Python start", ()),
     ("security", "Mosquitto with users and ACLs against the same Mosquitto open (issue 13)", ()),
+    ("kafka_cluster", "A 3-node Kafka cluster against the same nodes by hand; RF 1 vs RF 3; MirrorMaker 2 (issue 14)", ()),
     ("validate", "Validation against pySHACL", ()),
     ("reason", "Reasoning against HermiT", ()),
 )
@@ -79,7 +80,7 @@ def goals(results: Path) -> list[tuple[str, str, str, str]]:
                     _verdict(median < 0.15)))
     for g in (_read(results, "context_broker") or {}).get("goals", []):  # verdicts computed by the study
         out.append((f"context broker: {g['goal']}", g["measured"], g["target"], _verdict(g["met"])))
-    for name in ("security", "bridge", "durability"):  # verdicts computed by the study
+    for name in ("security", "bridge", "durability", "kafka_cluster"):  # verdicts computed by the study
         for g in (_read(results, name) or {}).get("goals", []):
             out.append((g["goal"], g["measured"], g["target"], _verdict(g["met"])))
     return out

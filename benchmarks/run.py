@@ -6,7 +6,7 @@ report afterwards. ``--tiny`` runs each study at a size that takes seconds (what
 does); the defaults are the full sizes of the issue (about ten minutes on two cores for the default studies).
 
 Usage: ``plantkg-bench [STUDY ...] [--tiny] [--out DIR]`` — studies: deploy, load, scale,
-validate, reason, bridge, web, durability, context_broker, bridge_ngsi, fleet_join, fleet_tasks, cli, security; default ``deploy load scale``; ``plantkg-bench report`` only rebuilds RESULTS.md.
+validate, reason, bridge, web, durability, context_broker, bridge_ngsi, fleet_join, fleet_tasks, cli, security, kafka_cluster; default ``deploy load scale``; ``plantkg-bench report`` only rebuilds RESULTS.md.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from benchmarks import (bench_bridge, bench_bridge_ngsi, bench_cli, bench_context_broker, bench_deploy, bench_durability,
-                        bench_fleet_join, bench_fleet_tasks, bench_load, bench_reason, bench_replan, bench_security, bench_validate,
+                        bench_fleet_join, bench_fleet_tasks, bench_kafka_cluster, bench_load, bench_reason, bench_replan, bench_security, bench_validate,
                         bench_web, report)
 from benchmarks.common import RESULTS
 
@@ -27,6 +27,7 @@ STUDIES: dict[str, Callable[[list[str]], int]] = {
     "web": bench_web.main, "durability": bench_durability.main, "context_broker": bench_context_broker.main,
     "bridge_ngsi": bench_bridge_ngsi.main, "fleet_join": bench_fleet_join.main,
     "fleet_tasks": bench_fleet_tasks.main, "cli": bench_cli.main, "security": bench_security.main,
+    "kafka_cluster": bench_kafka_cluster.main,
 }
 DEFAULT = ["deploy", "load", "scale"]
 TINY: dict[str, list[str]] = {
@@ -46,6 +47,7 @@ TINY: dict[str, list[str]] = {
     "fleet_tasks": ["--tiny"],
     "cli": ["--runs", "2", "--no-agents"],
     "security": ["--tiny"],
+    "kafka_cluster": ["--tiny"],
 }
 
 

@@ -29,6 +29,8 @@ MEASURES: dict[str, tuple[str, ...]] = {
     "fleet_tasks": ("fleet/planner", "fleet/sim"),
     "cli": ("engine/cli",),
     "security": ("engine/drivers/mosquitto.py", "engine/mosquitto_runtime.py"),
+    "kafka_cluster": ("engine/drivers/kafka", "engine/kafka_cluster.py", "engine/apply.py", "engine/agent",
+                      "engine/bridge_pairs.py"),
     "validate": ("kg", "shapes"),
     "reason": ("engine/reasoning/reason.py", "engine/reasoning/rules_fast.py", "engine/reasoning/rules_owlready.py", "ontology"),
 }

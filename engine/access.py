@@ -10,14 +10,18 @@ of its topics the broker carries. Nothing here decides who may do what: the rule
 - :func:`close_brokers` applies them to the derived specs: a broker with users admits nobody else
   unless the plant says ``pk:allowAnonymous true``;
 - :func:`check_access_supported` refuses, before anything is deployed, what plantkg cannot run
-  yet: users on a broker whose driver renders none (only Mosquitto does), and a bridge at a closed
-  broker (it would need plantkg's own credentials on that broker);
+  yet: users on a broker whose driver renders none (Mosquitto's and Kafka's do; not a Kafka
+  cluster's nodes), and a bridge at a closed broker (it would need plantkg's own credentials on
+  that broker) — but for a bridge worker into a closed Kafka, which authenticates as plantkg's
+  own principal (:func:`kafka_internal_password`);
 - :func:`open_broker_warnings` and :func:`access_label` say, in a plan and in ``status``, which
   brokers anyone on the network may use.
 """
 
 from __future__ import annotations
 
+import hashlib
+import hmac
 from collections import defaultdict
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import replace
@@ -25,10 +29,10 @@ from dataclasses import replace
 import pyoxigraph as ox
 
 from engine.errors import EngineError
-from engine.model import BridgeSpec, BrokerSpec, BrokerUser
+from engine.model import BridgeMechanism, BridgeSpec, BrokerSpec, BrokerUser
 
 #: The broker kinds whose driver renders users and ACLs.
-USER_KINDS = frozenset({"mosquitto"})
+USER_KINDS = frozenset({"mosquitto", "kafka"})
 
 USERS = """
 SELECT ?b ?r ?rid ?ref ?t ?mode WHERE {
@@ -80,8 +84,15 @@ def close_brokers(brokers: Iterable[BrokerSpec], users: Mapping[str, tuple[Broke
 
 
 def is_closed(spec: BrokerSpec) -> bool:
-    """A Mosquitto that admits only its users."""
+    """A Mosquitto or a Kafka that admits only its users."""
     return spec.kind in USER_KINDS and spec.allow_anonymous is False
+
+
+def kafka_internal_password(agent_token: str) -> str:
+    """plantkg's own password on a closed Kafka (engine.drivers.kafka.access): derived from the
+    token of the broker's agent, so the engine (which knows every agent's token) can give it to a
+    bridge worker on another machine, and the password reveals nothing of the token."""
+    return hmac.new(agent_token.encode("utf-8"), b"plantkg kafka internal principal", hashlib.sha256).hexdigest()
 
 
 def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[BridgeSpec]) -> None:
@@ -94,8 +105,18 @@ def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
                 f"broker {spec.id!r} ({spec.kind}): its clients {names} have a pk:secretRef, but "
                 f"plantkg renders users and ACLs for {', '.join(sorted(USER_KINDS))} brokers only (yet)",
                 hint="remove pk:secretRef from those resources, or let them send to a Mosquitto broker")
+    for spec in by_id.values():
+        if spec.users and spec.kafka is not None:
+            raise AccessNotSupportedError(
+                f"broker {spec.id!r} is a node of Kafka cluster {spec.kafka.cluster!r}, whose clients "
+                "have a pk:secretRef: plantkg renders SASL users and ACLs for a Kafka broker of its "
+                "own only (yet); its nodes would need one shared secret for plantkg's own principal",
+                hint="remove pk:secretRef from the cluster's clients, or let them send to a Kafka "
+                     "broker of its own")
     for bridge in bridges:
-        closed = [end.id for end in (bridge.local, bridge.remote) if end.id in by_id and is_closed(by_id[end.id])]
+        # a bridge worker reaches a closed Kafka as plantkg's own principal; nothing else does yet
+        closed = [end.id for end in (bridge.local, bridge.remote) if end.id in by_id and is_closed(by_id[end.id])
+                  and not (by_id[end.id].kind == "kafka" and bridge.mechanism is BridgeMechanism.WORKER)]
         if closed:
             raise AccessNotSupportedError(
                 f"{bridge.address}: broker {closed[0]!r} is closed to anonymous clients (its clients "
@@ -119,9 +140,9 @@ def access_label(spec: BrokerSpec) -> str:
 
 
 def open_broker_warnings(brokers: Iterable[BrokerSpec]) -> tuple[str, ...]:
-    """One line per deployed broker anyone on the network may use (a Mosquitto or a context broker
-    open to anonymous clients, any Kafka), saying why and how to close it (a plan shows them;
-    docs/security.md)."""
+    """One line per deployed broker anyone on the network may use (a Mosquitto or a Kafka open to
+    anonymous clients, a context broker open to writes), saying why and how to close it (a plan
+    shows them; docs/security.md)."""
     out = []
     for spec in sorted(brokers, key=lambda b: b.id):
         if spec.kind in USER_KINDS and spec.allow_anonymous is not False:
@@ -134,7 +155,4 @@ def open_broker_warnings(brokers: Iterable[BrokerSpec]) -> tuple[str, ...]:
             out.append(f"broker.{spec.id} (context broker) takes writes without its agent's token "
                        "(the plant says pk:allowAnonymous true): anyone who reaches "
                        f"{spec.host}:{spec.port} may change every entity")
-        elif spec.kind == "kafka":
-            out.append(f"broker.{spec.id} (Kafka) admits any client: plantkg does not run Kafka "
-                       "with SASL users and ACLs yet")
     return tuple(out)

@@ -161,8 +161,9 @@ class Call:
     host: str
     verb: str
     args: tuple[Any, ...]
-    #: put_bridge of an mqtt-ngsi bridge: the host whose agent's token goes along as the remote
-    #: token (the context broker's write token), looked up only when the call is made, so no
+    #: put_bridge of an mqtt-ngsi bridge, or of an mqtt-kafka bridge into a closed Kafka: the host
+    #: whose agent's token goes along as the remote token (the context broker's write token; the
+    #: agent derives plantkg's Kafka password from it), looked up only when the call is made, so no
     #: token is ever part of a plan, an operation or an event.
     remote_token_of: str | None = None
     #: the plant that owns what the call makes or deletes (DesiredState.owner): the agent records
@@ -251,7 +252,9 @@ def _bridge_calls(change: Change, desired: DesiredState) -> tuple[Call, ...]:
     if spec is None:
         raise EngineError(f"the plan creates {change.address}, which the plant does not describe",
                           hint="make the plan again from the same plant")
-    if spec.mechanism is BridgeMechanism.NGSI:
+    remote = desired.broker(spec.remote.id)
+    closed_kafka = spec.mechanism is BridgeMechanism.WORKER and remote is not None and bool(remote.users)
+    if spec.mechanism is BridgeMechanism.NGSI or closed_kafka:  # the worker logs in on the remote
         return (Call(spec.local.host, "put_bridge", (spec,), remote_token_of=spec.remote.host),)
     return (Call(spec.local.host, "put_bridge", (spec,)),)
 
@@ -283,7 +286,30 @@ def lanes(ops: Sequence[Operation]) -> list[list[Operation]]:
             src, dst = home[other], home[broker_id]
             merged[dst] = merged.pop(src) + merged[dst]
             home = {b: (dst if h == src else h) for b, h in home.items()}
+    for nodes in _rolling(ops):  # a running cluster's nodes restart one at a time
+        dst = home[nodes[0]]
+        for node in nodes[1:]:
+            src = home[node]
+            if src != dst:
+                merged[dst] = merged[dst] + merged.pop(src)
+                home = {b: (dst if h == src else h) for b, h in home.items()}
     return [lane for lane in merged.values() if lane]
+
+
+def _rolling(ops: Sequence[Operation]) -> list[list[str]]:
+    """Per Kafka cluster, its running nodes that the plan restarts (replace), by node id: their
+    lanes are joined so the restarts roll one node at a time — each node's PUT returns once the
+    node is back in sync (the driver's health), then the next stops. New nodes start in parallel
+    (a new quorum needs its majority up at once)."""
+    clusters: dict[str, list[tuple[int, str]]] = {}
+    for op in ops:
+        c = op.change
+        if c.action is not Action.REPLACE or not c.address.startswith("broker."):
+            continue
+        before, after = (c.before or {}).get("kafka"), (c.after or {}).get("kafka")
+        if before and after and before.get("cluster") == after.get("cluster"):
+            clusters.setdefault(str(after["cluster"]), []).append((int(after["node_id"]), broker_of(c)))
+    return [[b for _, b in sorted(nodes)] for nodes in clusters.values() if len(nodes) > 1]
 
 
 # ------------------------------------------------------------------------------------ running

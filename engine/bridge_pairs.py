@@ -13,9 +13,10 @@ messages); a worker bridging MQTT and Kafka both ways skips what it wrote itself
   end: reached at its ``pk:mqttPort``, one way only, since without Mosquitto's bridge flag it
   would send back what the bridge wrote; two such brokers are refused, and so is such a broker
   with a Kafka or a context broker); an MQTT and a ``pk:KafkaBroker`` -> a bridge
-  worker; an MQTT and a ``pk:ContextBroker`` -> an MQTT <-> NGSI worker. Two Kafka brokers would
-  need MirrorMaker 2, which plantkg does not run; a context broker bridges to MQTT only (Kafka or
-  another context broker: route the topic through an MQTT broker): refused, with what to do.
+  worker; an MQTT and a ``pk:ContextBroker`` -> an MQTT <-> NGSI worker; two Kafka brokers (or
+  clusters) -> a MirrorMaker 2, one way only, carried by the target. A context broker bridges to
+  MQTT only (Kafka or another context broker: route the topic through an MQTT broker): refused,
+  with what to do.
 - Carrier (``local``): a worker runs beside the MQTT broker; a one-way Mosquitto bridge is carried
   by its source (it pushes); a two-way one by the broker with the smaller id — unless that would
   make it connect to an IPv6 address, which Mosquitto's bridge cannot (its ``address`` line takes
@@ -54,8 +55,8 @@ DEFAULT_KEY = "mqtt-topic"
 
 
 class BridgeNotSupportedError(EngineError):
-    """A bridge between two brokers of classes plantkg cannot bridge (two Kafka brokers, a context
-    broker and anything but MQTT, an external broker that would have to carry it)."""
+    """A bridge between two brokers of classes plantkg cannot bridge (two Kafka brokers both ways, a
+    context broker and anything but MQTT, an external broker that would have to carry it)."""
 
     def __init__(self, a: str, c: str, why: str, hint: str | None = None) -> None:
         super().__init__(f"bridge {a} -> {c}: {why}",
@@ -159,8 +160,7 @@ def _mechanism_and_carrier(a: str, c: str, ds: list[DirectedBridge], classes: Ma
             raise _external_carrier(a, c, carrier)
         return (BridgeMechanism.WORKER if kafka else BridgeMechanism.NGSI), carrier
     if len(kafka) == 2:
-        raise BridgeNotSupportedError(a, c, "a bridge between two Kafka brokers is not supported "
-                                      "yet (plantkg does not run Kafka MirrorMaker 2)")
+        return BridgeMechanism.MIRROR, _mirror_carrier(a, c, ds, external)
     if ngsi and (kafka or len(ngsi) == 2):
         other = "a Kafka broker" if kafka else "another context broker"
         raise BridgeNotSupportedError(
@@ -198,6 +198,24 @@ def _foreign_mqtt_carrier(a: str, c: str, ds: list[DirectedBridge], brokers: Map
     return carrier
 
 
+def _mirror_carrier(a: str, c: str, ds: list[DirectedBridge], external: frozenset[str]) -> str:
+    """The Kafka that runs a MirrorMaker 2 between two Kafka brokers (or clusters): the target,
+    which pulls from the source (MirrorMaker 2's advice: consume remotely, produce locally). One
+    way only: with topic names kept (IdentityReplicationPolicy) a mirror both ways would copy every
+    record back for ever."""
+    sources = sorted({d.source for d in ds})
+    if len(sources) == 2:
+        raise BridgeNotSupportedError(
+            a, c, "MirrorMaker 2 bridges two Kafka brokers one way only: it keeps the topic names, "
+                  "so a mirror both ways would copy each record back and forth for ever",
+            hint="keep one direction (the publisher on one Kafka, the subscribers on the other), "
+                 "or give the other direction's topics other names")
+    target = c if sources[0] == a else a
+    if target in external:
+        raise _external_carrier(a, c, target)
+    return target
+
+
 def _external_carrier(a: str, c: str, carrier: str) -> BridgeNotSupportedError:
     return BridgeNotSupportedError(
         a, c, f"the bridge would run beside broker {carrier!r}, which is pk:external (plantkg does "
@@ -215,4 +233,5 @@ def _end(spec: BrokerSpec, classes: Mapping[str, frozenset[str]]) -> BridgeEnd:
     ``pk:port`` speaks another protocol), every other broker at its ``pk:port``."""
     mqtt = MQTT_CLASS in classes.get(spec.id, frozenset()) and spec.mqtt_port is not None
     return BridgeEnd(id=spec.id, kind=spec.kind, host=spec.host,
-                     port=spec.mqtt_port if mqtt else spec.port)  # type: ignore[arg-type]
+                     port=spec.mqtt_port if mqtt else spec.port,  # type: ignore[arg-type]
+                     bootstrap=spec.kafka.bootstrap if spec.kafka is not None else ())

@@ -50,6 +50,8 @@ def feeds(files: list[str]) -> list[Feed]:
     if result.desired is None:
         return []
     brokers: dict[str, BrokerSpec] = {b.id: b for b in result.desired.brokers}
+    # a Kafka cluster runs as its nodes: its resources publish through its lead node
+    brokers |= {b.kafka.cluster: b for b in result.desired.brokers if b.kafka is not None and b.kafka.lead}
     out = []
     for row in run_query(result.plant, FEEDS_QUERY).rows:
         resource, topic, value, broker, qos = (t.value if t is not None else None for t in row)

@@ -41,6 +41,7 @@ import pyoxigraph as ox
 from engine.access import broker_users, check_access_supported, close_brokers
 from engine.errors import ConfigValueError, EngineError
 from engine.bridge_cycles import check_no_cycles
+from engine.kafka_cluster import join_clusters, read_clusters
 from engine.bridge_pairs import DirectedBridge, TopicOptions, pair_bridges
 from engine.model import BrokerSpec, DesiredState, TopicSpec
 from engine.reasoning.reason import INFERRED, input_graphs, is_reasoned
@@ -65,6 +66,7 @@ _INTEGERS = {str(XSD[t]) for t in ("integer", "int", "long", "short", "byte", "n
 BROKERS = """
 SELECT ?b ?id ?name ?kind ?ip ?port ?mqtt ?persist ?anonymous ?external WHERE {
     ?b a pk:DeployedBroker .
+    FILTER NOT EXISTS { ?b a pk:KafkaCluster }
     OPTIONAL { ?b pk:id ?id } OPTIONAL { ?b pk:name ?name } OPTIONAL { ?b pk:brokerType ?kind }
     OPTIONAL { ?b pk:ip ?ip } OPTIONAL { ?b pk:port ?port } OPTIONAL { ?b pk:persistEvery ?persist }
     OPTIONAL { ?b pk:allowAnonymous ?anonymous } OPTIONAL { ?b pk:external ?external }
@@ -146,13 +148,18 @@ def derive(plant: PlantGraph) -> DesiredState:
     for row in select(CLASSES):
         classes[row["b"].value].add(short_name(row["class"].value))
     brokers, external = _brokers(plant, select(BROKERS), classes)
-    by_iri = {b.iri: b for b in brokers}
+    brokers, leads = join_clusters(brokers, read_clusters(select))
+    by_iri = {b.iri: b for b in brokers} | leads  # a cluster's topics and bridges: on its lead node
     topics = _topics(plant, select(TOPICS), select(SETTINGS), by_iri)
     iri_of_id = {b.id: b.iri for b in brokers}
     users = broker_users(select, {(iri_of_id[t.broker_id], t.iri): t.name for t in topics})
+    for cluster, lead in leads.items():  # a cluster's clients are its nodes' users (refused below)
+        if cluster in users and lead.kafka is not None:
+            users |= {b.iri: users[cluster] for b in brokers if b.kafka and b.kafka.cluster == lead.kafka.cluster}
     said = frozenset(row["b"].value for row in select(ANONYMOUS_SAID))
     brokers = close_brokers(brokers, users, said)
     by_iri = {b.iri: b for b in brokers}
+    by_iri |= {cluster: by_iri[lead.iri] for cluster, lead in leads.items()}
     iri_of = {b.id: b.iri for b in brokers}
     topics = [_with_entity(plant, t) if CONTEXT_BROKER in classes[iri_of[t.broker_id]] else t
               for t in topics]

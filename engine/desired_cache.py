@@ -28,6 +28,8 @@ from engine.model import (
     BridgeRoute,
     BridgeSpec,
     BrokerSpec,
+    KafkaNode,
+    KafkaVoter,
     BrokerUser,
     DesiredState,
     TopicSpec,
@@ -99,7 +101,8 @@ def desired_from_dict(data: dict) -> DesiredState:
     return DesiredState(
         brokers=tuple(BrokerSpec(**{**b, "users": tuple(BrokerUser(**{**u, "write": tuple(u["write"]),
                                                                             "read": tuple(u["read"])})
-                                                         for u in b.get("users", ()))})
+                                                         for u in b.get("users", ())),
+                                    "kafka": _kafka_node(b.get("kafka"))})
                       for b in data["brokers"]),
         topics=tuple(TopicSpec(**t) for t in data["topics"]),
         bridges=tuple(bridge_from_dict(b) for b in data["bridges"]),
@@ -107,12 +110,23 @@ def desired_from_dict(data: dict) -> DesiredState:
     )
 
 
+def _kafka_node(data: dict | None) -> KafkaNode | None:
+    if data is None:
+        return None
+    return KafkaNode(**{**data, "roles": tuple(data["roles"]), "bootstrap": tuple(data["bootstrap"]),
+                        "voters": tuple(KafkaVoter(**v) for v in data["voters"])})
+
+
+def _end(data: dict) -> BridgeEnd:
+    return BridgeEnd(**{**data, "bootstrap": tuple(data.get("bootstrap", ()))})
+
+
 def bridge_from_dict(data: dict) -> BridgeSpec:
     """The inverse of ``to_dict(bridge)`` (trusted data: the cache's own, or an agent's answer
     already checked by engine.agent.wire)."""
     return BridgeSpec(
-        local=BridgeEnd(**data["local"]),
-        remote=BridgeEnd(**data["remote"]),
+        local=_end(data["local"]),
+        remote=_end(data["remote"]),
         mechanism=BridgeMechanism(data["mechanism"]),
         routes=tuple(BridgeRoute(**{**r, "direction": BridgeDirection(r["direction"])})
                      for r in data["routes"]),

@@ -55,6 +55,37 @@ class BrokerUser:
 
 
 @dataclass(frozen=True)
+class KafkaVoter:
+    """A voter of a KRaft controller quorum: ``node_id@host:port`` in controller.quorum.voters."""
+
+    node_id: int
+    host: str
+    port: int                # its controller listener
+
+
+@dataclass(frozen=True)
+class KafkaNode:
+    """A broker's place in a multi-node Kafka cluster (``pk:nodeOf``; engine.kafka_cluster).
+
+    ``cluster_id`` is the KRaft cluster id every node is formatted with, derived from the
+    cluster's IRI (the same on every machine and after every restart). ``lead``: this node's
+    agent creates and changes the cluster's topics and carries its bridges (the broker-role node
+    with the smallest node id); ``bootstrap``: ``host:port`` of every broker-role node, for clients.
+    Neither is rendered into the node's config, so neither restarts it."""
+
+    cluster: str                         # the cluster's pk:id
+    cluster_id: str                      # KRaft cluster.id (22 base64url characters)
+    node_id: int                         # pk:nodeId
+    roles: tuple[str, ...]               # pk:kafkaRole, sorted: "broker", "controller"
+    voters: tuple[KafkaVoter, ...]       # the quorum (rule K1), sorted by node id
+    controller_port: int | None = None   # pk:controllerPort of a combined node
+    replication: int = 1                 # internal topics' replication factor: min(3, brokers)
+    min_insync: int | None = None        # the cluster's pk:minInsyncReplicas (a default)
+    bootstrap: tuple[str, ...] = ()
+    lead: bool = False
+
+
+@dataclass(frozen=True)
 class BrokerSpec:
     """A broker that must exist: what the ontology says of it (its essence)."""
 
@@ -72,6 +103,7 @@ class BrokerSpec:
     users: tuple[BrokerUser, ...] = ()  # the clients it admits and their ACLs (sorted by name); a
                                         # broker with users is closed to anonymous clients unless
                                         # the plant says pk:allowAnonymous true
+    kafka: KafkaNode | None = None  # a node of a multi-node Kafka cluster (None: a broker of its own)
 
     @property
     def address(self) -> str:
@@ -92,6 +124,7 @@ class TopicSpec:
     retain: bool | None = None             # MQTT
     entity_id: str | None = None           # NGSI-v2 context broker: the topic's entity
     entity_type: str | None = None         # NGSI-v2 context broker
+    min_insync_replicas: int | None = None  # Kafka (min.insync.replicas)
 
     @property
     def address(self) -> str:
@@ -106,6 +139,8 @@ class BridgeMechanism(str, enum.Enum):
     NGSI = "mqtt-ngsi"        # an MQTT <-> NGSI-v2 bridge worker (the paper's FIROS role), run beside
                               # the MQTT broker: messages become entity attributes, and back through a
                               # subscription whose notifications the context broker publishes on MQTT
+    MIRROR = "kafka-mirror"   # Kafka -> Kafka: a MirrorMaker 2 supervised like a worker, run by the
+                              # agent of the target cluster's lead node (engine.drivers.kafka.mirror)
 
 
 class BridgeDirection(str, enum.Enum):
@@ -134,6 +169,7 @@ class BridgeEnd:
     kind: str
     host: str
     port: int
+    bootstrap: tuple[str, ...] = ()  # a Kafka cluster: host:port of each of its broker nodes
 
 
 @dataclass(frozen=True)
@@ -208,6 +244,7 @@ class ObservedTopic:
     entity_id: str | None = None
     entity_type: str | None = None
     owner: str | None = None  # the plant that owns the topic on its agent (None: nobody)
+    min_insync_replicas: int | None = None
 
 
 @dataclass(frozen=True)
@@ -240,6 +277,7 @@ class ObservedBridge:
     refused: int | None = None          # messages the remote refused (mqtt-ngsi: a 4xx), acknowledged
     owner: str | None = None            # the plant that owns it on its agent (None: nobody)
     forwarded_per_s: float | None = None  # messages/s over the worker's last ~10 s (None: not counted)
+    lag: int | None = None              # kafka-mirror: records on the source not yet on the target
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,12 @@ broker or changing a bridged topic updates the bridge, which the agent of its lo
 (a Mosquitto bridge by re-rendering and restarting that broker only, a worker by restarting the
 worker). A bridge whose local broker starts anew is created again, like its topics.
 
+A node of a Kafka cluster (``BrokerSpec.kafka``, docs/kafka.md) is a broker like the others; a
+change of what it renders replaces it (apply rolls a cluster's replaced nodes one at a time), a
+change of only its lead flag or broker list is made in place, and a change of a running cluster's
+controller quorum is refused. The cluster's topics are planned on its lead node only, and a node
+that leaves deletes none of them.
+
 Order: brokers, topics, bridges, then deletes (bridges and topics before their broker). Changes a
 broker cannot make (fewer Kafka partitions, another replication factor) are :class:`Refusal` s,
 and brokers on a host whose agent did not answer are left out and the host listed (what runs there
@@ -70,14 +76,17 @@ from engine.model import (
 #: Broker fields whose change needs a new broker process (the agent restarts it): Terraform's
 #: "forces replacement". Every other BrokerSpec field is changed in place.
 REPLACE_FIELDS: tuple[str, ...] = ("kind", "host", "port", "persist_every", "allow_anonymous", "mqtt_port",
-                                   "users")
+                                   "users", "kafka")
+#: Fields of a cluster node's ``kafka`` that are not rendered into its config: a change of only
+#: these (the cluster gained a broker, the lead moved) is made in place.
+KAFKA_IN_PLACE: tuple[str, ...] = ("lead", "bootstrap")
 #: Replace fields after which the broker starts empty (its topics are created again).
 NEW_BROKER_FIELDS: tuple[str, ...] = ("kind", "host")
 
 #: Topic settings that mean something to each broker kind; a setting of another kind is ignored.
 #: A kind missing here compares every setting the plant gives.
 TOPIC_SETTINGS: Mapping[str, tuple[str, ...]] = {
-    "kafka": ("partitions", "replication_factor", "retention_ms"),
+    "kafka": ("partitions", "replication_factor", "retention_ms", "min_insync_replicas"),
     "mosquitto": ("qos", "retain"),
     "ngsi-v2": ("entity_id", "entity_type"),
 }
@@ -105,9 +114,11 @@ def broker_essence(spec: BrokerSpec) -> dict[str, Any]:
     """The fields of a broker the plan compares (all of BrokerSpec), as JSON-able values; no
     ``users`` key for a broker without users (most), so plans of open brokers read as before.
     A user shows its secret reference, never a secret (the plan has none)."""
-    out = {f.name: getattr(spec, f.name) for f in fields(spec) if f.name != "users"}
+    out = {f.name: getattr(spec, f.name) for f in fields(spec) if f.name not in ("users", "kafka")}
     if spec.users:
         out["users"] = to_dict(spec.users)
+    if spec.kafka is not None:  # a node of a cluster; other brokers' plans read as before
+        out["kafka"] = to_dict(spec.kafka)
     return out
 
 
@@ -116,6 +127,9 @@ def bridge_essence(spec: BridgeSpec) -> dict[str, Any]:
     no unset optional route field (a route's entity id and type belong to NGSI bridges only)."""
     data = to_dict(spec)
     data.pop("asserted")
+    for end in ("local", "remote"):  # a Kafka cluster's broker list; other ends read as before
+        if not data[end]["bootstrap"]:
+            data[end].pop("bootstrap")
     data["routes"] = [{k: v for k, v in route.items() if v is not None} for route in data["routes"]]
     return data
 
@@ -171,6 +185,10 @@ def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False)
         if have is not None and ownership(have.owner, owner) is not Ownership.MINE:
             refusals.append(_claimed_refusal(spec.address, have.owner, importable=True))
             claimed.add(spec.id)
+            continue
+        quorum = _quorum_refusal(spec, have)
+        if quorum is not None:
+            refusals.append(quorum)
             continue
         broker_change = _broker_change(spec, have)
         changes.append(broker_change)
@@ -298,9 +316,9 @@ def _broker_change(spec: BrokerSpec, have: ObservedBroker | None) -> Change:
     if have is None:
         return Change(spec.address, Action.CREATE, None, after, "not running on its host")
     before = broker_essence(have.spec)
-    forced = [f for f in REPLACE_FIELDS if before.get(f) != after.get(f)]
+    forced = [f for f in REPLACE_FIELDS if _rendered(f, before.get(f)) != _rendered(f, after.get(f))]
     if forced:
-        what = ", ".join(f"{f} {_show(before.get(f))} → {_show(after.get(f))}" for f in forced)
+        what = ", ".join(_forced(f, before.get(f), after.get(f)) for f in forced)
         if before["host"] != after["host"]:
             how = "the broker moves: stopped on the old host, started anew on the new one"
         elif before["kind"] != after["kind"]:
@@ -321,6 +339,37 @@ def _broker_change(spec: BrokerSpec, have: ObservedBroker | None) -> Change:
                       {**after, "status": BrokerStatus.RUNNING.value},
                       f"restart: the broker is {have.status.value}{detail}")
     return Change(spec.address, Action.NOOP, before, after)
+
+
+def _forced(field: str, old: Any, new: Any) -> str:
+    """A forced field's change for the reason; a cluster node's ``kafka`` by the keys that changed."""
+    if field == "kafka" and isinstance(old, Mapping) and isinstance(new, Mapping):
+        keys = [k for k in new if k not in KAFKA_IN_PLACE and old.get(k) != new[k]]
+        return ", ".join(f"kafka.{k} {_show(old.get(k))} → {_show(new[k])}" for k in keys)
+    return f"{field} {_show(old)} → {_show(new)}"
+
+
+def _rendered(field: str, value: Any) -> Any:
+    """What of a broker field its process runs with: a cluster node's ``kafka`` without the
+    fields made in place (:data:`KAFKA_IN_PLACE`)."""
+    if field == "kafka" and isinstance(value, Mapping):
+        return {k: v for k, v in value.items() if k not in KAFKA_IN_PLACE}
+    return value
+
+
+def _quorum_refusal(spec: BrokerSpec, have: ObservedBroker | None) -> Refusal | None:
+    """A running cluster node whose controller quorum would change: KRaft's static quorum
+    (controller.quorum.voters) cannot change under a running cluster."""
+    if have is None or have.spec.kafka is None or spec.kafka is None:
+        return None
+    old, new = have.spec.kafka.voters, spec.kafka.voters
+    if old == new:
+        return None
+    show = lambda voters: ", ".join(f"{v.node_id}@{v.host}:{v.port}" for v in voters)  # noqa: E731
+    return Refusal(spec.address, f"the controller quorum of cluster {spec.kafka.cluster!r} would change "
+                                 f"({show(old)} → {show(new)}): a running KRaft cluster keeps its "
+                                 "controllers; add or remove nodes with the 'broker' role only, or "
+                                 "keep the controllers' pk:ip, pk:port and pk:controllerPort")
 
 
 def _bridge_change(spec: BridgeSpec, have: ObservedBridge | None, held: bool = False) -> Change:
@@ -434,8 +483,10 @@ def _topic_delete(broker_id: str, topic: ObservedTopic, settings: Iterable[str],
 
 def _broker_delete(have: ObservedBroker, reason: str = "not in the plant") -> list[Change]:
     settings = topic_settings(have.spec.kind)
+    # A cluster node's topics are the cluster's: they stay when one node goes.
+    topics = () if have.spec.kafka is not None else have.topics
     out = [_topic_delete(have.spec.id, t, settings, reason)
-           for t in sorted(have.topics, key=lambda t: t.name)]
+           for t in sorted(topics, key=lambda t: t.name)]
     out.append(Change(have.spec.address, Action.DELETE, broker_essence(have.spec), None, reason))
     return out
 

@@ -60,7 +60,9 @@ from engine.model import BridgeMechanism, to_dict
 log = logging.getLogger(__name__)
 
 MAX_BODY_BYTES = 1 << 20
-#: The bridge PUT's transport field carrying the remote (context broker's) token; not a spec field.
+#: The bridge PUT's transport field carrying the remote broker's agent token (a context broker's
+#: write token; a closed Kafka's, from which the worker derives plantkg's password there); not a
+#: spec field.
 REMOTE_TOKEN = "remote_token"
 MAX_TOKEN = 4096
 EXTENSION = "plantkg_agent"
@@ -239,8 +241,9 @@ def put_bridge(broker_id: str, remote_id: str) -> Response:
     owner = _owner_of(body)
     spec = bridge_spec_from_json(body)
     if remote_token is not None:
-        if spec.mechanism is not BridgeMechanism.NGSI:
-            raise WireError(REMOTE_TOKEN, f"only an mqtt-ngsi bridge takes one, not {spec.mechanism.value}")
+        if spec.mechanism not in (BridgeMechanism.NGSI, BridgeMechanism.WORKER):
+            raise WireError(REMOTE_TOKEN, f"only an mqtt-ngsi or mqtt-kafka bridge takes one, not "
+                            f"{spec.mechanism.value}")
         if not isinstance(remote_token, str) or not remote_token.strip() or not remote_token.isprintable() \
                 or len(remote_token) > MAX_TOKEN:
             raise WireError(REMOTE_TOKEN, f"must be a non-empty printable string of at most {MAX_TOKEN} characters")

@@ -82,6 +82,30 @@ _SCHEMAS: dict[str, Any] = {
                       "description": "the clients the broker admits and their ACLs (pk:secretRef); "
                                      "with users, a broker is closed to anonymous clients unless "
                                      "allow_anonymous is true"},
+            "kafka": {"oneOf": [{"type": "null"}, {"$ref": "#/components/schemas/KafkaNode"}],
+                      "description": "kafka: the broker is one node of a multi-node cluster"},
+        },
+    },
+    "KafkaNode": {
+        "type": "object", "additionalProperties": False,
+        "required": ["cluster", "cluster_id", "node_id", "roles", "voters"],
+        "properties": {
+            "cluster": {"type": "string", "description": "the cluster's pk:id"},
+            "cluster_id": {"type": "string", "pattern": "^[A-Za-z0-9_][A-Za-z0-9_-]{21}$",
+                           "description": "the KRaft cluster id every node is formatted with"},
+            "node_id": {"type": "integer", "minimum": 0, "maximum": 2147483647},
+            "roles": {"type": "array", "minItems": 1, "items": {"enum": ["broker", "controller"]}},
+            "voters": {"type": "array", "minItems": 1, "items": {
+                "type": "object", "additionalProperties": False, "required": ["node_id", "host", "port"],
+                "properties": {"node_id": {"type": "integer", "minimum": 0},
+                               "host": {"type": "string"},
+                               "port": {"type": "integer", "minimum": 1, "maximum": 65535}}}},
+            "controller_port": {"type": ["integer", "null"], "minimum": 1, "maximum": 65535},
+            "replication": {"type": "integer", "minimum": 1, "maximum": 32767},
+            "min_insync": {"type": ["integer", "null"], "minimum": 1, "maximum": 32767},
+            "bootstrap": {"type": "array", "items": {"type": "string"},
+                          "description": "host:port of every broker node of the cluster"},
+            "lead": {"type": "boolean", "description": "this node's agent manages the cluster's topics"},
         },
     },
     "BrokerUser": {
@@ -113,6 +137,7 @@ _SCHEMAS: dict[str, Any] = {
             "entity_id": {"type": ["string", "null"], "maxLength": 256,
                           "description": "ngsi-v2: the topic's entity (Orion's identifier rules)"},
             "entity_type": {"type": ["string", "null"], "maxLength": 256},
+            "min_insync_replicas": {"type": ["integer", "null"], "minimum": 1, "maximum": 32767},
         },
     },
     "ObservedTopic": {
@@ -127,6 +152,7 @@ _SCHEMAS: dict[str, Any] = {
             "entity_id": {"type": ["string", "null"]},
             "entity_type": {"type": ["string", "null"]},
             "owner": _NULLABLE_OWNER,
+            "min_insync_replicas": _NULLABLE_INT,
         },
     },
     "ObservedBroker": {
@@ -148,7 +174,9 @@ _SCHEMAS: dict[str, Any] = {
     "BridgeEnd": {
         "type": "object", "required": ["id", "kind", "host", "port"],
         "properties": {"id": {"type": "string"}, "kind": {"type": "string"},
-                       "host": {"type": "string"}, "port": {"type": "integer"}},
+                       "host": {"type": "string"}, "port": {"type": "integer"},
+                       "bootstrap": {"type": "array", "items": {"type": "string"},
+                                     "description": "a Kafka cluster: host:port of each broker node"}},
     },
     "BridgeSpec": {
         "type": "object", "additionalProperties": False,
@@ -156,7 +184,7 @@ _SCHEMAS: dict[str, Any] = {
         "properties": {
             "local": _ref("BridgeEnd"),
             "remote": _ref("BridgeEnd"),
-            "mechanism": {"type": "string", "enum": ["mosquitto", "mqtt-kafka", "mqtt-ngsi"]},
+            "mechanism": {"type": "string", "enum": ["mosquitto", "mqtt-kafka", "mqtt-ngsi", "kafka-mirror"]},
             "routes": {"type": "array", "minItems": 1, "items": {
                 "type": "object", "required": ["topic", "direction"],
                 "properties": {"topic": {"type": "string"},
@@ -189,6 +217,8 @@ _SCHEMAS: dict[str, Any] = {
             "forwarded_per_s": {"type": ["number", "null"], "minimum": 0,
                                 "description": "Messages forwarded per second over the worker's "
                                                "last ~10 s (null: the mechanism does not count)"},
+            "lag": {"type": ["integer", "null"], "minimum": 0,
+                    "description": "kafka-mirror: records on the source cluster not yet on the target"},
         },
     },
     "Health": {

@@ -26,6 +26,8 @@ from engine.model import (
     BrokerSpec,
     BrokerStatus,
     BrokerUser,
+    KafkaNode,
+    KafkaVoter,
     ObservedBridge,
     ObservedBroker,
     ObservedTopic,
@@ -35,6 +37,8 @@ from engine.values import check_broker_user, check_host, check_ngsi_id, check_po
 
 #: pk:id as the shapes allow it (pks:PlantElement-idValue); ids name folders on the agent.
 BROKER_ID = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,127}")
+#: A KRaft cluster id: 16 bytes in base64url without padding, not starting with "-".
+KRAFT_CLUSTER_ID = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]{21}")
 #: A broker kind is an entry-point name.
 KIND = re.compile(r"[a-z][a-z0-9_-]{0,63}")
 
@@ -122,9 +126,73 @@ def broker_spec_from_json(data: Any, where: str = "", *, strict: bool = True) ->
     if mqtt_port is not None:
         _checked(where, check_port, "mqtt_port", mqtt_port)
     users = _typed(data, "users", (list,), where, optional=True) or []
+    kafka = data.get("kafka")
     return BrokerSpec(id=broker_id, iri=iri, name=name, kind=kind, host=host, port=port,
                       persist_every=persist, allow_anonymous=anonymous, mqtt_port=mqtt_port,
-                      users=_users(users, _join(where, "users")))
+                      users=_users(users, _join(where, "users")),
+                      kafka=None if kafka is None else _kafka_node(kafka, _join(where, "kafka"), strict))
+
+
+def _kafka_node(data: Any, where: str, strict: bool) -> KafkaNode:
+    """A cluster node's place (engine.model.KafkaNode); the driver checks what it renders."""
+    data = _fields(data, KafkaNode, where, strict=strict)
+    cluster = _typed(data, "cluster", (str,), where)
+    if not BROKER_ID.fullmatch(cluster):
+        raise WireError(_join(where, "cluster"), "not a broker id")
+    cluster_id = _typed(data, "cluster_id", (str,), where)
+    if not KRAFT_CLUSTER_ID.fullmatch(cluster_id):
+        raise WireError(_join(where, "cluster_id"), "expected 22 base64url characters, not starting with -")
+    roles = _typed(data, "roles", (list,), where)
+    if not roles or any(r not in ("broker", "controller") for r in roles) or len(set(roles)) != len(roles):
+        raise WireError(_join(where, "roles"), "expected 'broker', 'controller' or both")
+    voters = []
+    for i, item in enumerate(_typed(data, "voters", (list,), where)):
+        at = _join(where, f"voters[{i}]")
+        v = _fields(item, KafkaVoter, at, strict=strict)
+        host = _typed(v, "host", (str,), at)
+        _checked(at, check_host, "host", host)
+        voters.append(KafkaVoter(_node_id(v, "node_id", at), host,
+                                 _checked(at, check_port, "port", _typed(v, "port", (int,), at))))
+    if not voters:
+        raise WireError(_join(where, "voters"), "a cluster needs at least one voter")
+    cport = _typed(data, "controller_port", (int,), where, optional=True)
+    if cport is not None:
+        _checked(where, check_port, "controller_port", cport)
+    replication = _typed(data, "replication", (int,), where) if "replication" in data else 1
+    mis = _typed(data, "min_insync", (int,), where, optional=True)
+    for name, value in (("replication", replication), ("min_insync", mis)):
+        if value is not None and not 1 <= value <= 32_767:
+            raise WireError(_join(where, name), "must be in 1..32767")
+    bootstrap = _typed(data, "bootstrap", (list,), where) if "bootstrap" in data else []
+    return KafkaNode(cluster=cluster, cluster_id=cluster_id, node_id=_node_id(data, "node_id", where),
+                     roles=tuple(sorted(roles)), voters=tuple(voters), controller_port=cport,
+                     replication=replication, min_insync=mis,
+                     bootstrap=_bootstrap(bootstrap, _join(where, "bootstrap")),
+                     lead=_typed(data, "lead", (bool,), where) if "lead" in data else False)
+
+
+def _node_id(data: dict[str, Any], name: str, where: str) -> int:
+    value = _typed(data, name, (int,), where)
+    if not 0 <= value <= 2**31 - 1:
+        raise WireError(_join(where, name), "must be in 0..2147483647")
+    return value
+
+
+def _bootstrap(items: list[Any], where: str) -> tuple[str, ...]:
+    """``host:port`` addresses (an IPv6 host in brackets), each checked."""
+    out = []
+    for i, item in enumerate(items):
+        at = f"{where}[{i}]"
+        if not isinstance(item, str) or ":" not in item:
+            raise WireError(at, "expected 'host:port'")
+        host, _, port = item.rpartition(":")
+        bare = host[1:-1] if host.startswith("[") and host.endswith("]") else host
+        _checked(at, check_host, "host", bare)
+        if not port.isdigit():
+            raise WireError(at, "expected 'host:port'")
+        _checked(at, check_port, "port", int(port))
+        out.append(item)
+    return tuple(out)
 
 
 def _users(items: list[Any], where: str) -> tuple[BrokerUser, ...]:
@@ -157,7 +225,7 @@ def topic_spec_from_json(data: Any, where: str = "") -> TopicSpec:
     name = _checked(where, check_text, "name", _typed(data, "name", (str,), where))
     iri = _checked(where, check_text, "iri", _typed(data, "iri", (str,), where))
     ints = {k: _typed(data, k, (int,), where, optional=True)
-            for k in ("partitions", "replication_factor", "retention_ms", "qos")}
+            for k in ("partitions", "replication_factor", "retention_ms", "qos", "min_insync_replicas")}
     retain = _typed(data, "retain", (bool,), where, optional=True)
     return TopicSpec(broker_id=broker_id, name=name, iri=iri, retain=retain, **ints,
                      **_entity(data, where))
@@ -167,7 +235,7 @@ def observed_topic_from_json(data: Any, where: str = "") -> ObservedTopic:
     data = _fields(data, ObservedTopic, where, strict=False)
     name = _typed(data, "name", (str,), where)
     ints = {k: _typed(data, k, (int,), where, optional=True)
-            for k in ("partitions", "replication_factor", "retention_ms", "qos")}
+            for k in ("partitions", "replication_factor", "retention_ms", "qos", "min_insync_replicas")}
     retain = _typed(data, "retain", (bool,), where, optional=True)
     return ObservedTopic(name=name, retain=retain, **ints, **_entity(data, where),
                          owner=_typed(data, "owner", (str,), where, optional=True))
@@ -228,7 +296,9 @@ def _bridge_end(data: Any, where: str, strict: bool) -> BridgeEnd:
     host = _typed(data, "host", (str,), where)
     _checked(where, check_host, "host", host)
     port = _checked(where, check_port, "port", _typed(data, "port", (int,), where))
-    return BridgeEnd(id=end_id, kind=kind, host=host, port=port)
+    bootstrap = _typed(data, "bootstrap", (list,), where) if "bootstrap" in data else []
+    return BridgeEnd(id=end_id, kind=kind, host=host, port=port,
+                     bootstrap=_bootstrap(bootstrap, _join(where, "bootstrap")))
 
 
 def _bridge_route(data: Any, where: str, strict: bool) -> BridgeRoute:
@@ -280,4 +350,5 @@ def observed_bridge_from_json(data: Any, where: str = "") -> ObservedBridge:
         last_error=_typed(data, "last_error", (str,), where, optional=True),
         owner=_typed(data, "owner", (str,), where, optional=True),
         forwarded_per_s=float(rate) if rate is not None else None,
+        lag=_typed(data, "lag", (int,), where, optional=True),
     )

@@ -1,13 +1,17 @@
-"""The agent's bridge workers: one supervised process per MQTT <-> Kafka or MQTT <-> NGSI bridge
-it carries.
+"""The agent's bridge workers: one supervised process per MQTT <-> Kafka, MQTT <-> NGSI or
+Kafka -> Kafka bridge it carries (the last a MirrorMaker 2 watched by
+``python -m engine.drivers.kafka.mirror_worker``, which reports its lag).
 
 A worker bridge lives in ``<state-dir>/bridges/<local>--<remote>/``::
 
     spec.json     the BridgeSpec last PUT (its presence means "this worker should run")
     worker.json   the worker's configuration (engine.bridge_worker.config.WorkerConfig, or
-                  engine.bridge_worker.ngsi_config.NgsiWorkerConfig for mechanism mqtt-ngsi)
-    remote.token  mqtt-ngsi only: the context broker's write token (the token of the agent that
-                  runs it), mode 0600, given with the PUT; absent for an open context broker
+                  engine.bridge_worker.ngsi_config.NgsiWorkerConfig for mechanism mqtt-ngsi, or
+                  engine.drivers.kafka.mirror_worker.MirrorWorkerConfig for kafka-mirror)
+    remote.token  mqtt-ngsi: the context broker's write token (the token of the agent that runs
+                  it); mqtt-kafka to a closed Kafka: plantkg's password there, derived from that
+                  Kafka's agent token given with the PUT (engine.access.kafka_internal_password);
+                  mode 0600; absent for an open remote
     pid.json      pid, start time, argv, restarts, config hash (as for brokers)
     stats.json    what the worker reports: readiness, counters, forwarding rate, last error
     logs/bridge.log
@@ -33,11 +37,12 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 
 from engine import process
+from engine.access import kafka_internal_password
 from engine.agent.folder import SPEC_FILE, BrokerFolder, PidRecord, write_atomic
 from engine.agent.owners import Owners, claim
 from engine.agent.procs import (
@@ -56,9 +61,12 @@ from engine.bridge_worker.config import Direction, KeyMode, Route, WorkerConfig
 from engine.bridge_worker.ngsi_config import NgsiDirection, NgsiRoute, NgsiWorkerConfig
 from engine.bridge_worker.stats import read_stats
 from engine.drivers.base import LOGS_DIR, config_hash
+from engine.drivers.kafka.mirror import MirrorConfig
+from engine.drivers.kafka.mirror_worker import MirrorWorkerConfig
 from engine.errors import ConfigValueError, EngineError
 from engine.model import (
     BridgeDirection,
+    BridgeEnd,
     BridgeMechanism,
     BridgeSpec,
     BridgeStatus,
@@ -75,8 +83,10 @@ WORKER_FILE = "worker.json"
 TOKEN_FILE = "remote.token"
 #: Seconds the removal of an mqtt-ngsi bridge's subscriptions may take at delete.
 REMOVE_TIMEOUT = 15.0
-WORKER_MECHANISMS = (BridgeMechanism.WORKER, BridgeMechanism.NGSI)
+WORKER_MECHANISMS = (BridgeMechanism.WORKER, BridgeMechanism.NGSI, BridgeMechanism.MIRROR)
 LOG_NAME = "bridge"
+#: The module the agent runs for a Kafka -> Kafka bridge (a watched MirrorMaker 2).
+MIRROR_MODULE = "engine.drivers.kafka.mirror_worker"
 STOP_GRACE = 10.0
 #: A worker that has not rewritten stats.json for this long is reported as not ready.
 STALE_STATS = 5.0
@@ -99,7 +109,7 @@ def worker_config(spec: BridgeSpec, state_dir: Path) -> WorkerConfig:
     return WorkerConfig(
         bridge_id=folder_name(spec.local.id, spec.remote.id),
         mqtt_host=spec.local.host, mqtt_port=spec.local.port,
-        kafka_bootstrap=f"{host_in_url(spec.remote.host)}:{spec.remote.port}",
+        kafka_bootstrap=",".join(_bootstrap(spec.remote)),
         routes=tuple(routes), state_dir=state_dir,
     )
 
@@ -127,13 +137,38 @@ def ngsi_worker_config(spec: BridgeSpec, state_dir: Path, token_file: Path | Non
     )
 
 
+def mirror_config(spec: BridgeSpec, state_dir: Path) -> MirrorWorkerConfig:
+    """A MirrorMaker 2's configuration (local: the target Kafka, which carries it; remote: the
+    source). Its own topics take the target's replication factor: one per broker, at most 3."""
+    target = _bootstrap(spec.local)
+    return MirrorWorkerConfig(
+        bridge_id=folder_name(spec.local.id, spec.remote.id),
+        mirror=MirrorConfig(source=_bootstrap(spec.remote), target=target,
+                            topics=tuple(r.topic for r in spec.routes), replication=min(3, len(target))),
+        state_dir=state_dir,
+    )
+
+
+def _bootstrap(end: BridgeEnd) -> tuple[str, ...]:
+    """``host:port`` of every broker of a Kafka end (a cluster lists them; else the one)."""
+    return end.bootstrap or (f"{host_in_url(end.host)}:{end.port}",)
+
+
 def _config_text(spec: BridgeSpec, folder: Path, remote_token: str | None) -> str:
+    if spec.mechanism is BridgeMechanism.MIRROR:
+        if remote_token is not None:
+            raise ConfigValueError("remote_token", "(hidden)", "only an mqtt-ngsi or mqtt-kafka bridge takes a remote token")
+        if any(r.direction is not BridgeDirection.IN for r in spec.routes):
+            raise ConfigValueError("routes", [r.direction.value for r in spec.routes],
+                                   "a kafka-mirror bridge copies into its carrier only (direction in)")
+        return mirror_config(spec, folder).to_json()
     if spec.mechanism is BridgeMechanism.NGSI:
         token_file = folder / TOKEN_FILE if remote_token is not None else None
         return ngsi_worker_config(spec, folder, token_file).to_json()
-    if remote_token is not None:
-        raise ConfigValueError("remote_token", "(hidden)", "only an mqtt-ngsi bridge takes a remote token")
-    return worker_config(spec, folder).to_json()
+    cfg = worker_config(spec, folder)
+    if remote_token is not None:  # a closed Kafka: the worker's clients log in as plantkg
+        cfg = replace(cfg, kafka_password_file=folder / TOKEN_FILE)
+    return cfg.to_json()
 
 
 def _digest(folder: Path) -> str:
@@ -229,6 +264,8 @@ class WorkerManager:
         text = _config_text(spec, folder.path, remote_token)  # refuses bad values before anything changes
         with self._lock:
             w = self._workers.setdefault(key, _Worker(spec, folder))
+        if remote_token is not None and spec.mechanism is BridgeMechanism.WORKER:
+            remote_token = kafka_internal_password(remote_token)  # never the other agent's token
         with w.op:
             owner = claim(w.record().owner, owner, spec.address)
             files = {WORKER_FILE: text}
@@ -316,7 +353,8 @@ class WorkerManager:
                 setattr(w, name, value)
 
     def _argv(self, w: _Worker) -> list[str]:
-        return [self.python, "-m", "engine.bridge_worker", str(w.folder.path / WORKER_FILE)]
+        module = MIRROR_MODULE if w.spec.mechanism is BridgeMechanism.MIRROR else "engine.bridge_worker"
+        return [self.python, "-m", module, str(w.folder.path / WORKER_FILE)]
 
     def _start(self, w: _Worker, *, restart: bool) -> None:
         argv = self._argv(w)
@@ -363,6 +401,7 @@ class WorkerManager:
             # the last rate of the live worker (even a stale file's: a hung stats writer need not
             # mean a quiet bridge); a worker that is gone forwards nothing
             forwarded_per_s=None if stats is None else stats.forwarded_per_s if mine else 0.0,
+            lag=stats.lag if stats is not None and mine else None,
         )
 
     # --- re-adoption and supervision ------------------------------------------------------

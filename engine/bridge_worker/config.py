@@ -82,10 +82,16 @@ class WorkerConfig:
     routes: tuple[Route, ...]
     state_dir: Path
     stats_interval: float = 0.5
+    #: A closed Kafka (issue 13): the file holding plantkg's own password there (SASL/PLAIN as
+    #: user "plantkg"; the agent writes it 0600); None: Kafka is open.
+    kafka_password_file: Path | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.bridge_id, str) or not _BRIDGE_ID.fullmatch(self.bridge_id):
             raise ConfigValueError("bridge_id", self.bridge_id, "must be 1 to 200 of A-Z a-z 0-9 _ . -")
+        if self.kafka_password_file is not None:
+            object.__setattr__(self, "kafka_password_file",
+                               check_path("kafka_password_file", Path(self.kafka_password_file)))
         object.__setattr__(self, "mqtt_host", check_host("mqtt_host", self.mqtt_host))
         check_port("mqtt_port", self.mqtt_port)
         _check_bootstrap("kafka_bootstrap", self.kafka_bootstrap)
@@ -113,11 +119,24 @@ class WorkerConfig:
     def routes_of(self, direction: Direction) -> tuple[Route, ...]:
         return tuple(r for r in self.routes if r.direction is direction)
 
+    def kafka_auth(self) -> dict[str, str]:
+        """librdkafka settings that authenticate the worker's Kafka clients (none: Kafka is open)."""
+        if self.kafka_password_file is None:
+            return {}
+        try:
+            password = self.kafka_password_file.read_text(encoding="utf-8").strip()
+        except OSError as exc:
+            raise ConfigValueError("kafka_password_file", str(self.kafka_password_file),
+                                   f"cannot be read ({exc.strerror})") from None
+        return {"security.protocol": "SASL_PLAINTEXT", "sasl.mechanism": "PLAIN",
+                "sasl.username": "plantkg", "sasl.password": password}
+
     def to_json(self) -> str:
         return json.dumps({
             "bridge_id": self.bridge_id, "mqtt_host": self.mqtt_host, "mqtt_port": self.mqtt_port,
             "kafka_bootstrap": self.kafka_bootstrap, "routes": [r.to_dict() for r in self.routes],
             "state_dir": str(self.state_dir), "stats_interval": self.stats_interval,
+            **({"kafka_password_file": str(self.kafka_password_file)} if self.kafka_password_file else {}),
         }, indent=2)
 
     @classmethod

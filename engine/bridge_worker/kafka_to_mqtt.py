@@ -60,6 +60,7 @@ def consumer_config(cfg: WorkerConfig, on_error) -> dict[str, object]:
         "reconnect.backoff.ms": 100,
         "reconnect.backoff.max.ms": 2000,
         "error_cb": on_error,
+        **cfg.kafka_auth(),
     }
 
 

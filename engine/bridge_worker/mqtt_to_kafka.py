@@ -54,6 +54,7 @@ def producer_config(cfg: WorkerConfig, on_error: Callable[[KafkaError], None]) -
         "reconnect.backoff.ms": 100,
         "reconnect.backoff.max.ms": 2000,
         "error_cb": on_error,
+        **cfg.kafka_auth(),
     }
 
 

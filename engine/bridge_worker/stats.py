@@ -23,7 +23,8 @@ class WorkerStats:
     upserted, ``refused`` by the context broker (acknowledged, not retried), notifications
     ``skipped`` (the loop rule), and whether the context broker answers. ``forwarded_per_s``:
     messages forwarded per second over the last ~10 s (:mod:`engine.bridge_worker.rate`; 0.0 in
-    a file written before the field existed)."""
+    a file written before the field existed). A MirrorMaker 2's watcher
+    (engine.drivers.kafka.mirror_worker) writes the last two fields."""
 
     bridge_id: str
     pid: int
@@ -41,10 +42,13 @@ class WorkerStats:
     refused: int = 0
     skipped: int = 0
     forwarded_per_s: float = 0.0
+    forwarded_kafka_to_kafka: int = 0   # a MirrorMaker 2 (mechanism "kafka-mirror")
+    lag: int | None = None              # kafka-mirror: records the source has, the target not yet
 
     @property
     def forwarded(self) -> int:
-        return self.forwarded_mqtt_to_kafka + self.forwarded_kafka_to_mqtt + self.forwarded_mqtt_to_ngsi
+        return (self.forwarded_mqtt_to_kafka + self.forwarded_kafka_to_mqtt + self.forwarded_mqtt_to_ngsi
+                + self.forwarded_kafka_to_kafka)
 
 
 def write_stats(state_dir: Path, stats: WorkerStats) -> None:

@@ -62,7 +62,8 @@ class Worker(BridgeLoop):
         admin = AdminClient({"bootstrap.servers": self.cfg.kafka_bootstrap,
                              "client.id": f"{self.cfg.client_id}-probe",
                              "reconnect.backoff.max.ms": 2000,
-                             "error_cb": lambda err: None})  # the producer/consumer report errors
+                             "error_cb": lambda err: None,  # the producer/consumer report errors
+                             **self.cfg.kafka_auth()})
         while not self.stopping.is_set():
             try:
                 admin.list_topics(timeout=PROBE_TIMEOUT)

@@ -76,7 +76,7 @@ def status_rows(desired: DesiredState, observed: ObservedState, now: float) -> l
     return rows
 
 
-BRIDGE_HEADERS = ("bridge", "mechanism", "status", "routes", "forwarded", "rate/s", "retried", "error")
+BRIDGE_HEADERS = ("bridge", "mechanism", "status", "routes", "forwarded", "rate/s", "retried", "lag", "error")
 
 
 def show_rate(value: float | None) -> str:
@@ -98,12 +98,13 @@ def bridge_rows(desired: DesiredState, observed: ObservedState) -> list[dict[str
             host = spec.local.host
             state = "unknown" if host in observed.unreachable else "absent"
             rows.append({"bridge": spec.address, "mechanism": spec.mechanism.value, "status": state,
-                         "routes": routes, "forwarded": "-", "rate/s": "-", "retried": "-", "error": ""})
+                         "routes": routes, "forwarded": "-", "rate/s": "-", "retried": "-", "lag": "-",
+                         "error": ""})
             continue
         rows.append({"bridge": spec.address, "mechanism": spec.mechanism.value,
                      "status": have.status.value, "routes": routes,
                      "forwarded": show(have.forwarded), "rate/s": show_rate(have.forwarded_per_s),
-                     "retried": show(have.retried),
+                     "retried": show(have.retried), "lag": show(have.lag),
                      # a running bridge's last error is history (the worker keeps it): not shown;
                      # messages its remote refused (dropped, not retried) are shown while running
                      "error": (have.last_error.splitlines()[0][:60]
@@ -115,7 +116,7 @@ def bridge_rows(desired: DesiredState, observed: ObservedState) -> list[dict[str
                          "status": f"{have.status.value} (not in plant)",
                          "routes": ", ".join(r.topic for r in have.spec.routes),
                          "forwarded": show(have.forwarded), "rate/s": show_rate(have.forwarded_per_s),
-                         "retried": show(have.retried), "error": ""})
+                         "retried": show(have.retried), "lag": show(have.lag), "error": ""})
     return rows
 
 
@@ -264,7 +265,7 @@ def typed_broker_rows(desired: DesiredState, observed: ObservedState, now: float
 
 def _anonymous(spec: BrokerSpec) -> bool:
     """Whether a running broker admits clients without credentials (a context broker: writes)."""
-    return spec.allow_anonymous is not False or spec.kind == "kafka"
+    return spec.allow_anonymous is not False
 
 
 def _typed_bridge(row: dict[str, str], observed: ObservedState) -> dict[str, object]:
@@ -273,4 +274,5 @@ def _typed_bridge(row: dict[str, str], observed: ObservedState) -> dict[str, obj
     have = observed.bridge(row["bridge"])
     typed: dict[str, object] = {k: v for k, v in row.items() if k != "rate/s"}
     return {**typed, "forwarded": number(row["forwarded"]), "retried": number(row["retried"]),
+            "lag": number(row["lag"]),
             "forwarded_per_s": have.forwarded_per_s if have is not None else None}

@@ -16,13 +16,15 @@ Drivers are found through the entry-point group ``plantkg.drivers`` (see
 from __future__ import annotations
 
 import hashlib
+import os
 import unicodedata
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 from engine.errors import ConfigValueError
-from engine.model import BridgeSpec, BrokerSpec, ObservedTopic, TopicSpec
+from engine.model import BridgeSpec, BrokerSpec, BrokerUser, ObservedTopic, TopicSpec
+from engine.values import check_secret_ref
 
 #: Folder of a broker's logs inside its broker folder; the agent spawns the process with its
 #: stdout/stderr appended to ``logs/<kind>.log`` (see :func:`log_file`).
@@ -34,7 +36,7 @@ DATA_DIR = "data"
 AGENT_TOKEN_FILE_ENV = "PLANTKG_AGENT_TOKEN_FILE"
 
 #: Topic fields that only Kafka uses, and those that only MQTT uses.
-KAFKA_TOPIC_FIELDS = ("partitions", "replication_factor", "retention_ms")
+KAFKA_TOPIC_FIELDS = ("partitions", "replication_factor", "retention_ms", "min_insync_replicas")
 MQTT_TOPIC_FIELDS = ("qos", "retain")
 #: Topic fields that only an NGSI-v2 context broker uses (the topic's entity).
 NGSI_TOPIC_FIELDS = ("entity_id", "entity_type")
@@ -149,6 +151,7 @@ def check_topic_fields(topic: TopicSpec, kind: str, applicable: tuple[str, ...])
     _check_int(topic, "partitions", 1, 10_000)
     _check_int(topic, "replication_factor", 1, 32_767)
     _check_int(topic, "retention_ms", -1, 2**63 - 1)
+    _check_int(topic, "min_insync_replicas", 1, 32_767)
     _check_int(topic, "qos", 0, 2)
     if topic.retain is not None and not isinstance(topic.retain, bool):
         raise ConfigValueError("retain", topic.retain, "must be true or false")
@@ -162,3 +165,34 @@ def _check_int(topic: TopicSpec, field: str, low: int, high: int) -> None:
         raise ConfigValueError(field, value, "must be an integer")
     if not low <= value <= high:
         raise ConfigValueError(field, value, f"must be in {low}..{high}")
+
+
+def resolve_secret(user: BrokerUser, environ: Mapping[str, str] | None = None) -> str:
+    """The password ``user.secret_ref`` points to on this machine: an environment variable of
+    this process, or a file's text without one trailing newline. A missing, empty or unreadable
+    secret is a ConfigValueError naming the user and the reference, never the secret."""
+    field = f"users[{user.name}].secret_ref"
+    ref = check_secret_ref(field, user.secret_ref)
+    kind, _, where = ref.partition(":")
+    if kind == "env":
+        value = (os.environ if environ is None else environ).get(where)
+        if value is None:
+            raise ConfigValueError(field, ref, f"the environment variable {where} is not set for "
+                                   "the agent on this machine; set it where the agent starts")
+    else:
+        try:
+            raw = Path(where).read_bytes()
+        except OSError as exc:
+            raise ConfigValueError(field, ref, f"cannot read the file ({exc.strerror}); create "
+                                   "it on the broker's machine, readable by the agent") from None
+        try:
+            value = raw.decode("utf-8")
+        except UnicodeDecodeError:
+            raise ConfigValueError(field, ref, "the file is not UTF-8 text") from None
+        value = value[:-2] if value.endswith("\r\n") else value.removesuffix("\n")
+    if not value:
+        raise ConfigValueError(field, ref, "the secret is empty; put the user's password there")
+    if "\0" in value or "\n" in value or "\r" in value:
+        raise ConfigValueError(field, ref, "the secret holds a NUL or a line break; a password "
+                               "is one line of text")
+    return value

@@ -24,7 +24,6 @@ import getpass
 import os
 import secrets
 import time
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +31,8 @@ from paho.mqtt import client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
 from engine import mosquitto_runtime, netutil, parts
-from engine.drivers.base import (
+from engine.drivers.base import (  # resolve_secret: shared with the Kafka driver
+    resolve_secret,
     DATA_DIR,
     MQTT_TOPIC_FIELDS,
     check_text,
@@ -41,8 +41,7 @@ from engine.drivers.base import (
     spec_essence,
 )
 from engine.errors import ConfigValueError
-from engine.model import BridgeMechanism, BridgeSpec, BrokerSpec, BrokerUser, ObservedTopic, TopicSpec
-from engine.values import check_secret_ref
+from engine.model import BridgeMechanism, BridgeSpec, BrokerSpec, ObservedTopic, TopicSpec
 
 CONF_FILE = "mosquitto.conf"
 #: The hashed password file and the ACL file of a broker with users (in its broker folder).
@@ -210,37 +209,6 @@ def is_closed(spec: BrokerSpec) -> bool:
 def connack_answers(reason: str) -> bool:
     """True if a CONNACK with this reason (paho's name) shows a broker answering MQTT."""
     return reason in ANSWERING_CONNACKS
-
-
-def resolve_secret(user: BrokerUser, environ: Mapping[str, str] | None = None) -> str:
-    """The password ``user.secret_ref`` points to on this machine: an environment variable of
-    this process, or a file's text without one trailing newline. A missing, empty or unreadable
-    secret is a ConfigValueError naming the user and the reference, never the secret."""
-    field = f"users[{user.name}].secret_ref"
-    ref = check_secret_ref(field, user.secret_ref)
-    kind, _, where = ref.partition(":")
-    if kind == "env":
-        value = (os.environ if environ is None else environ).get(where)
-        if value is None:
-            raise ConfigValueError(field, ref, f"the environment variable {where} is not set for "
-                                   "the agent on this machine; set it where the agent starts")
-    else:
-        try:
-            raw = Path(where).read_bytes()
-        except OSError as exc:
-            raise ConfigValueError(field, ref, f"cannot read the file ({exc.strerror}); create "
-                                   "it on the broker's machine, readable by the agent") from None
-        try:
-            value = raw.decode("utf-8")
-        except UnicodeDecodeError:
-            raise ConfigValueError(field, ref, "the file is not UTF-8 text") from None
-        value = value[:-2] if value.endswith("\r\n") else value.removesuffix("\n")
-    if not value:
-        raise ConfigValueError(field, ref, "the secret is empty; put the user's password there")
-    if "\0" in value or "\n" in value or "\r" in value:
-        raise ConfigValueError(field, ref, "the secret holds a NUL or a line break; a password "
-                               "is one line of text")
-    return value
 
 
 def _previous(path: Path) -> str:

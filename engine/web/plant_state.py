@@ -302,10 +302,12 @@ class PlantState:
             summary, state = (f"Apply failed: {exc}",), "failed"
         except Exception as exc:  # noqa: BLE001 - an apply must never stay "running" forever
             summary, state = (f"Apply failed with an internal error: {exc!r}",), "failed"
-        job = self._snap.apply
-        self._publish(apply=replace(job, state=state, finished_at=time.time(),
-                                    summary=summary))
-        self.refresh()
+        # Ask the agents again first and publish their answer with the job's end in one snapshot:
+        # whoever sees "done" sees the brokers the apply made (not the status from before it).
+        with self._work_lock:
+            snap = self._snap
+            seen = self._observe(snap.plant, snap.desired) if snap.desired is not None and snap.plant is not None else {}
+            self._publish(apply=replace(snap.apply, state=state, finished_at=time.time(), summary=summary), **seen)
 
     # ------------------------------------------------------------------------------ watcher
 

@@ -82,21 +82,35 @@ def start_agents(hosts: list[str], tmp_path: Path) -> AgentFleet:
 
 def plant_copy(example: str, tmp_path: Path, ports: dict[int, list[tuple[str, int]]] | None = None,
                name: str = "plant.ttl") -> tuple[Path, dict[str, int]]:
-    """Copy ``example`` with every ``pk:port N`` rewritten to a free port of that broker's ip.
+    """Copy ``example`` with every ``pk:port N`` (and a Kafka node's ``pk:controllerPort``)
+    rewritten to a free port of that broker's ip.
 
-    Returns the path and {broker local name: new port}."""
+    Returns the path and {broker local name: new port} (a node's controller port under
+    ``"<name>:controller"``)."""
     text = (EXAMPLES / example).read_text(encoding="utf-8")
     new_ports: dict[str, int] = {}
+
+    taken: set[int] = set()
+
+    def free(host: str) -> int:
+        port = netutil.free_port(host)
+        while port in taken:
+            port = netutil.free_port(host)
+        taken.add(port)
+        return port
 
     def block(match: re.Match[str]) -> str:
         body = match.group(0)
         ip = re.search(r'pk:ip "([^"]+)"', body)
-        assert ip is not None, body
-        port = netutil.free_port(ip.group(1))
-        while port in new_ports.values():
-            port = netutil.free_port(ip.group(1))
-        new_ports[match.group(1)] = port
-        return re.sub(r"pk:port \d+", f"pk:port {port}", body)
+        if ip is None:  # a Kafka cluster: its nodes have the addresses
+            assert "pk:port" not in body, body
+            return body
+        new_ports[match.group(1)] = port = free(ip.group(1))
+        body = re.sub(r"pk:port \d+", f"pk:port {port}", body)
+        if "pk:controllerPort" in body:  # a combined Kafka node's quorum listener
+            new_ports[match.group(1) + ":controller"] = cport = free(ip.group(1))
+            body = re.sub(r"pk:controllerPort \d+", f"pk:controllerPort {cport}", body)
+        return body
 
     text = re.sub(r"(?ms)^\w+:([\w-]+)\n    a owl:NamedIndividual , pk:Broker ;.*?\.\n", block, text)
     path = tmp_path / name

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from engine import kafka_runtime, netutil, parts, process
+from engine import netutil, parts, process
+from engine.drivers.kafka import runtime as kafka_runtime
 
 KAFKA_READY_DEADLINE = 90.0
 

@@ -471,6 +471,7 @@ def test_a_topic_bridged_both_ways_does_not_loop(tmp_path: Path, mosquitto: rig.
     assert stats.forwarded_mqtt_to_ngsi == 200, "a notification was written back: a loop"
     assert sorted(counter.seqs) == list(range(201))           # each change published once
     assert len(counter.other) == 200                          # and the raw messages themselves
+    wait_all(receiver.seqs, 201, "201 HTTP notifications")    # a lane of their own: they may lag MQTT's
     assert sorted(receiver.seqs) == list(range(201))          # each written once
 
 

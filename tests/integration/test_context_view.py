@@ -53,12 +53,14 @@ def test_the_dashboard_store_holds_the_live_context(broker: ContextBroker, tmp_p
     plant.write_text(PLANT.replace("{port}", str(broker.port)), encoding="utf-8")
     put_battery(broker, 81.5)
     state = PlantState([str(plant)], None, directory_loader=lambda _p: closed_directory(("127.0.0.1",)))
+    app = None
     try:
         state.reload()
         snap = state.snapshot
         assert snap.error is None, snap.error
         assert snap.context is not None and snap.context.quads > 0 and not snap.context.unavailable
-        client = make_app(state).test_client()
+        app = make_app(state)
+        client = app.test_client()
         answer = client.get("/sparql", query_string={"query": PREFIXES + BATTERY},
                             headers={"Accept": "application/sparql-results+json"}).json
         rows = answer["results"]["bindings"]
@@ -80,6 +82,8 @@ def test_the_dashboard_store_holds_the_live_context(broker: ContextBroker, tmp_p
                           headers={"Accept": "application/sparql-results+json"}).json["results"]["bindings"]
         assert rows == []
     finally:
+        if app is not None:
+            app.extensions["plantkg_sparql"].close()  # the SPARQL worker processes the queries started
         state.close()
 
 

@@ -56,6 +56,7 @@ OBJECT_PROPERTIES = {  # name: (domain, range)
     "subscribes": ("Resource", "Topic"),
     "mayWrite": ("Resource", "Topic"),
     "mayRead": ("Resource", "Topic"),
+    "nodeOf": ("Broker", "Broker"),
 }
 DATA_PROPERTIES = {  # name: (domain or None for all classes, range or None for rdfs:Literal, functional)
     "id": (None, ns.XSD.string, True),
@@ -84,6 +85,10 @@ DATA_PROPERTIES = {  # name: (domain or None for all classes, range or None for 
     "kafkaKey": ("Topic", ns.XSD.string, True),
     "entityId": ("Topic", ns.XSD.string, True),
     "entityType": ("Topic", ns.XSD.string, True),
+    "nodeId": ("Broker", ns.XSD.integer, True),
+    "kafkaRole": ("Broker", ns.XSD.string, False),
+    "controllerPort": ("Broker", ns.XSD.integer, True),
+    "minInsyncReplicas": (None, ns.XSD.integer, True),
 }
 #: Annotation properties of a plant's own owl:Ontology header (docs/operating.md).
 ANNOTATION_PROPERTIES = {"plantName"}
@@ -367,6 +372,9 @@ def test_brokers_have_valid_addresses(example: Path) -> None:
     for broker in g.subjects(ns.RDF.type, PK.Broker):
         port = g.value(broker, PK.port)
         ip = g.value(broker, PK.ip)
+        if (None, PK.nodeOf, broker) in g:  # a Kafka cluster: its nodes have the addresses
+            assert ip is None and port is None, broker
+            continue
         assert port.datatype == ns.XSD.integer and 1 <= port.toPython() <= 65535, broker
         ipaddress.ip_address(str(ip))
         assert g.value(broker, PK.brokerType) in {Literal(t) for t in MQTT_TYPES | KAFKA_TYPES | NGSI_TYPES}
@@ -419,7 +427,11 @@ def test_topic_names_are_valid_for_every_broker_carrying_them(example: Path) -> 
         assert kinds, f"{topic} is carried by no broker"
         if kinds & KAFKA_TYPES:
             assert KAFKA_TOPIC.match(name) and name not in {".", ".."}, name
+            clusters = all((None, PK.nodeOf, b) in g for b in g.subjects(PK.hasTopic, topic)
+                           if str(g.value(b, PK.brokerType)) in KAFKA_TYPES)
             for setting in KAFKA_TOPIC_SETTINGS:
+                if setting == PK.replicationFactor and clusters:
+                    continue  # each cluster gives it its own default (docs/kafka.md)
                 assert g.value(topic, setting) is not None, f"{topic}: Kafka needs {setting}"
         if kinds & MQTT_TYPES:
             assert name and not set(name) & {"+", "#", "\x00", " "} and not name.startswith("$"), name

@@ -64,13 +64,30 @@ def test_users_and_acls_come_from_the_graph(tmp_path: Path, name: str, engine: s
     assert (broker.users, broker.allow_anonymous) == (users, anonymous)
 
 
-def test_users_on_a_broker_without_user_support_are_refused(tmp_path: Path) -> None:
+def test_a_kafka_with_users_is_closed_and_its_bridge_worker_allowed(tmp_path: Path) -> None:
+    """The historian reads cell/pose on Kafka: a closed Kafka (SASL users, ACLs); the worker that
+    bridges the pose from the (open) Mosquitto reaches it as plantkg's own principal."""
     kafka = ('ex:k a pk:Broker ; pk:id "k1" ; pk:name "k" ; pk:brokerType "kafka" ; pk:ip "127.0.0.2" ; '
              'pk:port 9092 ; pk:hasTopic ex:pose .\n'
              'ex:hist a pk:Resource ; pk:id "hist" ; pk:name "Historian" ; pk:sendsTo ex:k ; '
-             'pk:subscribes ex:pose ; pk:secretRef "env:HIST" .\n')
-    with pytest.raises(AccessNotSupportedError, match="'k1' \\(kafka\\): its clients hist have a pk:secretRef"):
-        derived(tmp_path, kafka)
+             'pk:subscribes ex:pose ; pk:secretRef "env:HIST" .\n'
+             'ex:cam a pk:Resource ; pk:id "cam" ; pk:name "Camera" ; pk:sendsTo ex:m ; pk:publishes ex:pose .\n')
+    state = derived(tmp_path, kafka)
+    k1 = state.broker("k1")
+    assert k1 is not None and (k1.users, k1.allow_anonymous) == (
+        (BrokerUser("hist", "env:HIST", read=("cell/pose",)),), False)
+    assert [(b.local.id, b.remote.id) for b in state.bridges] == [("m1", "k1")]
+
+
+def test_users_on_a_kafka_cluster_are_refused(tmp_path: Path) -> None:
+    cluster = ('ex:c a pk:Broker ; pk:id "c" ; pk:name "c" ; pk:brokerType "kafka" ; pk:hasTopic ex:pose .\n'
+               'ex:n1 a pk:Broker ; pk:id "n1" ; pk:name "n1" ; pk:brokerType "kafka" ; pk:ip "127.0.0.2" ; '
+               'pk:port 9092 ; pk:nodeOf ex:c ; pk:nodeId 1 ; pk:kafkaRole "broker" , "controller" ; '
+               'pk:controllerPort 9093 .\n'
+               'ex:hist a pk:Resource ; pk:id "hist" ; pk:name "Historian" ; pk:sendsTo ex:c ; '
+               'pk:subscribes ex:pose ; pk:secretRef "env:HIST" .\n')
+    with pytest.raises(AccessNotSupportedError, match="'n1' is a node of Kafka cluster 'c'"):
+        derived(tmp_path, cluster)
 
 
 def test_a_bridge_at_a_closed_broker_is_refused(tmp_path: Path) -> None:
@@ -114,7 +131,8 @@ def _spec(**kw):
     (_spec(), "open", "none of its clients has a pk:secretRef"),
     (_spec(allow_anonymous=True, users=(ROBOT_USER,)), "open + users (1)", "the plant says pk:allowAnonymous true"),
     (_spec(allow_anonymous=False, users=(ROBOT_USER, HMI_USER)), "users (2)", None),
-    (_spec(kind="kafka", port=9092), "open", "plantkg does not run Kafka with SASL users"),
+    (_spec(kind="kafka", port=9092), "open", "none of its clients has a pk:secretRef"),
+    (_spec(kind="kafka", port=9092, allow_anonymous=False, users=(HMI_USER,)), "users (1)", None),
     (_spec(kind="ngsi-v2", allow_anonymous=False), "token for writes", None),
     (_spec(kind="ngsi-v2", allow_anonymous=True), "open", "takes writes without its agent's token"),
 ])

@@ -153,7 +153,7 @@ def test_the_spec_is_reported_as_given(client: FlaskClient) -> None:
     body = spec(host="0:0:0:0:0:0:0:1", port=netutil.free_port("::1"))
     answer = put(client, url("m1"), body)
     assert answer.status_code == 200, answer.get_json()
-    assert answer.get_json()["spec"] == {**body, "persist_every": None, "allow_anonymous": None, "mqtt_port": None, "users": []}  # optional, reported
+    assert answer.get_json()["spec"] == {**body, "persist_every": None, "allow_anonymous": None, "mqtt_port": None, "users": [], "kafka": None}  # optional, reported
 
 
 def test_a_bad_id_in_the_url_is_refused(client: FlaskClient) -> None:
@@ -205,7 +205,8 @@ def test_mosquitto_life_cycle(client: FlaskClient, state: AgentState, tmp_path: 
     assert first.status_code == 200, first.get_json()
     running = first.get_json()
     assert running["status"] == "running" and running["restarts"] == 0
-    assert running["spec"] == {**body, "persist_every": None, "allow_anonymous": None, "mqtt_port": None, "users": []} and running["topics"] == []
+    assert running["spec"] == {**body, "persist_every": None, "allow_anonymous": None, "mqtt_port": None, "users": [],
+                               "kafka": None} and running["topics"] == []
     pid = running["pid"]
     assert proc_info(pid) is not None and netutil.port_open("127.0.0.1", body["port"])
 
@@ -223,7 +224,8 @@ def test_mosquitto_life_cycle(client: FlaskClient, state: AgentState, tmp_path: 
     assert answer.status_code == 200, answer.get_json()
     assert answer.get_json() == {"name": name, "partitions": None, "replication_factor": None,
                                  "retention_ms": None, "qos": 1, "retain": True,
-                                 "entity_id": None, "entity_type": None, "owner": None}
+                                 "entity_id": None, "entity_type": None, "owner": None,
+                                 "min_insync_replicas": None}
     assert put(client, url("m1", "other"), topic(name)).status_code == 400
     assert put(client, url("m1", name), topic(name, partitions=3)).status_code == 400
     assert put(client, url("m1", name), topic(name, broker_id="m2")).status_code == 400

@@ -135,7 +135,7 @@ def test_status_table_and_destroy(fleet: FakeFleet, capsys) -> None:  # type: ig
     brokers, bridges = out.split("\n\n")
     header, *rows = brokers.splitlines()
     assert bridges.splitlines()[0].split() == ["BRIDGE", "MECHANISM", "STATUS", "ROUTES", "FORWARDED",
-                                               "RATE/S", "RETRIED", "ERROR"]
+                                               "RATE/S", "RETRIED", "LAG", "ERROR"]
     assert bridges.splitlines()[1].split()[:8] == [
         "bridge.mosquitto.kafka", "mqtt-kafka", "running", "robot.abb-irb120.position", "out", "0", "0.0", "0"]
     assert header.split() == ["ID", "KIND", "HOST:PORT", "STATUS", "PID", "UPTIME", "RESTARTS", "TOPICS",

@@ -78,9 +78,23 @@ def test_a_mosquitto_bridge_never_connects_to_an_ipv6_address() -> None:
     assert two_way.routes[0].direction is BridgeDirection.BOTH
 
 
-def test_two_kafka_brokers_are_refused_by_name() -> None:
-    with pytest.raises(BridgeNotSupportedError, match="k -> k2: a bridge between two Kafka brokers"):
-        pair_bridges([d("k", "k2", "t")], BROKERS, CLASSES, {})
+def test_two_kafka_brokers_are_mirrored_by_the_target() -> None:
+    """MirrorMaker 2 consumes remotely and produces locally: the target carries it."""
+    [spec] = pair_bridges([d("k", "k2", "t", asserted=False)], BROKERS, CLASSES, {})
+    assert (spec.local.id, spec.remote.id, spec.mechanism) == ("k2", "k", BridgeMechanism.MIRROR)
+    assert routes(spec) == [("t", "in", 1, "mqtt-topic")]
+    [back] = pair_bridges([d("k2", "k", "t")], BROKERS, CLASSES, {})
+    assert (back.local.id, back.remote.id) == ("k", "k2")
+
+
+def test_a_kafka_mirror_both_ways_is_refused_by_name() -> None:
+    with pytest.raises(BridgeNotSupportedError, match="k -> k2: MirrorMaker 2 bridges two Kafka brokers one way only"):
+        pair_bridges([d("k", "k2", "t"), d("k2", "k", "u")], BROKERS, CLASSES, {})
+
+
+def test_a_kafka_mirror_is_not_carried_by_an_external_target() -> None:
+    with pytest.raises(BridgeNotSupportedError, match="pk:external"):
+        pair_bridges([d("k", "k2", "t")], BROKERS, CLASSES, {}, external=frozenset({"k2"}))
 
 
 def test_brokers_of_no_known_class_are_refused() -> None:

@@ -71,12 +71,18 @@ def test_ipv6_context_broker_url_is_bracketed(tmp_path: Path) -> None:
     assert ngsi_worker_config(spec, tmp_path, None).ngsi_url == "http://[::1]:1026"
 
 
-def test_only_an_ngsi_bridge_takes_a_remote_token(tmp_path: Path) -> None:
+def test_only_an_ngsi_or_kafka_worker_takes_a_remote_token(tmp_path: Path) -> None:
+    mirror = BridgeSpec(BridgeEnd("k2", "kafka", "127.0.0.4", 9092), BridgeEnd("kafka", "kafka", "127.0.0.3", 9092),
+                        BridgeMechanism.MIRROR, (BridgeRoute("t", BridgeDirection.IN),))
+    with pytest.raises(ConfigValueError) as exc:
+        _config_text(mirror, tmp_path, "secret")
+    assert exc.value.field == "remote_token" and "secret" not in str(exc.value)
+    # into a closed Kafka: the worker reads plantkg's password from a file, never from worker.json
     kafka = BridgeSpec(MQTT, BridgeEnd("kafka", "kafka", "127.0.0.3", 9092), BridgeMechanism.WORKER,
                        (BridgeRoute("t", BridgeDirection.OUT),))
-    with pytest.raises(ConfigValueError) as exc:
-        _config_text(kafka, tmp_path, "secret")
-    assert exc.value.field == "remote_token" and "secret" not in str(exc.value)
+    closed = json.loads(_config_text(kafka, tmp_path, "secret"))
+    assert closed["kafka_password_file"] == str(tmp_path / "remote.token") and "secret" not in json.dumps(closed)
+    assert "kafka_password_file" not in json.loads(_config_text(kafka, tmp_path, None))
     open_cb = json.loads(_config_text(ngsi_spec(), tmp_path, None))
     assert open_cb["token_file"] is None
     with_token = json.loads(_config_text(ngsi_spec(), tmp_path, "secret"))
@@ -143,10 +149,10 @@ def test_a_bad_remote_token_is_a_400_naming_the_field(client: FlaskClient, recor
     assert recording.got == []
 
 
-def test_a_remote_token_on_a_kafka_bridge_is_a_400(client: FlaskClient, recording: RecordingWorkers) -> None:
-    kafka = BridgeSpec(MQTT, BridgeEnd("kafka", "kafka", "127.0.0.3", 9092), BridgeMechanism.WORKER,
+def test_a_remote_token_on_a_mosquitto_bridge_is_a_400(client: FlaskClient, recording: RecordingWorkers) -> None:
+    other = BridgeSpec(MQTT, BridgeEnd("m2", "mosquitto", "127.0.0.3", 1883), BridgeMechanism.MOSQUITTO,
                        (BridgeRoute("t", BridgeDirection.OUT),))
-    answer = client.put("/v1/brokers/mqtt/bridges/kafka", json={**to_dict(kafka), "remote_token": "x"},
+    answer = client.put("/v1/brokers/mqtt/bridges/m2", json={**to_dict(other), "remote_token": "x"},
                         headers=AUTH)
     assert answer.status_code == 400 and answer.get_json()["field"] == "remote_token"
     assert recording.got == []

@@ -120,10 +120,11 @@ def test_a_bridge_to_a_broker_of_no_bridgeable_class_is_refused_by_name(tmp_path
         derive(reasoned(tmp_path, body))
 
 
-def test_a_derived_bridge_between_two_kafka_brokers_is_refused(tmp_path: Path) -> None:
+def test_a_derived_bridge_between_two_kafka_brokers_is_a_mirror_on_the_target(tmp_path: Path) -> None:
     body = PLANT.replace('"mosquitto" ; pk:ip "127.0.0.2"', '"kafka" ; pk:ip "127.0.0.2"')
-    with pytest.raises(BridgeNotSupportedError, match="two Kafka brokers is not supported yet"):
-        derive(reasoned(tmp_path, body))
+    [bridge] = derive(reasoned(tmp_path, body)).bridges
+    assert (bridge.local.id, bridge.remote.id, bridge.mechanism) == ("kf", "mq", BridgeMechanism.MIRROR)
+    assert bridge.routes == (BridgeRoute("cell.robot.position", BridgeDirection.IN, 1),)
 
 
 def test_save_policy_is_read_when_set(tmp_path: Path) -> None:

@@ -17,7 +17,7 @@ import pytest
 from engine import netutil, parts, process
 from engine.drivers import registry as registry_module
 from engine.drivers.base import Driver, config_hash
-from engine.drivers.kafka import KafkaDriver, check_kafka_topic_name, read_controller_port
+from engine.drivers.kafka.driver import KafkaDriver, check_kafka_topic_name, read_controller_port
 from engine.drivers.mosquitto import MosquittoDriver, check_mqtt_topic_name
 from engine.drivers.registry import DriverRegistry
 from engine.errors import (

@@ -6,9 +6,10 @@ from pathlib import Path
 
 import pytest
 
-from engine import kafka_runtime, mosquitto_runtime
+from engine import mosquitto_runtime
+from engine.drivers.kafka import runtime as kafka_runtime
 from engine.errors import ConfigValueError, EngineError
-from engine.kafka_runtime import KafkaNodeConfig, render_server_properties
+from engine.drivers.kafka.runtime import KafkaNodeConfig, render_server_properties
 from engine.mosquitto_runtime import DEFAULT_SAVE_SECONDS, MosquittoConfig, render_mosquitto_conf
 from engine.parts import KafkaParts
 

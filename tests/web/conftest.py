@@ -55,8 +55,10 @@ def make_app(state: PlantState, limits: Limits = Limits()) -> Flask:
 
 
 @pytest.fixture
-def app(state: PlantState) -> Flask:
-    return make_app(state)
+def app(state: PlantState) -> Iterator[Flask]:
+    made = make_app(state)
+    yield made
+    made.extensions["plantkg_sparql"].close()  # its SPARQL worker processes, if a query started any
 
 
 @pytest.fixture

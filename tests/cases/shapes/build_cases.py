@@ -430,16 +430,16 @@ CASES: list[Case] = [
          expected=[R("ex:energy", "rdf:type", "pk:Topic", "PlantElement-disjointClasses", "SPARQL"),
                    R("ex:energy", "rdf:type", "pk:Broker", "PlantElement-disjointClasses", "SPARQL"),
                    R("ex:energy", "brokerType", None, "Broker-brokerType", "MinCount"),
-                   R("ex:energy", "ip", None, "Broker-ip", "MinCount"),
-                   R("ex:energy", "port", None, "Broker-port", "MinCount")]),
+                   R("ex:energy", "ip", "ex:energy", "Broker-endpoint", "SPARQL"),
+                   R("ex:energy", "port", "ex:energy", "Broker-endpoint", "SPARQL")]),
     Case("disjoint-mqttbroker-and-topic", "a topic also typed pk:MqttBroker (a subclass of Broker)",
          edits=[("ex:command a pk:Topic ;", "ex:command a pk:Topic , pk:MqttBroker ;")],
          expected=[R("ex:command", "rdf:type", "pk:Topic", "PlantElement-disjointClasses", "SPARQL"),
                    R("ex:command", "rdf:type", "pk:MqttBroker", "PlantElement-disjointClasses", "SPARQL"),
                    # a Broker through rdfs:subClassOf, so the broker shapes apply (not DefinedBrokerClass)
                    R("ex:command", "brokerType", None, "Broker-brokerType", "MinCount"),
-                   R("ex:command", "ip", None, "Broker-ip", "MinCount"),
-                   R("ex:command", "port", None, "Broker-port", "MinCount")]),
+                   R("ex:command", "ip", "ex:command", "Broker-endpoint", "SPARQL"),
+                   R("ex:command", "port", "ex:command", "Broker-endpoint", "SPARQL")]),
     Case("disjoint-plant-subclass", "a resource also typed with a plant class declared under pk:Topic",
          edits=[("ex:scada a pk:Resource ;", "ex:scada a pk:Resource , ex:SmartTopic ;")],
          add=f"ex:SmartTopic <{RDFS}subClassOf> pk:Topic .",
@@ -658,7 +658,7 @@ CASES: list[Case] = [
          expected=[R("ex:kafka1", "brokerType", "kafka", "Broker-brokerTypeValue", "In")]),
     Case("broker-ip-missing", "a broker without ip",
          edits=[('    pk:ip "127.0.0.4" ;\n', "")],
-         expected=[R("ex:kafka1", "ip", None, "Broker-ip", "MinCount")]),
+         expected=[R("ex:kafka1", "ip", "ex:kafka1", "Broker-endpoint", "SPARQL")]),
     Case("broker-ip-twice", "a broker with two ips",
          edits=[('pk:ip "127.0.0.4" ;', 'pk:ip "127.0.0.4" , "127.0.0.5" ;')],
          expected=[R("ex:kafka1", "ip", None, "Broker-ip", "MaxCount")]),
@@ -737,7 +737,7 @@ CASES: list[Case] = [
          expected=[R("ex:robot", "mayRead", "ex:mqtt2", "Resource-mayRead", "Class")]),
     Case("broker-port-missing", "a broker without port",
          edits=[("    pk:port 9092 ;\n", "")],
-         expected=[R("ex:kafka1", "port", None, "Broker-port", "MinCount")]),
+         expected=[R("ex:kafka1", "port", "ex:kafka1", "Broker-endpoint", "SPARQL")]),
     Case("broker-port-twice", "a broker with two ports",
          edits=[("pk:port 9092 ;", "pk:port 9092 , 9093 ;")],
          expected=[R("ex:kafka1", "port", None, "Broker-port", "MaxCount")]),
@@ -818,7 +818,7 @@ CASES: list[Case] = [
     Case("topic-kafkaKey-twice", "a topic with two Kafka key modes",
          edits=[("pk:retentionMs 604800000 .", 'pk:retentionMs 604800000 ;\n    pk:kafkaKey "none" , "mqtt-topic" .')],
          expected=[R("ex:temperature", "kafkaKey", None, "Topic-kafkaKey", "MaxCount")]),
-    Case("broker-bridge-kafka-to-kafka", "a bridge between two Kafka brokers (MirrorMaker 2 is not run)",
+    Case("broker-bridge-kafka-to-kafka", "two Kafka brokers bridged both ways (MirrorMaker 2 runs one way)",
          add="""ex:kafka2 a pk:Broker ;
     pk:id "kafka2" ;
     pk:name "archive-kafka" ;
@@ -826,8 +826,19 @@ CASES: list[Case] = [
     pk:ip "127.0.0.5" ;
     pk:port 9092 ;
     pk:hasTopic ex:energy .
-ex:kafka1 pk:bridgesTo ex:kafka2 .""",
-         expected=[R("ex:kafka1", "bridgesTo", "ex:kafka2", "Broker-bridgeKafkaToKafka", "SPARQL")]),
+ex:kafka1 pk:bridgesTo ex:kafka2 .
+ex:kafka2 pk:bridgesTo ex:kafka1 .""",
+         expected=[R("ex:kafka1", "bridgesTo", "ex:kafka2", "Broker-bridgeKafkaToKafka", "SPARQL"),
+                   R("ex:kafka2", "bridgesTo", "ex:kafka1", "Broker-bridgeKafkaToKafka", "SPARQL")]),
+    Case("broker-bridge-kafka-to-kafka-one-way", "a bridge from one Kafka broker to another (a MirrorMaker 2; no result)",
+         add="""ex:kafka2 a pk:Broker ;
+    pk:id "kafka2" ;
+    pk:name "archive-kafka" ;
+    pk:brokerType "kafka" ;
+    pk:ip "127.0.0.5" ;
+    pk:port 9092 ;
+    pk:hasTopic ex:energy .
+ex:kafka1 pk:bridgesTo ex:kafka2 ."""),
     Case("topic-qos-twice", "a topic with two QoS",
          edits=[("pk:qos 2 ;", "pk:qos 2 , 1 ;")],
          expected=[R("ex:command", "qos", None, "Topic-qos", "MaxCount")]),
@@ -883,7 +894,7 @@ ex:kafka1 pk:bridgesTo ex:kafka2 .""",
                     "with an integer is a type error, so both bounds fail.",
                     [R("ex:energy", "replicationFactor", "true", "Topic-replicationFactor", "Datatype"),
                      R("ex:energy", "replicationFactor", "true", "Topic-replicationFactor", "MinInclusive")])),
-    Case("topic-kafka-replication-2", "replication factor 2 on a Kafka topic (each plantkg Kafka broker is one node)",
+    Case("topic-kafka-replication-2", "replication factor 2 on a topic of a Kafka broker of its own (one node)",
          edits=[("pk:partitions 1 ;\n    pk:replicationFactor 1 ;", "pk:partitions 1 ;\n    pk:replicationFactor 2 ;")],
          expected=[R("ex:energy", "replicationFactor", "2", "Topic-kafkaReplication", "SPARQL")]),
     Case("topic-mqtt-replication-2", "replication factor 2 on a topic only Mosquitto carries (ignored; no result)",
@@ -1187,6 +1198,177 @@ ex:kafka1 pk:bridgesTo ex:kafka2 .""",
     Case("plant-name-with-space", "an owner name with a space",
          add=PLANT_HEADER.format('"line 3"'),
          expected=[R("ex:plant", "plantName", "line 3", "Plant-plantName", "Pattern")]),
+]
+
+
+#: A valid 3-node Kafka cluster (docs/kafka.md), for the cluster cases: nodes on 127.0.0.2, .3 and
+#: .5, combined roles, a topic with replication factor 3 a resource publishes on the cluster.
+CLUSTER = """ex:kc a pk:Broker ;
+    pk:id "kc" ;
+    pk:name "plant-cluster" ;
+    pk:brokerType "kafka" ;
+    pk:minInsyncReplicas 2 ;
+    pk:hasTopic ex:kpi .
+ex:kn1 a pk:Broker ;
+    pk:id "kn1" ;
+    pk:name "kafka-node-1" ;
+    pk:brokerType "kafka" ;
+    pk:ip "127.0.0.2" ;
+    pk:port 9092 ;
+    pk:nodeOf ex:kc ;
+    pk:nodeId 1 ;
+    pk:kafkaRole "broker" , "controller" ;
+    pk:controllerPort 9093 .
+ex:kn2 a pk:Broker ;
+    pk:id "kn2" ;
+    pk:name "kafka-node-2" ;
+    pk:brokerType "kafka" ;
+    pk:ip "127.0.0.3" ;
+    pk:port 9092 ;
+    pk:nodeOf ex:kc ;
+    pk:nodeId 2 ;
+    pk:kafkaRole "broker" , "controller" ;
+    pk:controllerPort 9093 .
+ex:kn3 a pk:Broker ;
+    pk:id "kn3" ;
+    pk:name "kafka-node-3" ;
+    pk:brokerType "kafka" ;
+    pk:ip "127.0.0.5" ;
+    pk:port 9092 ;
+    pk:nodeOf ex:kc ;
+    pk:nodeId 3 ;
+    pk:kafkaRole "broker" , "controller" ;
+    pk:controllerPort 9093 .
+ex:kpi a pk:Topic ;
+    pk:id "t-kpi" ;
+    pk:name "plant.kpi" ;
+    pk:partitions 3 ;
+    pk:replicationFactor 3 ;
+    pk:minInsyncReplicas 2 .
+ex:mes a pk:Resource ;
+    pk:id "mes" ;
+    pk:name "MES" ;
+    pk:sendsTo ex:kc ;
+    pk:publishes ex:kpi ."""
+
+
+def cluster(*edits: tuple[str, str], extra: str = "") -> str:
+    """CLUSTER with ``edits`` (old, new; old occurs once) and ``extra`` Turtle after it."""
+    text = CLUSTER
+    for old, new in edits:
+        assert text.count(old) == 1, f"{old!r} occurs {text.count(old)} times in CLUSTER"
+        text = text.replace(old, new)
+    return text + ("\n" + extra if extra else "")
+
+
+_KN1 = 'pk:nodeId 1 ;\n    pk:kafkaRole "broker" , "controller" ;\n    pk:controllerPort 9093 .\nex:kn2'
+
+CASES += [
+    Case("kafka-cluster-valid", "none: a 3-node Kafka cluster with a topic of replication factor 3", add=cluster()),
+    Case("kafka-node-not-kafka", "a node whose brokerType is not kafka",
+         add=cluster(('pk:name "kafka-node-1" ;\n    pk:brokerType "kafka" ;', 'pk:name "kafka-node-1" ;\n    pk:brokerType "mosquitto" ;')),
+         expected=[R("ex:kn1", "nodeOf", "ex:kc", "KafkaNode-kafkaOnly", "SPARQL")]),
+    Case("kafka-node-no-id", "a node without pk:nodeId",
+         add=cluster(("pk:nodeId 1 ;\n", "")),
+         expected=[R("ex:kn1", "nodeId", "ex:kn1", "KafkaNode-needsIdAndRole", "SPARQL")]),
+    Case("kafka-node-no-role", "a node without pk:kafkaRole (and so not a voter: the quorum has 2)",
+         add=cluster(('pk:nodeId 3 ;\n    pk:kafkaRole "broker" , "controller" ;\n    pk:controllerPort 9093 .', 'pk:nodeId 3 .')),
+         expected=[R("ex:kn3", "kafkaRole", "ex:kn3", "KafkaNode-needsIdAndRole", "SPARQL"),
+                   R("ex:kc", None, "2", "KafkaCluster-quorumOdd", "SPARQL"),
+                   R("ex:kpi", "replicationFactor", "3", "Topic-kafkaReplication", "SPARQL")]),
+    Case("kafka-node-id-twice-and-too-big", "a node with two ids, one beyond Java's int",
+         add=cluster(("pk:nodeId 1 ;", "pk:nodeId 1 , 2147483648 ;")),
+         expected=[R("ex:kn1", "nodeId", None, "KafkaNode-nodeId", "MaxCount"),
+                   R("ex:kn1", "nodeId", "2147483648", "KafkaNode-nodeId", "MaxInclusive")]),
+    Case("kafka-node-id-negative-decimal", "node id -1.5",
+         add=cluster(("pk:nodeId 1 ;", "pk:nodeId -1.5 ;")),
+         expected=[R("ex:kn1", "nodeId", "-1.5", "KafkaNode-nodeId", "Datatype"),
+                   R("ex:kn1", "nodeId", "-1.5", "KafkaNode-nodeId", "MinInclusive")]),
+    Case("kafka-node-role-unknown", "a node with a third role \"leader\"@en",
+         add=cluster(('pk:nodeId 1 ;\n    pk:kafkaRole "broker" , "controller" ;', 'pk:nodeId 1 ;\n    pk:kafkaRole "broker" , "controller" , "leader"@en ;')),
+         expected=[R("ex:kn1", "kafkaRole", "leader", "KafkaNode-kafkaRole", "Datatype"),
+                   R("ex:kn1", "kafkaRole", "leader", "KafkaNode-kafkaRole", "In")]),
+    Case("kafka-node-id-duplicate", "two nodes of one cluster with node id 1",
+         add=cluster(("pk:nodeId 2 ;", "pk:nodeId 1 ;")),
+         expected=[R("ex:kc", "nodeId", "1", "KafkaCluster-nodeIdsUnique", "SPARQL")]),
+    Case("kafka-quorum-even", "a cluster with two controllers",
+         add=cluster(('pk:nodeId 3 ;\n    pk:kafkaRole "broker" , "controller" ;\n    pk:controllerPort 9093 .', 'pk:nodeId 3 ;\n    pk:kafkaRole "broker" .')),
+         expected=[R("ex:kc", None, "2", "KafkaCluster-quorumOdd", "SPARQL")]),
+    Case("kafka-cluster-no-broker", "a second cluster whose only node is a controller",
+         add=cluster(extra="""ex:kc2 a pk:Broker ;
+    pk:id "kc2" ;
+    pk:name "empty-cluster" ;
+    pk:brokerType "kafka" .
+ex:kc2n a pk:Broker ;
+    pk:id "kc2n" ;
+    pk:name "kafka-controller" ;
+    pk:brokerType "kafka" ;
+    pk:ip "127.0.0.6" ;
+    pk:port 9092 ;
+    pk:nodeOf ex:kc2 ;
+    pk:nodeId 1 ;
+    pk:kafkaRole "controller" ."""),
+         expected=[R("ex:kc2", None, "ex:kc2", "KafkaCluster-needsBroker", "SPARQL")]),
+    Case("kafka-cluster-with-ip", "a cluster with an address of its own",
+         add=cluster(extra='ex:kc pk:ip "127.0.0.9" .'),
+         expected=[R("ex:kc", "ip", "127.0.0.9", "KafkaCluster-noEndpoint", "SPARQL")]),
+    Case("kafka-node-controller-port-missing", "a combined node without pk:controllerPort",
+         add=cluster(('pk:nodeId 1 ;\n    pk:kafkaRole "broker" , "controller" ;\n    pk:controllerPort 9093 .', 'pk:nodeId 1 ;\n    pk:kafkaRole "broker" , "controller" .')),
+         expected=[R("ex:kn1", "controllerPort", "ex:kn1", "KafkaNode-controllerPortRole", "SPARQL")]),
+    Case("kafka-node-controller-port-is-port", "a combined node whose controller port is its port",
+         add=cluster(("pk:nodeId 1 ;\n    pk:kafkaRole \"broker\" , \"controller\" ;\n    pk:controllerPort 9093 .", "pk:nodeId 1 ;\n    pk:kafkaRole \"broker\" , \"controller\" ;\n    pk:controllerPort 9092 .")),
+         expected=[R("ex:kn1", "controllerPort", "9092", "KafkaNode-controllerPortRole", "SPARQL"),
+                   R("ex:kn1", "controllerPort", "ex:kn1", "KafkaNode-listenersDistinct", "SPARQL")]),
+    Case("kafka-node-controller-port-twice-and-too-big", "two controller ports, one 70000",
+         add=cluster(("pk:nodeId 1 ;\n    pk:kafkaRole \"broker\" , \"controller\" ;\n    pk:controllerPort 9093 .", "pk:nodeId 1 ;\n    pk:kafkaRole \"broker\" , \"controller\" ;\n    pk:controllerPort 9093 , 70000 .")),
+         expected=[R("ex:kn1", "controllerPort", None, "KafkaNode-controllerPort", "MaxCount"),
+                   R("ex:kn1", "controllerPort", "70000", "KafkaNode-controllerPort", "MaxInclusive")]),
+    Case("kafka-node-controller-port-decimal", "controller port 0.5",
+         add=cluster(("pk:nodeId 1 ;\n    pk:kafkaRole \"broker\" , \"controller\" ;\n    pk:controllerPort 9093 .", "pk:nodeId 1 ;\n    pk:kafkaRole \"broker\" , \"controller\" ;\n    pk:controllerPort 0.5 .")),
+         expected=[R("ex:kn1", "controllerPort", "0.5", "KafkaNode-controllerPort", "Datatype"),
+                   R("ex:kn1", "controllerPort", "0.5", "KafkaNode-controllerPort", "MinInclusive")]),
+    Case("kafka-listener-clash", "a node's port is another node's controller listener on the same machine",
+         add=cluster(('pk:ip "127.0.0.3" ;\n    pk:port 9092 ;\n    pk:nodeOf ex:kc ;\n    pk:nodeId 2 ;\n    pk:kafkaRole "broker" , "controller" ;\n    pk:controllerPort 9093 .',
+                      'pk:ip "127.0.0.2" ;\n    pk:port 9093 ;\n    pk:nodeOf ex:kc ;\n    pk:nodeId 2 ;\n    pk:kafkaRole "broker" , "controller" ;\n    pk:controllerPort 9094 .')),
+         expected=[R("ex:kn1", "controllerPort", "ex:kn2", "KafkaNode-listenersDistinct", "SPARQL")]),
+    Case("kafka-node-as-client", "a node that carries a topic itself",
+         add=cluster(extra="ex:kn1 pk:hasTopic ex:kpi ."),
+         expected=[R("ex:kn1", "hasTopic", "ex:kpi", "KafkaNode-notAClient", "SPARQL"),
+                   # carried by the node as a broker of its own, the topic has too few replicas
+                   R("ex:kpi", "replicationFactor", "3", "Topic-kafkaReplication", "SPARQL")]),
+    Case("kafka-node-nested", "a node of a node",
+         add=cluster(extra="""ex:kn4 a pk:Broker ;
+    pk:id "kn4" ;
+    pk:name "kafka-node-4" ;
+    pk:brokerType "kafka" ;
+    pk:ip "127.0.0.6" ;
+    pk:port 9092 ;
+    pk:nodeOf ex:kn1 ;
+    pk:nodeId 4 ;
+    pk:kafkaRole "broker" ."""),
+         expected=[R("ex:kn1", "nodeOf", "ex:kn4", "KafkaNode-notNested", "SPARQL"),
+                   R("ex:kn1", None, "0", "KafkaCluster-quorumOdd", "SPARQL"),
+                   R("ex:kn1", "ip", "127.0.0.2", "KafkaCluster-noEndpoint", "SPARQL"),
+                   R("ex:kn1", "port", "9092", "KafkaCluster-noEndpoint", "SPARQL")]),
+    Case("kafka-node-of-two", "a node of two clusters, one of them a resource",
+         add=cluster(("pk:nodeOf ex:kc ;\n    pk:nodeId 1 ;", "pk:nodeOf ex:kc , ex:robot ;\n    pk:nodeId 1 ;")),
+         expected=[R("ex:kn1", "nodeOf", None, "KafkaNode-nodeOf", "MaxCount"),
+                   R("ex:kn1", "nodeOf", "ex:robot", "KafkaNode-nodeOf", "Class"),
+                   R("ex:kn1", "nodeOf", "ex:robot", "KafkaNode-kafkaOnly", "SPARQL")]),
+    Case("kafka-replication-over-nodes", "replication factor 4 on a 3-node cluster",
+         add=cluster(("pk:replicationFactor 3 ;", "pk:replicationFactor 4 ;")),
+         expected=[R("ex:kpi", "replicationFactor", "4", "Topic-kafkaReplication", "SPARQL")]),
+    Case("kafka-min-insync-over-replication", "min.insync.replicas 4 with replication factor 3",
+         add=cluster(("pk:replicationFactor 3 ;\n    pk:minInsyncReplicas 2 .", "pk:replicationFactor 3 ;\n    pk:minInsyncReplicas 4 .")),
+         expected=[R("ex:kpi", "minInsyncReplicas", "4", "Topic-minInsyncReplicas", "SPARQL")]),
+    Case("kafka-min-insync-twice-and-too-big", "a cluster with two min.insync.replicas, one 40000",
+         add=cluster(("pk:minInsyncReplicas 2 ;\n    pk:hasTopic", "pk:minInsyncReplicas 2 , 40000 ;\n    pk:hasTopic")),
+         expected=[R("ex:kc", "minInsyncReplicas", None, "KafkaNode-minInsyncReplicasValue", "MaxCount"),
+                   R("ex:kc", "minInsyncReplicas", "40000", "KafkaNode-minInsyncReplicasValue", "MaxInclusive")]),
+    Case("kafka-min-insync-decimal", "min.insync.replicas 0.5",
+         add=cluster(("pk:minInsyncReplicas 2 ;\n    pk:hasTopic", "pk:minInsyncReplicas 0.5 ;\n    pk:hasTopic")),
+         expected=[R("ex:kc", "minInsyncReplicas", "0.5", "KafkaNode-minInsyncReplicasValue", "Datatype"),
+                   R("ex:kc", "minInsyncReplicas", "0.5", "KafkaNode-minInsyncReplicasValue", "MinInclusive")]),
 ]
 
 

@@ -1,0 +1,101 @@
+"""A closed Kafka's pure parts (issue 13): the SASL lines of server.properties, the ACLs a user's
+rights become, the digest that restarts a broker when a password changes, and how a bridge worker
+gets plantkg's own password (derived on its agent from the Kafka agent's token, never the token)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from confluent_kafka.admin import AclOperation, ResourceType
+
+from engine.access import kafka_internal_password
+from engine.agent.workers import TOKEN_FILE, WorkerManager
+from engine.apply import operations
+from engine.drivers.kafka.access import users_digest, wanted_acls
+from engine.drivers.kafka.runtime import KafkaNodeConfig, render_server_properties
+from engine.errors import ConfigValueError
+from engine.model import (
+    BridgeDirection,
+    BridgeEnd,
+    BridgeMechanism,
+    BridgeRoute,
+    BridgeSpec,
+    BrokerSpec,
+    BrokerUser,
+    DesiredState,
+    ObservedState,
+)
+from engine.plan import plan
+
+PASSWORD = kafka_internal_password("agent-token-of-the-kafka-machine")
+
+
+def test_a_closed_kafka_renders_sasl_everywhere(tmp_path: Path) -> None:
+    text = render_server_properties(KafkaNodeConfig("127.0.0.3", 9092, 9093, tmp_path / "data",
+                                                    internal_password=PASSWORD))
+    lines = text.splitlines()
+    assert "listeners=SASL_PLAINTEXT://127.0.0.3:9092,CONTROLLER://127.0.0.3:9093" in lines
+    assert "advertised.listeners=SASL_PLAINTEXT://127.0.0.3:9092" in lines
+    assert "listener.security.protocol.map=CONTROLLER:SASL_PLAINTEXT,SASL_PLAINTEXT:SASL_PLAINTEXT" in lines
+    assert "authorizer.class.name=org.apache.kafka.metadata.authorizer.StandardAuthorizer" in lines
+    assert "super.users=User:plantkg" in lines and "allow.everyone.if.no.acl.found=false" in lines
+    assert "sasl.enabled.mechanisms=SCRAM-SHA-512,PLAIN" in lines
+    assert "PLAINTEXT://" not in text.replace("SASL_PLAINTEXT://", "")
+    open_ = render_server_properties(KafkaNodeConfig("127.0.0.3", 9092, 9093, tmp_path / "data"))
+    assert "SASL" not in open_ and "authorizer" not in open_
+
+
+@pytest.mark.parametrize("bad", ['abc"; user_x="y', "short", "A" * 64])
+def test_the_internal_password_cannot_break_the_jaas_line(tmp_path: Path, bad: str) -> None:
+    with pytest.raises(ConfigValueError, match="internal_password"):
+        KafkaNodeConfig("127.0.0.3", 9092, 9093, tmp_path / "data", internal_password=bad)
+
+
+def test_rights_become_acls() -> None:
+    acls = wanted_acls((BrokerUser("robot1", "env:R", write=("cell.pos",)),
+                        BrokerUser("hist", "env:H", read=("cell.pos", "cell.cam"))))
+    seen = {(p, r.name, n, op.name) for r, n, _pat, p, _h, op, _perm in acls}
+    assert seen == {
+        ("User:robot1", "TOPIC", "cell.pos", "WRITE"), ("User:robot1", "TOPIC", "cell.pos", "DESCRIBE"),
+        ("User:hist", "TOPIC", "cell.pos", "READ"), ("User:hist", "TOPIC", "cell.pos", "DESCRIBE"),
+        ("User:hist", "TOPIC", "cell.cam", "READ"), ("User:hist", "TOPIC", "cell.cam", "DESCRIBE"),
+        ("User:hist", "GROUP", "*", "READ")}
+    assert not any(op is AclOperation.ALL or r is ResourceType.BROKER for r, *_x, op, _p in acls)
+
+
+def test_the_digest_follows_passwords_and_shows_none(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("PW_A", "first-password")
+    users = (BrokerUser("a", "env:PW_A"),)
+    one = users_digest(users, PASSWORD)
+    assert one == users_digest(users, PASSWORD) and "first-password" not in one
+    monkeypatch.setenv("PW_A", "second-password")
+    assert users_digest(users, PASSWORD) != one
+
+
+def test_a_worker_into_a_closed_kafka_logs_in_with_a_derived_password(tmp_path: Path) -> None:
+    spec = BridgeSpec(BridgeEnd("mq", "mosquitto", "127.0.0.2", 1883), BridgeEnd("kf", "kafka", "127.0.0.3", 9092),
+                      BridgeMechanism.WORKER, (BridgeRoute("cell.cam", BridgeDirection.OUT),))
+    token = "agent-token-of-the-kafka-machine"
+    manager = WorkerManager(tmp_path, python="/bin/false")  # the worker is not started: no open()
+    manager._start = lambda w, restart: None  # type: ignore[method-assign]
+    manager.put(spec, token)
+    folder = tmp_path / "bridges" / "mq--kf"
+    secret = (folder / TOKEN_FILE).read_text(encoding="utf-8")
+    assert secret == PASSWORD and token not in secret
+    assert json.loads((folder / "worker.json").read_text())["kafka_password_file"] == str(folder / TOKEN_FILE)
+    assert (folder / TOKEN_FILE).stat().st_mode & 0o777 == 0o600
+
+
+def test_apply_sends_the_kafka_agents_token_only_to_a_worker_into_a_closed_kafka() -> None:
+    mq = BrokerSpec("mq", "urn:mq", "mq", "mosquitto", "127.0.0.2", 1883)
+    bridge = BridgeSpec(BridgeEnd("mq", "mosquitto", "127.0.0.2", 1883), BridgeEnd("kf", "kafka", "127.0.0.3", 9092),
+                        BridgeMechanism.WORKER, (BridgeRoute("t", BridgeDirection.OUT),))
+    for users, expected in (((), None), ((BrokerUser("h", "env:H", read=("t",)),), "127.0.0.3")):
+        kf = BrokerSpec("kf", "urn:kf", "kf", "kafka", "127.0.0.3", 9092, users=users,
+                        allow_anonymous=False if users else None)
+        desired = DesiredState((kf, mq), (), (bridge,))
+        [put] = [c for op in operations(plan(desired, ObservedState()), desired) for c in op.calls
+                 if c.verb == "put_bridge"]
+        assert put.remote_token_of == expected

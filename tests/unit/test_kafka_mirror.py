@@ -1,0 +1,87 @@
+"""MirrorMaker 2 for Kafka -> Kafka bridges, the pure parts: mm2.properties, the worker's config
+(from a BridgeSpec, as the agent makes it, and through worker.json), and the lag measure."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from engine.agent.workers import mirror_config, _config_text
+from engine.drivers.kafka.mirror import MirrorConfig, render_mm2_properties, topic_pattern
+from engine.drivers.kafka.mirror_worker import MirrorWorkerConfig, is_mirror_config, lag_of
+from engine.errors import ConfigValueError
+from engine.model import BridgeDirection, BridgeEnd, BridgeMechanism, BridgeRoute, BridgeSpec
+
+PLANT = ("127.0.0.2:9092", "127.0.0.3:9092", "127.0.0.4:9092")
+SPEC = BridgeSpec(
+    local=BridgeEnd("site-1", "kafka", "127.0.0.5", 9092, ("127.0.0.5:9092",)),
+    remote=BridgeEnd("plant-1", "kafka", "127.0.0.2", 9092, PLANT),
+    mechanism=BridgeMechanism.MIRROR,
+    routes=(BridgeRoute("plant.kpi", BridgeDirection.IN), BridgeRoute("line-status_x", BridgeDirection.IN)))
+
+
+def test_properties_mirror_exactly_the_routes_one_way_keeping_names() -> None:
+    text = render_mm2_properties(MirrorConfig(PLANT, ("127.0.0.5:9092",), ("plant.kpi", "line-status_x"), 1))
+    lines = set(text.splitlines())
+    assert {"clusters=source,target", "source.bootstrap.servers=" + ",".join(PLANT),
+            "target.bootstrap.servers=127.0.0.5:9092", "source->target.enabled=true",
+            "target->source.enabled=false", "source->target.topics=line-status_x,plant[.]kpi",
+            "replication.policy.class=org.apache.kafka.connect.mirror.IdentityReplicationPolicy",
+            "emit.heartbeats.enabled=false", "source->target.offset-syncs.topic.location=target",
+            "sync.topic.configs.enabled=false", "source->target.sync.group.offsets.enabled=true",
+            "replication.factor=1", "offset.storage.replication.factor=1"} <= lines
+    assert "\\" not in text  # no backslash for .properties to eat
+    assert topic_pattern("a.b.c") == "a[.]b[.]c"
+
+
+@pytest.mark.parametrize("field,kwargs", [
+    ("source", {"source": ("127.0.0.2:9092\nsource->target.topics=.*",)}),
+    ("target", {"target": ()}),
+    ("topics", {"topics": ("bad topic",)}),
+    ("topics", {"topics": ("x,y",)}),
+    ("replication", {"replication": 0}),
+])
+def test_values_that_would_break_the_file_are_refused(field: str, kwargs: dict) -> None:  # type: ignore[type-arg]
+    values = {"source": PLANT, "target": ("127.0.0.5:9092",), "topics": ("t",), "replication": 1, **kwargs}
+    with pytest.raises(ConfigValueError) as raised:
+        MirrorConfig(**values)
+    assert raised.value.field == field
+
+
+def test_the_agent_mirrors_into_the_target_it_carries(tmp_path: Path) -> None:
+    cfg = mirror_config(SPEC, tmp_path)
+    assert cfg.mirror == MirrorConfig(PLANT, ("127.0.0.5:9092",), ("plant.kpi", "line-status_x"), 1)
+    text = _config_text(SPEC, tmp_path, None)
+    assert is_mirror_config(text) and MirrorWorkerConfig.from_json(text) == cfg
+    three = BridgeSpec(local=BridgeEnd("a-1", "kafka", "127.0.0.2", 9092, PLANT + ("127.0.0.6:9092",)),
+                       remote=SPEC.local, mechanism=BridgeMechanism.MIRROR, routes=SPEC.routes)
+    assert mirror_config(three, tmp_path).mirror.replication == 3  # internal topics: at most 3
+    single = BridgeSpec(local=BridgeEnd("k", "kafka", "127.0.0.7", 9093), remote=SPEC.remote,
+                        mechanism=BridgeMechanism.MIRROR, routes=SPEC.routes)
+    assert mirror_config(single, tmp_path).mirror.target == ("127.0.0.7:9093",)
+
+
+def test_a_mirror_copies_into_its_carrier_only(tmp_path: Path) -> None:
+    out = BridgeSpec(SPEC.local, SPEC.remote, SPEC.mechanism, (BridgeRoute("plant.kpi", BridgeDirection.OUT),))
+    with pytest.raises(ConfigValueError, match="direction in"):
+        _config_text(out, tmp_path, None)
+    with pytest.raises(ConfigValueError, match="remote token"):
+        _config_text(SPEC, tmp_path, "secret")
+
+
+def test_worker_json_is_checked() -> None:
+    assert not is_mirror_config('{"mechanism": "mqtt-kafka"}') and not is_mirror_config("not json")
+    with pytest.raises(ConfigValueError):
+        MirrorWorkerConfig.from_json('{"mechanism": "kafka-mirror", "bridge_id": "a--b"}')
+    good = MirrorWorkerConfig("a--b", MirrorConfig(PLANT, PLANT, ("t",)), Path("/tmp/x"))
+    with pytest.raises(ConfigValueError, match="interval"):
+        MirrorWorkerConfig.from_json(good.to_json().replace('"interval": 2.0', '"interval": 0'))
+
+
+def test_lag_counts_what_the_target_lacks_per_partition() -> None:
+    source = {("t", 0): 100, ("t", 1): 50, ("u", 0): 7}
+    assert lag_of(source, {("t", 0): 100, ("t", 1): 50, ("u", 0): 7}) == 0
+    assert lag_of(source, {("t", 0): 90, ("t", 1): 50}) == 10 + 7
+    # a target ahead on one partition (another writer) hides nothing on the others
+    assert lag_of(source, {("t", 0): 120, ("t", 1): 40, ("u", 0): 7}) == 10
