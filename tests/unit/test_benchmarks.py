@@ -165,21 +165,22 @@ def test_bridge_benchmark_runs(tmp_path: Path) -> None:
     assert "| kafka-mqtt | paced |" in (tmp_path / "bridge.md").read_text()
 
 
-@pytest.mark.integration  # real Mosquitto brokers joined by a Mosquitto bridge, one SIGKILLed
+@pytest.mark.integration  # real Mosquitto brokers joined by a Mosquitto bridge, the target SIGKILLed
 def test_durability_benchmark_runs(tmp_path: Path) -> None:
     from benchmarks import bench_durability
 
-    assert bench_durability.main(["--messages", "300", "--policies", "default", "1",
-                                  "--out", str(tmp_path)]) == 0
-    rows = {r["policy"]: r for r in json.loads((tmp_path / "durability.json").read_text())["rows"]}
+    assert bench_durability.main(["--messages", "300", "--stream", "600", "--rate", "1000", "--repeats", "1",
+                                  "--policies", "default", "1", "--parts", "1", "--out", str(tmp_path)]) == 0
+    rows = {r["policy"]: r for r in json.loads((tmp_path / "durability.json").read_text())["policies"]}
     assert set(rows) == {"default", "1"}
-    # Mosquitto saves a snapshot after each pass of its event loop, and it has already sent the
-    # PUBACK for the message that pass read: a kill between the two loses that one message
-    # (seen in CI). A pass reads one packet from the bridge's connection, so more than one lost
-    # message would be a new fault.
-    assert rows["1"]["killed"]["missing"] <= 1
-    # the default saves after every DEFAULT_PERSIST_EVERY changes: at most that many changes
-    # unsaved (queued messages among them) plus the one being handled can be lost by the kill
-    assert rows["default"]["killed"]["missing"] <= bench_durability.DEFAULT_PERSIST_EVERY
-    assert all(r["throughput"]["missing"] == 0 for r in rows.values())  # no kill: nothing lost
+    assert all(r["cost"]["missing"] == 0 for r in rows.values())  # no kill: nothing lost
+    for r in rows.values():
+        assert r["killed"]["acked"] == r["killed_offline"]["acked"] == 600
+        # saved within two seconds (default) or at once (1): sessions outlive a SIGKILL
+        assert r["killed"]["session_present"] and r["killed_offline"]["session_present"]
+    # What the target acknowledged and had neither delivered nor saved is lost: with the default
+    # that can be anything of the last 1-2 s (a subscriber that lags, or is offline), so no bound
+    # is asserted. With a save after every change, only the message of the pass the kill came in:
+    # Mosquitto sends its PUBACK before the save that ends the pass (seen in CI): at most one.
+    assert rows["1"]["killed"]["missing"] <= 1 and rows["1"]["killed_offline"]["missing"] <= 1
     assert "| 1 |" in (tmp_path / "durability.md").read_text()
