@@ -213,7 +213,11 @@ def derive_parts(plant: PlantGraph, only: frozenset[str] | None = None, known: P
     for row in select(CLASSES):
         classes[row["b"].value].add(short_name(row["class"].value))
     brokers, external = _brokers(plant, select(BROKERS), classes)
-    brokers, leads = join_clusters(brokers, read_clusters(select))
+    clusters = read_clusters(lambda q: store.query(q, prefixes=_PREFIXES, **options))  # a few rows
+    if only is not None and clusters:
+        # A cluster joins its nodes across brokers (voters, bootstrap, lead): not derived in parts.
+        raise PartsConflict("a plant with a Kafka cluster is derived in full")
+    brokers, leads = join_clusters(brokers, clusters)
     by_iri = {b.iri: b for b in brokers} | leads  # a cluster's topics and bridges: on its lead node
     topics = _topics(plant, select(TOPICS), select(SETTINGS), by_iri)
     iri_of_id = {b.id: b.iri for b in brokers}
@@ -297,7 +301,8 @@ def assemble_from(parts: Parts, previous: Assembled | None = None,
     A pair's bridge is made again only when its directed bridges, brokers, classes or topic
     options changed; cycles are looked for only among the topics whose hops changed; the other
     brokers' topics keep their (sorted) place. The result equals a full assemble's."""
-    brokers = list(parts.brokers.values())
+    # A cluster's lead node is in the parts twice: under its own IRI and under its cluster's.
+    brokers = list({b.id: b for b in parts.brokers.values()}.values())
     options: dict[str, TopicOptions] = {}
     if parts.in_row_order is not None:
         options = parts.in_row_order

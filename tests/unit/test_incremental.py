@@ -338,3 +338,20 @@ def test_a_grouped_subquery_is_restricted_to_the_focus_nodes_values(tmp_path: Pa
     _same_as_full(session, path)
     assert any(r.shape.endswith("Topic-kafkaCollision") for r in session.result.report.results)
     assert any("VALUES ?broker" in q for q in rewritten)
+
+
+def test_a_plant_with_a_kafka_cluster_derives_in_full_and_matches(tmp_path: Path) -> None:
+    """A cluster joins its nodes across brokers (voters, bootstrap, lead node), which per-broker
+    parts cannot hold: after an edit of such a plant the session derives in full, and its answer
+    is still the full run's."""
+    source = Path(__file__).parents[2] / "ontology" / "examples" / "kafka-cluster.ttl"
+    path = tmp_path / "kafka-cluster.ttl"
+    text = source.read_text()
+    path.write_text(text)
+    session = ReplanSession([path])
+    assert session.result.desired is not None and any(b.kafka for b in session.result.desired.brokers)
+    edited = _sub(r'pk:minInsyncReplicas 2', 'pk:minInsyncReplicas 1', text)
+    assert edited is not None, "the example's cluster sets pk:minInsyncReplicas 2"
+    path.write_text(edited)
+    _same_as_full(session, path)
+    assert "derive" in session.last["full"]
