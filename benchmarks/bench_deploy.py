@@ -10,6 +10,10 @@ plantkg, each until a QoS-1 publish of a small message is acknowledged.
   the CLI adds an interpreter start (~0.6 s) on top.
 - ``plantkg-dispatch``: the same apply with the plan already made — only the agent round trip
   and broker start — to show where the time goes.
+- ``plantkg-cli``: ``plantkg apply --yes`` of the same plant as a person types it, a whole process
+  (interpreter start, imports, pipeline, apply) until it exits, then the same acknowledged
+  publish; ``--cli-runs`` runs (default 10; the desired-state cache is emptied before each, so
+  every run plans a plant it has not seen, as the in-process rows do). Issue 16: at most 10x bare.
 - ``plantkg-remote-<d>ms``: the same apply against an agent on an emulated remote machine (a
   network namespace behind a veth pair with ``tc netem`` delaying each packet ``--delay-ms`` each
   way, ``benchmarks.netns``); the publish crosses that link too. What the paper's "tool + cable"
@@ -27,13 +31,16 @@ plantkg, each until a QoS-1 publish of a small message is acknowledged.
 Runs are interleaved so drift hits all alike. Results: ``benchmarks/results/deploy.{json,md}``,
 with min, max, mean, standard deviation, p50, p99 and the ratio of means to bare.
 
-Usage: ``python -m benchmarks.bench_deploy [--runs 50] [--kafka-runs 10] [--delay-ms 5]``
+Usage: ``python -m benchmarks.bench_deploy [--runs 50] [--cli-runs 10] [--kafka-runs 10] [--delay-ms 5]``
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import shutil
+import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -61,10 +68,12 @@ HOST = "127.0.0.2"
 PROXIED_HOST = "127.0.0.3"
 PAYLOAD = b"x" * 512
 
+# The paper's deployment measure: an open broker (pk:allowAnonymous true; closed is the default),
+# its readiness probe publishes anonymously, as the hand-run baseline does.
 PLANT = """@prefix pk: <https://w3id.org/plantkg/ontology#> .
 @prefix : <https://w3id.org/plantkg/examples/bench#> .
 :mqtt a pk:Broker ; pk:id "mqtt" ; pk:name "bench" ; pk:brokerType "mosquitto" ;
-    pk:ip "{host}" ; pk:port {port} ; pk:hasTopic :t .
+    pk:ip "{host}" ; pk:port {port} ; pk:allowAnonymous true ; pk:hasTopic :t .
 :t a pk:Topic ; pk:id "t" ; pk:name "bench.t" ; pk:qos 1 .
 :r a pk:Resource ; pk:id "r" ; pk:name "publisher" ; pk:sendsTo :mqtt ; pk:publishes :t .
 """
@@ -177,9 +186,11 @@ def bare(work: Path) -> float:
 
 
 def through_plantkg(work: Path, directory: AgentDirectory, dispatch_only: bool, kind: str = "mosquitto",
-                    host: str = HOST, publish_delay_s: float = 0.0) -> float:
+                    host: str = HOST, publish_delay_s: float = 0.0,
+                    stages: dict[str, list[float]] | None = None) -> float:
     """Apply a one-broker plant until its first acknowledged message; ``publish_delay_s``: the
-    publish goes through a :class:`DelayProxy` delaying that much each way."""
+    publish goes through a :class:`DelayProxy` delaying that much each way. ``stages`` gets the
+    seconds of each pipeline stage, of apply (dispatch and check) and of the publish."""
     port = netutil.free_port(host) if host.startswith("127.") else 1883  # a fresh namespace has every port free
     plant = work / "plant.ttl"
     plant.write_text((KAFKA_PLANT if kind == "kafka" else PLANT).format(host=host, port=port))
@@ -188,11 +199,39 @@ def through_plantkg(work: Path, directory: AgentDirectory, dispatch_only: bool, 
         start = time.perf_counter()
         result = prepared or run_pipeline([plant], directory)
         assert result.plan is not None and result.desired is not None
+        planned = time.perf_counter()
         outcome = apply(result.plan, result.desired, directory)
         assert outcome.ok, outcome
+        applied = time.perf_counter()
         reach = ("127.0.0.1", proxy.port) if proxy else (host, port)
         (acked_produce if kind == "kafka" else acked_publish)(*reach)
         elapsed = time.perf_counter() - start
+    if stages is not None:
+        for name, seconds in [*result.timings.items(), ("apply", applied - planned),
+                              ("publish", start + elapsed - applied)]:
+            stages.setdefault(name, []).append(seconds)
+    gone = run_pipeline([plant], directory, destroy=True)
+    assert gone.plan is not None and gone.desired is not None
+    assert apply(gone.plan, gone.desired, directory, destroy=True).ok
+    return elapsed
+
+
+def through_cli(work: Path, directory: AgentDirectory, agents_file: Path) -> float:
+    """``plantkg apply --yes`` of a one-broker plant as a whole process, until its first
+    acknowledged message; the desired-state cache is empty (a plant never seen)."""
+    port = netutil.free_port(HOST)
+    plant = work / "plant-cli.ttl"
+    plant.write_text(PLANT.format(host=HOST, port=port))
+    cache = work / "cli-cache"
+    shutil.rmtree(cache, ignore_errors=True)
+    env = {**os.environ, "PLANTKG_CACHE_DIR": str(cache)}
+    argv = [str(Path(sys.executable).parent / "plantkg"), "apply", "--yes", "--agents", str(agents_file), str(plant)]
+    start = time.perf_counter()
+    done = subprocess.run(argv, capture_output=True, text=True, env=env, timeout=120, check=False)
+    if done.returncode != 0:
+        raise RuntimeError(f"plantkg apply exited {done.returncode}: {done.stderr[-2000:]}")
+    acked_publish(HOST, port)
+    elapsed = time.perf_counter() - start
     gone = run_pipeline([plant], directory, destroy=True)
     assert gone.plan is not None and gone.desired is not None
     assert apply(gone.plan, gone.desired, directory, destroy=True).ok
@@ -233,9 +272,10 @@ def _proxy_remote(stack: ExitStack, work: Path, delay_ms: float) -> Remote:
     return Remote(f"plantkg-proxy-{delay_ms:g}ms", AgentDirectory.load(agents_file), PROXIED_HOST, delay_ms / 1000)
 
 
-def measure(runs: int, kafka_runs: int = 0, delay_ms: float | None = None) -> dict[str, object]:
+def measure(runs: int, kafka_runs: int = 0, delay_ms: float | None = None, cli_runs: int = 0) -> dict[str, object]:
     info = machine()
     times: dict[str, list[float]] = {"bare": [], "plantkg": [], "plantkg-dispatch": []}
+    stages: dict[str, list[float]] = {}  # where the plantkg row's time goes
     remotes: list[Remote] = []
     remote_note = ""
     with tempfile.TemporaryDirectory(prefix="plantkg-bench-") as tmp, ExitStack() as stack:
@@ -258,11 +298,17 @@ def measure(runs: int, kafka_runs: int = 0, delay_ms: float | None = None) -> di
         through_plantkg(work, directory, False)  # warm-up: imports, JIT-free but caches
         for _ in range(runs):
             times["bare"].append(bare(work))
-            times["plantkg"].append(through_plantkg(work, directory, False))
+            times["plantkg"].append(through_plantkg(work, directory, False, stages=stages))
             times["plantkg-dispatch"].append(through_plantkg(work, directory, True))
             for remote in remotes:
                 times[remote.row].append(through_plantkg(work, remote.directory, False, host=remote.host,
                                                          publish_delay_s=remote.publish_delay_s))
+        if cli_runs:
+            times["plantkg-cli"] = []
+            through_cli(work, directory, agents.agents_file)  # warm-up: the file cache of the imports
+        for _ in range(cli_runs):  # interleaved with bare runs of their own
+            times["bare"].append(bare(work))
+            times["plantkg-cli"].append(through_cli(work, directory, agents.agents_file))
         if kafka_runs:
             times.update({"kafka-bare": [], "kafka-plantkg": []})
         for _ in range(kafka_runs):
@@ -271,14 +317,16 @@ def measure(runs: int, kafka_runs: int = 0, delay_ms: float | None = None) -> di
     table = {k: summarize(v) for k, v in times.items()}
     for name, row in table.items():
         row["ratio"] = row["mean"] / table["kafka-bare" if name.startswith("kafka") else "bare"]["mean"]
-    return {"benchmark": "deploy", "machine": info, "runs": runs, "kafka_runs": kafka_runs,
+    return {"benchmark": "deploy", "machine": info, "runs": runs, "kafka_runs": kafka_runs, "cli_runs": cli_runs,
             "delay_ms": delay_ms, "remote_note": remote_note, "ms": table,
+            "plantkg_stages_ms": {k: statistics.median(v) * 1000 for k, v in stages.items()},
             "paper": {"bare_ms": 23.9, "tool_cable_ms": 80.1, "ratio": 3.35}}
 
 
 def to_markdown(data: dict[str, object]) -> str:
     lines = ["# deploy: a broker until its first acknowledged message, bare vs through plantkg (Table 1)", "",
              f"Command: `{data['command']}` · machine: {data['machine']} · Mosquitto {data['runs']} runs each, "
+             f"`plantkg apply` as a process {data.get('cli_runs', 0)} runs, "
              f"Kafka {data.get('kafka_runs', 0)} runs each (a run takes seconds), interleaved", "",
              "| path | runs | min ms | max ms | mean ms | stdev ms | p50 ms | p99 ms | mean / bare |",
              "|---|---|---|---|---|---|---|---|---|"]
@@ -287,6 +335,10 @@ def to_markdown(data: dict[str, object]) -> str:
                      f"{r['p50']:.1f} | {r['p99']:.1f} | {r['ratio']:.2f} |")
     if data.get("remote_note"):
         lines.append(f"| plantkg-remote-{data['delay_ms']:g}ms | 0 | {data['remote_note']} |||||||")
+    parts = data.get("plantkg_stages_ms") or {}
+    if parts:
+        lines += ["", "Where the `plantkg` row's time goes (median ms of its runs): "
+                  + ", ".join(f"{k} {v:.1f}" for k, v in parts.items()) + "."]
     lines += ["", "The paper (its hardware, over cable): 23.9 ms bare, 80.1 ms through its tool (3.35x). "
               "Kafka rows are divided by kafka-bare, the others by bare."]
     return "\n".join(lines) + "\n"
@@ -295,12 +347,14 @@ def to_markdown(data: dict[str, object]) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="deployment latency benchmark (Table 1)")
     parser.add_argument("--runs", type=int, default=50)
+    parser.add_argument("--cli-runs", type=int, default=10,
+                        help="runs of `plantkg apply` as a whole process (0: no such row)")
     parser.add_argument("--kafka-runs", type=int, default=10)
     parser.add_argument("--delay-ms", type=float, default=5.0,
                         help="one-way delay of the emulated remote link (netem); a negative value skips the row")
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
-    data = measure(args.runs, args.kafka_runs, args.delay_ms if args.delay_ms >= 0 else None)
+    data = measure(args.runs, args.kafka_runs, args.delay_ms if args.delay_ms >= 0 else None, args.cli_runs)
     data["command"] = command_line("benchmarks.bench_deploy", argv)
     write_results(args.out, "deploy", data, to_markdown(data))
     return 0

@@ -2,11 +2,16 @@
 
 For each number of Mosquitto brokers N (default 1, 5, 10, 25, 50, 100), on one machine:
 
-1. **Bring-up.** By hand (baseline): render N configs, spawn N mosquitto at once, wait until every
-   one answers an MQTT CONNECT; stop them all at once. Through plantkg: write an N-broker plant
+1. **Bring-up.** By hand (baseline), the fastest way: render N configs, spawn N mosquitto from 8
+   threads, poll all at once (``benchmarks.mqtt_ready``: a non-blocking connect to every broker, a
+   raw CONNECT as soon as one accepts, one select for all; a refusing one is tried again 0.25 ms
+   later) until every one answers with a CONNACK; SIGTERM all, then wait for all (``engine.process.stop_all``). Through plantkg: write an N-broker plant
    (``benchmarks.synthetic.mosquitto_plant``, free ports) and run one ``apply`` against one local
-   agent (load, validate, reason, derive, observe, plan, dispatch; the agent starts each broker and
-   waits for its health check); later one ``destroy``. Both the same run, interleaved; the ratio is
+   agent (load, validate, reason, derive, observe, plan, dispatch: one batch request, in which the
+   agent starts every broker at once and waits for their health checks together); later one
+   ``destroy`` (likewise one batch: every broker stopped at once). Both use the desired-state cache
+   as ``plantkg apply``/``destroy`` do: a new plant is derived, the destroy of the plant just
+   applied finds it in the cache. Both the same run, interleaved; the ratio is
    the figure. Also the resident memory (RSS) of each idle broker and of the agent holding N.
 2. **Load.** With the N brokers up, bursts of M messages (default 100…500) sent as simultaneously
    as one thread can (``benchmarks.mqtt_burst``), ``spread`` and ``one-to-one``: per message the
@@ -31,18 +36,16 @@ from __future__ import annotations
 
 import argparse
 import csv
-import os
-import signal
 import statistics
 import sys
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-import paho.mqtt.client as mqtt
 from confluent_kafka import KafkaException
 
-from benchmarks import plots, synthetic
+from benchmarks import mqtt_ready, plots, synthetic
 from benchmarks.bench_deploy import KAFKA_PLANT
 from benchmarks.bridge_burst import BridgeBurstRig
 from benchmarks.kafka_burst import KafkaRig
@@ -52,12 +55,14 @@ from engine import netutil, process
 from engine.agent.local import start_local_agents
 from engine.agents_config import AgentDirectory
 from engine.apply import apply
+from engine.desired_cache import DesiredCache
 from engine.drivers.mosquitto.runtime import MosquittoConfig, default_run_as, mosquitto_command, render_mosquitto_conf
 from engine.parts import mosquitto_binary
 from engine.pipeline import run_pipeline
 
 HOST = "127.0.0.2"
 READY_S = 60.0
+SPAWN_THREADS = 8
 #: One Mosquitto bridged to one Kafka on the same machine; the topic's name is valid for both.
 BRIDGE_PLANT = """@prefix pk: <https://w3id.org/plantkg/ontology#> .
 @prefix : <https://w3id.org/plantkg/examples/bench-bridge#> .
@@ -69,30 +74,9 @@ BRIDGE_PLANT = """@prefix pk: <https://w3id.org/plantkg/ontology#> .
 """
 
 
-def connack(host: str, port: int, timeout: float = 0.5) -> bool:
-    """True when an MQTT CONNECT to host:port is answered by a CONNACK (the agent's health check)."""
-    client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
-    end = time.monotonic() + timeout
-    try:
-        client.connect(host, port)
-        while not client.is_connected():
-            if time.monotonic() > end or client.loop(timeout=0.01) != mqtt.MQTT_ERR_SUCCESS:
-                return False
-        client.disconnect()
-        return True
-    except OSError:
-        return False
-
-
 def wait_all_ready(brokers: list[tuple[str, int]], deadline: float = READY_S) -> None:
-    """Poll every broker (one pass over those still pending at a time) until all answer."""
-    pending = list(brokers)
-
-    def none_pending() -> bool:
-        pending[:] = [b for b in pending if not connack(*b)]
-        return not pending
-
-    process.wait_until(none_pending, deadline, 0.001, what=f"{len(brokers)} mosquitto to answer")
+    """Poll every pending broker at once (raw CONNECT, one select) until all answer a CONNACK."""
+    mqtt_ready.wait_all_ready(brokers, deadline)
 
 
 def _hand_confs(n: int, work: Path, nodelay: bool = True) -> tuple[list[int], list[Path]]:
@@ -112,12 +96,17 @@ def _hand_confs(n: int, work: Path, nodelay: bool = True) -> tuple[list[int], li
 
 
 def _spawn_all(confs: list[Path], work: Path, children: list[process.Child]) -> None:
-    for i, conf in enumerate(confs):
-        children.append(process.spawn(mosquitto_command(mosquitto_binary(), conf), log_dir=work, name=f"hand-{i}"))
+    """Spawn one mosquitto per config from ``SPAWN_THREADS`` threads: a spawn waits for its child
+    to exec, and those waits overlap."""
+    argvs = [mosquitto_command(mosquitto_binary(), conf) for conf in confs]
+    with ThreadPoolExecutor(max_workers=SPAWN_THREADS) as pool:
+        children.extend(pool.map(lambda i: process.spawn(argvs[i], log_dir=work, name=f"hand-{i}"),
+                                 range(len(argvs))))
 
 
 def by_hand(n: int, work: Path) -> tuple[float, float]:
-    """Spawn n mosquitto at once and wait for all; stop all at once. Returns (up s, down s)."""
+    """The fastest way by hand: spawn n mosquitto in parallel, poll all at once until every one
+    answers a CONNECT; then SIGTERM all and wait for all. Returns (up s, down s)."""
     ports, confs = _hand_confs(n, work)
     children: list[process.Child] = []
     try:
@@ -126,10 +115,7 @@ def by_hand(n: int, work: Path) -> tuple[float, float]:
         wait_all_ready([(HOST, p) for p in ports])
         up = time.perf_counter() - start
         start = time.perf_counter()
-        for child in children:
-            os.killpg(child.pid, signal.SIGTERM)
-        for child in children:
-            child.popen.wait(timeout=READY_S)
+        process.stop_all(children)
         return up, time.perf_counter() - start
     finally:
         for child in children:
@@ -137,15 +123,20 @@ def by_hand(n: int, work: Path) -> tuple[float, float]:
 
 
 def through_plantkg(plant: Path, directory: AgentDirectory, destroy: bool = False,
-                    parallelism: int = 8) -> dict[str, float]:
-    """One ``apply`` (or ``destroy``) of the plant: total seconds and the pipeline's stages."""
+                    parallelism: int = 8, cache: DesiredCache | None = None) -> dict[str, float]:
+    """One ``apply`` (or ``destroy``) of the plant: total seconds and the pipeline's stages.
+    ``cache``: the desired-state cache, as ``plantkg apply``/``destroy`` use it (a destroy of the
+    plant just applied finds it there; a new plant is derived)."""
     start = time.perf_counter()
-    result = run_pipeline([plant], directory, destroy=destroy)
+    result = run_pipeline([plant], directory, destroy=destroy, cache=cache)
     assert result.plan is not None and result.desired is not None, "the load plant is invalid"
     planned = time.perf_counter()
     outcome = apply(result.plan, result.desired, directory, destroy=destroy, parallelism=parallelism)
     if not outcome.ok:
-        raise RuntimeError(f"apply of {plant} failed: {outcome}")
+        problems = [f"{o.change.address}: {o.status.value}: {o.error}" for o in (*outcome.failed, *outcome.skipped)]
+        problems += [f"{u.address}: {u.detail}" for u in outcome.unexpected]
+        raise RuntimeError(f"{'destroy' if destroy else 'apply'} of {plant} did not converge "
+                           f"({len(problems)} problem(s)): " + "; ".join(problems[:5]))
     end = time.perf_counter()
     return {"total": end - start, "pipeline": planned - start, "dispatch": end - planned,
             **{f"stage_{k}": v for k, v in result.timings.items()}}
@@ -218,6 +209,7 @@ def one_size(n: int, args: argparse.Namespace, work: Path, raw: list[BurstResult
         agent_pid = agents.agents[HOST].child.pid
         idle_agent_mb = rss_kb(agent_pid) / 1024
         ups, downs, hand_ups, hand_downs = [], [], [], []
+        cache = DesiredCache(work / f"desired-cache-{n}")  # as the command line's apply and destroy
         for r in range(args.deploy_repeat):  # interleaved, so drift hits both alike
             hand_up, hand_down = by_hand(n, work)
             hand_ups.append(hand_up)
@@ -225,9 +217,10 @@ def one_size(n: int, args: argparse.Namespace, work: Path, raw: list[BurstResult
             ports = netutil.free_ports(n, HOST)
             plant = work / f"load-{n}-{r}.ttl"
             plant.write_text(synthetic.mosquitto_plant(HOST, ports))
-            ups.append(through_plantkg(plant, directory, parallelism=args.apply_parallelism))
+            ups.append(through_plantkg(plant, directory, parallelism=args.apply_parallelism, cache=cache))
             if r < args.deploy_repeat - 1:
-                downs.append(through_plantkg(plant, directory, destroy=True, parallelism=args.apply_parallelism))
+                downs.append(through_plantkg(plant, directory, destroy=True, parallelism=args.apply_parallelism,
+                                             cache=cache))
         mem = memory(agent_pid)
         brokers = [(HOST, p) for p in ports]
         cells = []
@@ -237,7 +230,8 @@ def one_size(n: int, args: argparse.Namespace, work: Path, raw: list[BurstResult
             cells += _bursts(rig, "matrix", args.messages, [args.size], MODES, args.repeat, raw)
             if n in args.size_brokers:
                 cells += _bursts(rig, "size", [args.size_messages], args.sizes, ("spread",), args.repeat, raw)
-        downs.append(through_plantkg(plant, directory, destroy=True, parallelism=args.apply_parallelism))
+        downs.append(through_plantkg(plant, directory, destroy=True, parallelism=args.apply_parallelism,
+                                     cache=cache))
     finally:
         agents.stop()
     up_s, hand_up_s = statistics.median(u["total"] for u in ups), statistics.median(hand_ups)
@@ -246,6 +240,7 @@ def one_size(n: int, args: argparse.Namespace, work: Path, raw: list[BurstResult
         "hand_up_s": hand_up_s, "plantkg_up_s": up_s, "up_ratio": up_s / hand_up_s,
         "hand_down_s": hand_down_s, "plantkg_down_s": down_s, "down_ratio": down_s / hand_down_s,
         "plantkg_up_split_s": {k: statistics.median(u[k] for u in ups) for k in ups[0]},
+        "plantkg_down_split_s": {k: statistics.median(d.get(k, 0.0) for d in downs) for k in downs[0]},
         "runs": {"hand_up_s": hand_ups, "plantkg_up_s": [u["total"] for u in ups],
                  "hand_down_s": hand_downs, "plantkg_down_s": [d["total"] for d in downs]}},
         "memory": {**mem, "agent_idle_rss_mb": idle_agent_mb}, "cells": cells}
@@ -369,6 +364,17 @@ def to_markdown(data: dict[str, object]) -> str:
                      f"{b['plantkg_up_split_s']['pipeline']:.3f} | {b['hand_down_s']:.3f} | {b['plantkg_down_s']:.3f} | "
                      f"{b['down_ratio']:.2f} | {m['broker_rss_mb_mean']:.1f} | "
                      f"{m['agent_idle_rss_mb']:.0f} → {m['agent_rss_mb']:.0f} |")
+    split = [(r["brokers"], r["bringup"].get("plantkg_up_split_s"), r["bringup"].get("plantkg_down_split_s"))
+             for r in rows]  # type: ignore[union-attr]
+    if any(up and down for _, up, down in split):
+        lines += ["", "Where one apply's and one destroy's time goes (median s; pipeline = the stages before "
+                  "dispatch, dispatch = the batch and the check):", ""]
+        for n, up, down in split:
+            if up and down:
+                lines.append(f"- {n} brokers: apply " + ", ".join(f"{k.removeprefix('stage_')} {v:.3f}"
+                                                                  for k, v in up.items() if k != "total")
+                             + "; destroy " + ", ".join(f"{k.removeprefix('stage_')} {v:.3f}"
+                                                       for k, v in down.items() if k != "total"))
     lines += ["", f"## Latency per message, ms ({data['size']} B payload, QoS 1)", "",
               "| mode | brokers | messages | send burst ms | ack mean | ack p50 | ack p99 | delivery mean | "
               "delivery p50 | delivery p99 | stdev of burst means (ack / delivery) | lost |",

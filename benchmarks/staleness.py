@@ -16,10 +16,15 @@ from typing import Any
 
 #: study -> the repository paths whose code it measures
 MEASURES: dict[str, tuple[str, ...]] = {
-    "deploy": ("engine/apply.py", "engine/agent", "engine/drivers"),
-    "load": ("engine/apply.py", "engine/agent", "engine/drivers"),
+    "deploy": ("engine/apply.py", "engine/apply_calls.py", "engine/agent", "engine/drivers",
+               "engine/process.py", "engine/pipeline.py", "engine/reasoning",
+               "kg", "shapes", "ontology", "benchmarks/bench_deploy.py"),
+    "load": ("engine/apply.py", "engine/apply_calls.py", "engine/agent", "engine/drivers",
+             "engine/process.py", "benchmarks/bench_load.py",
+             "benchmarks/mqtt_ready.py"),
     "replan": ("kg", "shapes", "ontology", "engine/pipeline.py", "engine/derive.py", "engine/plan.py",
-               "engine/reasoning/reason.py", "engine/reasoning/rules_fast.py"),
+               "engine/replan.py", "engine/reasoning/reason.py", "engine/reasoning/rules_fast.py",
+               "engine/reasoning/rules_delta.py"),
     "bridge": ("engine/bridge_worker", "engine/drivers"),
     "durability": ("engine/bridge_worker", "engine/drivers"),
     "web": ("engine/web",),

@@ -67,11 +67,13 @@ def write_file(n: int, directory: Path) -> Path:
 
 def mosquitto_plant(host: str, ports: list[int]) -> str:
     """The Turtle text of a plant of ``len(ports)`` Mosquitto brokers on one machine (``host``),
-    each carrying one QoS-1 topic that one resource publishes — the load test's plant."""
+    each carrying one QoS-1 topic that one resource publishes — the load test's plant. The
+    brokers are open (pk:allowAnonymous true; closed is the default): the load's clients, like the
+    paper's, publish anonymously."""
     out = [HEADER]
     for b, port in enumerate(ports):
         out.append(f':mqtt{b} a pk:Broker ; pk:id "mqtt-{b}" ; pk:name "Load {b}" ; pk:brokerType "mosquitto" ; '
-                   f'pk:ip "{host}" ; pk:port {port} ; pk:hasTopic :load{b} .\n'
+                   f'pk:ip "{host}" ; pk:port {port} ; pk:allowAnonymous true ; pk:hasTopic :load{b} .\n'
                    f':load{b} a pk:Topic ; pk:id "load-{b}" ; pk:name "bench/load" ; pk:qos 1 .\n'
                    f':pub{b} a pk:Resource ; pk:id "pub-{b}" ; pk:name "Publisher {b}" ; pk:isType :type-sensor ; '
                    f'pk:sendsTo :mqtt{b} ; pk:publishes :load{b} .\n')

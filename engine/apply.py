@@ -1,19 +1,25 @@
-"""Apply a plan: send its changes to the agents, in parallel where order allows, then check.
+"""Apply a plan: send its changes to the agents, in batches, in parallel where order allows, then
+check.
 
-Every pending change becomes one or two agent calls (:func:`operations`). Calls are grouped in
-*lanes*, one per broker: a lane runs in plan order (the broker before its topics, topic deletes
-before the broker's delete), lanes run in parallel (``parallelism`` threads). A lane whose broker
-takes over an address (host, port) another broker frees joins that broker's lane after it, so the
-old broker is gone before the new one binds.
+Every pending change becomes one or two agent calls, grouped in *lanes*, one per broker
+(:mod:`engine.apply_calls`): a lane runs in plan order, lanes are independent. The calls go out
+in *waves*: each wave sends every agent one request (``POST /v1/batch``) with the next calls of
+every lane ready for it, over a connection kept open; the agent runs the lanes at the same time
+(N brokers start, and are awaited, together) and answers a result per call. A lane whose next
+call is for another agent (a broker moving host) continues there in the next wave. Agents are
+asked in parallel (``parallelism`` requests at a time).
 
-A :class:`TemporaryDispatchError` is retried with exponential backoff and jitter while the
-change's deadline lasts; a :class:`PermanentDispatchError` (or a temporary one that outlived its
-deadline) fails the change and skips the rest of its lane; other lanes go on.
+A :class:`TemporaryDispatchError` (the agent unreachable, a 503, a 5xx) is retried with
+exponential backoff and jitter while the change's deadline lasts, from the call that failed; a
+:class:`PermanentDispatchError` (or a temporary one that outlived its deadline) fails the change
+and skips the rest of its lane; other lanes go on. Events report each change as before: started,
+done, retried, failed, skipped.
 
-Afterwards the agents are asked again and the plan is made again: it must be empty. A change that
-an agent reported as done but that still shows up is the agent's (driver's) fault and is reported
-as an *unexpected result* (Terraform: "provider produced an unexpected new value"). Since every
-call is idempotent, running apply again picks up whatever failed.
+Afterwards the plan is made again from what the agents run: it must be empty. An agent that
+answered the last wave it took part in with its state (``observe``) is not asked again; the others
+are. A change that an agent reported as done but that still shows up is the agent's (driver's)
+fault and is reported as an *unexpected result* (Terraform: "provider produced an unexpected new
+value"). Since every call is idempotent, running apply again picks up whatever failed.
 """
 
 from __future__ import annotations
@@ -22,18 +28,26 @@ import random
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field, replace
+from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
+from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any, Protocol
 
+from engine.agent.calls import AgentCall, BatchAnswer, CallResult, run_calls
 from engine.agents_config import AgentDirectory, AgentsConfigError
+from engine.apply_calls import Call, Operation, lanes, operations
 from engine.errors import DispatchError, EngineError, TemporaryDispatchError
-from engine.model import Action, BridgeMechanism, Change, DesiredState, ObservedState, Plan
+from engine.model import Action, Change, DesiredState, ObservedBridge, ObservedBroker, ObservedState, Plan
 from engine.observed import observe
-from engine.plan import ALL_TOPIC_SETTINGS, NEW_BROKER_FIELDS, broker_of, destroy_plan, topic_settings
+from engine.plan import destroy_plan
 from engine.plan import plan as make_plan
 from kg.errors import PlantKGError
+
+__all__ = ["apply", "ApplyResult", "ApplyEvent", "EventKind", "Outcome", "OutcomeStatus", "RetryPolicy",
+           "PlanNotApplicableError", "Unexpected", "Call", "Operation", "lanes", "operations"]
+
+#: At most this many calls of one lane go in one wave (the rest in the next).
+MAX_WAVE_CALLS = 256
 
 
 class PlanNotApplicableError(EngineError):
@@ -152,167 +166,45 @@ class ApplyResult:
         return not self.failed and not self.skipped and not self.unexpected and self.converged
 
 
-# -------------------------------------------------------------------------------- operations
-
-@dataclass(frozen=True)
-class Call:
-    """One request to one agent: ``verb`` is an AgentClient method, ``args`` its arguments."""
-
-    host: str
-    verb: str
-    args: tuple[Any, ...]
-    #: put_bridge of an mqtt-ngsi bridge, or of an mqtt-kafka bridge into a closed Kafka: the host
-    #: whose agent's token goes along as the remote token (the context broker's write token; the
-    #: agent derives plantkg's Kafka password from it), looked up only when the call is made, so no
-    #: token is ever part of a plan, an operation or an event.
-    remote_token_of: str | None = None
-    #: the plant that owns what the call makes or deletes (DesiredState.owner): the agent records
-    #: it and refuses another plant's things. None: no owner is sent (a plant without one).
-    owner: str | None = None
-
-
-@dataclass(frozen=True)
-class Operation:
-    """A change and the agent calls that make it, in order."""
-
-    change: Change
-    calls: tuple[Call, ...]
-
-
-def operations(plan: Plan, desired: DesiredState) -> list[Operation]:
-    """The agent calls of each pending change."""
-    deleted_hosts = {
-        broker_of(c): str(c.before["host"])
-        for c in plan.pending
-        if c.action is Action.DELETE and c.address.startswith("broker.") and c.before
-    }
-
-    def host_of(broker_id: str) -> str:
-        if broker_id in deleted_hosts:
-            return deleted_hosts[broker_id]
-        spec = desired.broker(broker_id)
-        if spec is None:
-            raise EngineError(f"the plan names broker {broker_id!r}, which the plant does not",
-                              hint="make the plan again from the same plant")
-        return spec.host
-
-    out: list[Operation] = []
-    for change in plan.pending:
-        kind = change.address.split(".", 1)[0]
-        if kind == "broker":
-            calls = _broker_calls(change, desired)
-        elif kind == "topic":
-            calls = _topic_calls(change, desired, host_of)
-        else:
-            calls = _bridge_calls(change, desired)
-        out.append(Operation(change, tuple(replace(c, owner=desired.owner) for c in calls)))
-    return out
-
-
-def _broker_calls(change: Change, desired: DesiredState) -> tuple[Call, ...]:
-    broker_id = broker_of(change)
-    if change.action is Action.DELETE:
-        assert change.before is not None
-        return (Call(str(change.before["host"]), "delete_broker", (broker_id,)),)
-    spec = desired.broker(broker_id)
-    if spec is None:
-        raise EngineError(f"the plan creates broker {broker_id!r}, which the plant does not describe",
-                          hint="make the plan again from the same plant")
-    put = Call(spec.host, "put_broker", (spec,))
-    if change.action is Action.REPLACE and change.before is not None and any(
-        change.before[f] != change.after[f] for f in NEW_BROKER_FIELDS  # type: ignore[index]
-    ):
-        return (Call(str(change.before["host"]), "delete_broker", (broker_id,)), put)
-    return (put,)
-
-
-def _topic_calls(change: Change, desired: DesiredState, host_of: Callable[[str], str]) -> tuple[Call, ...]:
-    broker_id = broker_of(change)
-    if change.action is Action.DELETE:
-        assert change.before is not None
-        return (Call(host_of(broker_id), "delete_topic", (broker_id, str(change.before["name"]))),)
-    spec = next((t for t in desired.topics if t.address == change.address), None)
-    broker = desired.broker(broker_id)
-    if spec is None or broker is None:
-        raise EngineError(f"the plan creates {change.address}, which the plant does not describe",
-                          hint="make the plan again from the same plant")
-    # Only the settings of the broker's kind travel (a driver refuses another kind's settings).
-    applicable = topic_settings(broker.kind)
-    spec = replace(spec, **{f: None for f in ALL_TOPIC_SETTINGS if f not in applicable})
-    return (Call(host_of(broker_id), "put_topic", (spec,)),)
-
-
-def _bridge_calls(change: Change, desired: DesiredState) -> tuple[Call, ...]:
-    """A bridge is PUT to (or deleted from) the agent of its local broker."""
-    if change.action is Action.DELETE:
-        assert change.before is not None
-        local, remote = change.before["local"], change.before["remote"]
-        return (Call(str(local["host"]), "delete_bridge", (str(local["id"]), str(remote["id"]))),)
-    spec = next((b for b in desired.bridges if b.address == change.address), None)
-    if spec is None:
-        raise EngineError(f"the plan creates {change.address}, which the plant does not describe",
-                          hint="make the plan again from the same plant")
-    remote = desired.broker(spec.remote.id)
-    closed_kafka = spec.mechanism is BridgeMechanism.WORKER and remote is not None and bool(remote.users)
-    if spec.mechanism is BridgeMechanism.NGSI or closed_kafka:  # the worker logs in on the remote
-        return (Call(spec.local.host, "put_bridge", (spec,), remote_token_of=spec.remote.host),)
-    return (Call(spec.local.host, "put_bridge", (spec,)),)
-
-
-def lanes(ops: Sequence[Operation]) -> list[list[Operation]]:
-    """Operations grouped per broker, in plan order; a broker that binds an address another one
-    frees runs after it, in the same lane."""
-    by_broker: dict[str, list[Operation]] = {}
-    for op in ops:
-        by_broker.setdefault(broker_of(op.change), []).append(op)
-    frees: dict[tuple[Any, Any], str] = {}
-    for broker_id, lane in by_broker.items():
-        for op in lane:
-            c = op.change
-            if c.address.startswith("broker.") and c.before and c.action in (Action.DELETE, Action.REPLACE):
-                frees[(c.before["host"], c.before["port"])] = broker_id
-    order = list(by_broker)
-    merged: dict[str, list[Operation]] = {b: list(by_broker[b]) for b in order}
-    home = {b: b for b in order}
-    for broker_id in order:
-        for op in by_broker[broker_id]:
-            c = op.change
-            if not (c.address.startswith("broker.") and c.after
-                    and c.action in (Action.CREATE, Action.REPLACE)):
-                continue
-            other = frees.get((c.after["host"], c.after["port"]))
-            if other is None or home[other] == home[broker_id]:
-                continue
-            src, dst = home[other], home[broker_id]
-            merged[dst] = merged.pop(src) + merged[dst]
-            home = {b: (dst if h == src else h) for b, h in home.items()}
-    for nodes in _rolling(ops):  # a running cluster's nodes restart one at a time
-        dst = home[nodes[0]]
-        for node in nodes[1:]:
-            src = home[node]
-            if src != dst:
-                merged[dst] = merged[dst] + merged.pop(src)
-                home = {b: (dst if h == src else h) for b, h in home.items()}
-    return [lane for lane in merged.values() if lane]
-
-
-def _rolling(ops: Sequence[Operation]) -> list[list[str]]:
-    """Per Kafka cluster, its running nodes that the plan restarts (replace), by node id: their
-    lanes are joined so the restarts roll one node at a time — each node's PUT returns once the
-    node is back in sync (the driver's health), then the next stops. New nodes start in parallel
-    (a new quorum needs its majority up at once)."""
-    clusters: dict[str, list[tuple[int, str]]] = {}
-    for op in ops:
-        c = op.change
-        if c.action is not Action.REPLACE or not c.address.startswith("broker."):
-            continue
-        before, after = (c.before or {}).get("kafka"), (c.after or {}).get("kafka")
-        if before and after and before.get("cluster") == after.get("cluster"):
-            clusters.setdefault(str(after["cluster"]), []).append((int(after["node_id"]), broker_of(c)))
-    return [[b for _, b in sorted(nodes)] for nodes in clusters.values() if len(nodes) > 1]
-
-
 # ------------------------------------------------------------------------------------ running
+
+@dataclass(eq=False)
+class _Lane:
+    """A lane being run: its calls in order, flattened, and where it stands."""
+
+    ops: list[Operation]
+    steps: list[tuple[int, Call]]          # (index of its operation, call)
+    cursor: int = 0                        # the next step to make
+    attempt: int = 0                       # failed attempts of that step so far
+    ready_at: float = 0.0                  # not before (a backoff)
+    started: dict[int, float] = field(default_factory=dict)   # operation -> clock at its start
+    tally: dict[int, int] = field(default_factory=dict)       # operation -> calls attempted
+    outcomes: list[Outcome] = field(default_factory=list)
+    finished: bool = False
+
+    @classmethod
+    def of(cls, ops: list[Operation]) -> _Lane:
+        return cls(ops, [(i, call) for i, op in enumerate(ops) for call in op.calls])
+
+    def wave(self) -> list[tuple[int, Call]]:
+        """The next calls to send together: from the cursor, while they go to the same host."""
+        first = self.steps[self.cursor][1].host
+        out = []
+        for step in self.steps[self.cursor:self.cursor + MAX_WAVE_CALLS]:
+            if step[1].host != first:
+                break
+            out.append(step)
+        return out
+
+
+@dataclass(eq=False)
+class _Request:
+    """One batch in flight: to which agent, which lanes with which calls."""
+
+    agent: int                              # id of the client
+    parts: list[tuple[_Lane, list[tuple[int, Call]]]]
+    overlapped: bool = False                # another request to the agent was in flight meanwhile
+
 
 @dataclass
 class _Runner:
@@ -322,70 +214,177 @@ class _Runner:
     clock: Clock
     sleep: Callable[[float], None]
     rng: random.Random
-    rng_lock: threading.Lock = field(default_factory=threading.Lock)
+    parallelism: int = 8
+    #: per agent (id of its client): the state its last answer reported, when that answer is known
+    #: to be the agent's state after all of this apply's calls to it (else None).
+    states: dict[int, tuple[tuple[ObservedBroker, ...], tuple[ObservedBridge, ...]] | None] = \
+        field(default_factory=dict)
+    clients: dict[int, Any] = field(default_factory=dict)
 
-    def run_lane(self, lane: list[Operation]) -> list[Outcome]:
-        outcomes: list[Outcome] = []
-        for index, op in enumerate(lane):
-            outcome = self.run_operation(op)
-            outcomes.append(outcome)
-            if outcome.status is OutcomeStatus.FAILED:
-                why = f"not attempted: {op.change.address} failed"
-                for rest in lane[index + 1:]:
-                    self.emit(ApplyEvent(EventKind.SKIPPED, rest.change.address, rest.change.action,
-                                         message=why))
-                    outcomes.append(Outcome(rest.change, OutcomeStatus.SKIPPED, error=why))
-                break
-        return outcomes
+    def run(self, work: list[list[Operation]]) -> list[Outcome]:
+        """Run every lane to its end (done, failed or skipped); their outcomes."""
+        todo = [_Lane.of(lane) for lane in work]
+        flying: dict[Future[BatchAnswer], _Request] = {}
+        busy: set[_Lane] = set()
+        with ThreadPoolExecutor(max_workers=max(1, self.parallelism), thread_name_prefix="apply") as pool:
+            while True:
+                for request in self._next_wave([ln for ln in todo if not ln.finished and ln not in busy]):
+                    for other in flying.values():
+                        if other.agent == request.agent:
+                            other.overlapped = request.overlapped = True
+                    client = self.clients[request.agent]
+                    calls = [[self._agent_call(call) for _, call in part] for _, part in request.parts]
+                    batch = getattr(client, "batch", None)
+                    flying[pool.submit(batch, calls, observe=True) if batch is not None  # an agent
+                           else pool.submit(run_calls, client, calls)] = request  # a client with verbs only
+                    busy.update(lane for lane, _ in request.parts)
+                waiting = [ln for ln in todo if not ln.finished and ln not in busy]
+                if not flying:
+                    if not waiting:
+                        break
+                    self.sleep(max(0.0, min(ln.ready_at for ln in waiting) - self.clock()))
+                    continue
+                timeout = None
+                if waiting:
+                    timeout = max(0.0, min(ln.ready_at for ln in waiting) - self.clock())
+                finished, _ = wait(list(flying), timeout=timeout, return_when=FIRST_COMPLETED)
+                for future in finished:
+                    request = flying.pop(future)
+                    busy.difference_update(lane for lane, _ in request.parts)
+                    self._settle(request, future)
+        return [o for lane in todo for o in lane.outcomes]
 
-    def run_operation(self, op: Operation) -> Outcome:
-        change = op.change
-        start = self.clock()
-        self.emit(ApplyEvent(EventKind.START, change.address, change.action))
-        tally = [0]  # attempts so far, counted by _call_with_retries
-        try:
-            for call in op.calls:
-                self._call_with_retries(op, call, start, tally)
-        except DispatchError as exc:
-            return self._failed(change, start, tally[0], exc.message + (f" ({exc.hint})" if exc.hint else ""))
-        except PlantKGError as exc:
-            return self._failed(change, start, tally[0], str(exc))
-        except Exception as exc:  # a bug must not take the other lanes down; it is reported
-            return self._failed(change, start, tally[0], f"internal error: {type(exc).__name__}: {exc}")
-        elapsed = self.clock() - start
-        self.emit(ApplyEvent(EventKind.DONE, change.address, change.action, elapsed, tally[0]))
-        return Outcome(change, OutcomeStatus.DONE, elapsed, tally[0])
-
-    def _failed(self, change: Change, start: float, attempts: int, error: str) -> Outcome:
-        elapsed = self.clock() - start
-        self.emit(ApplyEvent(EventKind.FAILED, change.address, change.action, elapsed, attempts, error))
-        return Outcome(change, OutcomeStatus.FAILED, elapsed, attempts, error)
-
-    def _call_with_retries(self, op: Operation, call: Call, start: float, tally: list[int]) -> None:
-        """Make ``call``, retrying temporary failures; ``tally[0]`` counts every attempt."""
-        attempt = 0
-        while True:
-            attempt += 1
-            tally[0] += 1
+    def _next_wave(self, lanes_: list[_Lane]) -> list[_Request]:
+        """One request per agent with the next calls of every lane ready now."""
+        now = self.clock()
+        by_agent: dict[int, _Request] = {}
+        for lane in lanes_:
+            if lane.ready_at > now:
+                continue
+            part = lane.wave()
             try:
-                client = self.directory.client_for(call.host)
-                extra: dict[str, Any] = {} if call.owner is None else {"owner": call.owner}
-                if call.remote_token_of is not None:
-                    extra["remote_token"] = _token_of(self.directory, call.remote_token_of)
-                getattr(client, call.verb)(*call.args, **extra)
-                return
-            except TemporaryDispatchError as exc:
-                with self.rng_lock:
-                    delay = self.policy.delay(attempt, self.rng)
-                spent = self.clock() - start
-                if attempt >= self.policy.attempts or spent + delay > self.policy.deadline:
-                    raise TemporaryDispatchError(
-                        f"{exc.message} (gave up after {attempt} attempt(s), {spent:.1f} s)",
-                        hint=exc.hint or "check that the agent runs and answers, then apply again",
-                        host=call.host) from exc
-                self.emit(ApplyEvent(EventKind.RETRY, op.change.address, op.change.action,
-                                     spent, attempt, f"{exc.message}; retrying in {delay:.1f} s"))
-                self.sleep(delay)
+                client = self.directory.client_for(part[0][1].host)
+            except PlantKGError as exc:  # no agent or token known for the host
+                self._start_ops(lane, part[:1])
+                self._fail(lane, part[0][0], str(exc), attempts_add=1)
+                continue
+            self._start_ops(lane, part)
+            key = id(client)
+            self.clients[key] = client
+            by_agent.setdefault(key, _Request(key, [])).parts.append((lane, part))
+        return list(by_agent.values())
+
+    def _start_ops(self, lane: _Lane, part: list[tuple[int, Call]]) -> None:
+        for index, _ in part:
+            if index not in lane.started:
+                lane.started[index] = self.clock()
+                change = lane.ops[index].change
+                self.emit(ApplyEvent(EventKind.START, change.address, change.action))
+
+    def _agent_call(self, call: Call) -> AgentCall:
+        token = _token_of(self.directory, call.remote_token_of) if call.remote_token_of else None
+        return AgentCall(call.verb, call.args, owner=call.owner, remote_token=token)
+
+    def _settle(self, request: _Request, future: Future[BatchAnswer]) -> None:
+        """Take a request's answer (or its failure) into its lanes."""
+        try:
+            answer = future.result()
+        except DispatchError as exc:
+            self.states[request.agent] = None
+            for lane, part in request.parts:
+                self._step_failed(lane, part[0][0], exc)
+            return
+        except Exception as exc:  # noqa: BLE001 - a bug must not take the other lanes down
+            self.states[request.agent] = None
+            for lane, part in request.parts:
+                self._fail(lane, part[0][0], f"internal error: {type(exc).__name__}: {exc}", attempts_add=1)
+            return
+        self.states[request.agent] = (
+            (answer.brokers, answer.bridges)  # type: ignore[assignment]
+            if answer.observed and not request.overlapped else None)
+        for (lane, part), results in zip(request.parts, answer.lanes):
+            self._take(lane, part, results)
+
+    def _take(self, lane: _Lane, part: list[tuple[int, Call]], results: Sequence[CallResult]) -> None:
+        if results and results[0].skipped:  # an agent that skips a lane without a failure
+            self._fail(lane, part[0][0], "the agent skipped the call without a failure before it",
+                       attempts_add=1)
+            return
+        for (index, _), result in zip(part, results):
+            if result.done:
+                lane.tally[index] = lane.tally.get(index, 0) + 1
+                lane.cursor += 1
+                lane.attempt = 0
+                last = lane.cursor == len(lane.steps) or lane.steps[lane.cursor][0] != index
+                if last:
+                    self._done(lane, index)
+                continue
+            if result.error is not None:
+                self._step_failed(lane, index, result.error)
+            return  # the agent did not attempt the rest (skipped): they go in the next wave
+        if lane.cursor == len(lane.steps):
+            lane.finished = True
+
+    def _step_failed(self, lane: _Lane, index: int, exc: DispatchError) -> None:
+        """A call failed: retry it later if temporary and time is left, else fail its change."""
+        lane.tally[index] = lane.tally.get(index, 0) + 1
+        if not isinstance(exc, TemporaryDispatchError):
+            self._fail(lane, index, exc.message + (f" ({exc.hint})" if exc.hint else ""))
+            return
+        lane.attempt += 1
+        delay = self.policy.delay(lane.attempt, self.rng)
+        change = lane.ops[index].change
+        spent = self.clock() - lane.started[index]
+        if lane.attempt >= self.policy.attempts or spent + delay > self.policy.deadline:
+            gave_up = TemporaryDispatchError(
+                f"{exc.message} (gave up after {lane.attempt} attempt(s), {spent:.1f} s)",
+                hint=exc.hint or "check that the agent runs and answers, then apply again")
+            self._fail(lane, index, gave_up.message + f" ({gave_up.hint})")
+            return
+        self.emit(ApplyEvent(EventKind.RETRY, change.address, change.action, spent, lane.attempt,
+                             f"{exc.message}; retrying in {delay:.1f} s"))
+        lane.ready_at = self.clock() + delay
+
+    def _done(self, lane: _Lane, index: int) -> None:
+        change = lane.ops[index].change
+        elapsed = self.clock() - lane.started[index]
+        attempts = lane.tally.get(index, 0)
+        self.emit(ApplyEvent(EventKind.DONE, change.address, change.action, elapsed, attempts))
+        lane.outcomes.append(Outcome(change, OutcomeStatus.DONE, elapsed, attempts))
+
+    def _fail(self, lane: _Lane, index: int, error: str, attempts_add: int = 0) -> None:
+        """The change of operation ``index`` failed: the rest of the lane is skipped."""
+        change = lane.ops[index].change
+        attempts = lane.tally.get(index, 0) + attempts_add
+        elapsed = self.clock() - lane.started.get(index, self.clock())
+        self.emit(ApplyEvent(EventKind.FAILED, change.address, change.action, elapsed, attempts, error))
+        lane.outcomes.append(Outcome(change, OutcomeStatus.FAILED, elapsed, attempts, error))
+        why = f"not attempted: {change.address} failed"
+        for rest in lane.ops[index + 1:]:
+            self.emit(ApplyEvent(EventKind.SKIPPED, rest.change.address, rest.change.action, message=why))
+            lane.outcomes.append(Outcome(rest.change, OutcomeStatus.SKIPPED, error=why))
+        lane.finished = True
+
+    def observed(self, hosts: set[str]) -> tuple[ObservedState, set[str]]:
+        """What the agents reported after their last wave, for the hosts they serve; and the
+        hosts no such answer covers (to be asked)."""
+        brokers: dict[str, ObservedBroker] = {}
+        bridges: dict[str, ObservedBridge] = {}
+        rest: set[str] = set()
+        for host in sorted(hosts):
+            try:
+                state = self.states.get(id(self.directory.client_for(host)))
+            except PlantKGError:
+                state = None
+            if state is None:
+                rest.add(host)
+                continue
+            for broker in state[0]:
+                brokers.setdefault(broker.spec.id, broker)
+            for bridge in state[1]:
+                bridges.setdefault(bridge.spec.address, bridge)
+        return ObservedState(brokers=tuple(sorted(brokers.values(), key=lambda b: b.spec.id)),
+                             bridges=tuple(sorted(bridges.values(), key=lambda b: b.spec.address))), rest
 
 
 def _token_of(directory: AgentDirectory, host: str) -> str | None:
@@ -431,26 +430,30 @@ def apply(
                 on_event(event)
 
     began = clock()
-    runner = _Runner(directory, retries, emit, clock, sleep, rng or random.Random())
-    work = lanes(operations(plan, desired))
-    outcomes: list[Outcome] = []
-    if work:
-        with ThreadPoolExecutor(max_workers=max(1, min(parallelism, len(work))),
-                                thread_name_prefix="apply") as pool:
-            for lane_outcomes in pool.map(runner.run_lane, work):
-                outcomes.extend(lane_outcomes)
+    runner = _Runner(directory, retries, emit, clock, sleep, rng or random.Random(), parallelism)
+    outcomes = runner.run(lanes(operations(plan, desired)))
     order = {c.address: i for i, c in enumerate(plan.changes)}
     outcomes.sort(key=lambda o: order.get(o.change.address, len(order)))
     ask = set(hosts) if hosts is not None else _hosts(plan, desired, directory)
     emit(ApplyEvent(EventKind.VERIFY, "plan", Action.NOOP, message="asking the agents again"))
+    known, rest = runner.observed(ask)
     try:
-        observed = observe_fn(directory, ask)
+        observed = _merge(known, observe_fn(directory, rest)) if rest else known
     except PlantKGError as exc:  # the changes are made; say what is known, and why no check
         problem = Unexpected("check", f"could not ask the agents again: {exc}")
         return ApplyResult(plan, tuple(outcomes), None, (problem,), clock() - began)
     after = destroy_plan(desired, observed) if destroy else make_plan(desired, observed, prune=prune)
     return ApplyResult(plan, tuple(outcomes), after, tuple(unexpected(plan, outcomes, after)),
                        clock() - began)
+
+
+def _merge(known: ObservedState, asked: ObservedState) -> ObservedState:
+    """Two observations of disjoint agents as one (a broker id seen twice: the first kept)."""
+    brokers = {b.spec.id: b for b in reversed((*known.brokers, *asked.brokers))}
+    bridges = {b.spec.address: b for b in reversed((*known.bridges, *asked.bridges))}
+    return ObservedState(brokers=tuple(sorted(brokers.values(), key=lambda b: b.spec.id)),
+                         unreachable=asked.unreachable,
+                         bridges=tuple(sorted(bridges.values(), key=lambda b: b.spec.address)))
 
 
 def _hosts(plan: Plan, desired: DesiredState, directory: AgentDirectory) -> set[str]:

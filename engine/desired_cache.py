@@ -13,6 +13,7 @@ Entries are JSON files under ``$PLANTKG_CACHE_DIR`` (default ``$XDG_CACHE_HOME/p
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -48,7 +49,10 @@ def default_dir() -> Path:
     return Path(base) / "plantkg"
 
 
+@functools.cache
 def _version() -> str:
+    """plantkg's installed version (read once: parsing the package metadata took ~20 ms, on every
+    key)."""
     try:
         return metadata.version("plantkg")
     except metadata.PackageNotFoundError:  # running from a checkout without install

@@ -57,7 +57,8 @@ def observe(directory: AgentDirectory, hosts: Iterable[str], *, parallelism: int
     def ask(url: str) -> tuple[list[ObservedBroker], list[ObservedBridge]] | None:
         try:
             client = clients[url]
-            return client.list_brokers(), client.list_bridges()
+            state = getattr(client, "state", None)  # one request; a client with the lists only: two
+            return state() if state is not None else (client.list_brokers(), client.list_bridges())
         except TemporaryDispatchError:
             return None
         except AgentAuthError as exc:

@@ -171,10 +171,24 @@ def ownership(owner: str | None, mine: str | None) -> Ownership:
     return Ownership.NOBODY if owner is None else Ownership.OTHER
 
 
-def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False) -> Plan:
+class PlanMemo:
+    """What :func:`plan` concluded per desired broker, keyed by everything that conclusion reads
+    (the broker's spec and topics, what its agent reported, the owner, ``prune``), so a re-plan
+    after a small edit recomputes only the brokers whose inputs changed (engine.replan). The
+    inputs are compared for equality; kept specs are the same objects, so that is quick."""
+
+    def __init__(self) -> None:
+        self.brokers: dict[str, tuple[tuple[object, ...], tuple[object, ...]]] = {}
+        self.bridges: dict[str, tuple[tuple[object, ...], tuple[object, ...]]] = {}
+
+
+def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False,
+         memo: PlanMemo | None = None) -> Plan:
     """The ordered changes that turn ``observed`` into ``desired`` (pure).
 
-    Only the things ``desired.owner`` owns are changed; ``prune`` also deletes what nobody owns."""
+    Only the things ``desired.owner`` owns are changed; ``prune`` also deletes what nobody owns.
+    ``memo`` (kept by the caller between plans) reuses each broker's conclusion while its inputs
+    are unchanged; the plan is the same with or without it."""
     owner = desired.owner
     unreachable = frozenset(observed.unreachable)
     changes: list[Change] = []
@@ -183,30 +197,44 @@ def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False)
     foreign: list[Foreign] = []
     fresh_brokers: set[str] = set()
     claimed: set[str] = set()
+    seen: dict[str, tuple[tuple[object, ...], tuple[object, ...]]] = {}
+    sort_keys: list[tuple[int, str]] = []  # with a memo: the sort key of each change, in order
     for spec in desired.brokers:
         if spec.host in unreachable:
             continue  # its state is unknown: no change is planned, the host is listed
         have = observed.broker(spec.id)
-        if have is not None and ownership(have.owner, owner) is not Ownership.MINE:
-            refusals.append(_claimed_refusal(spec.address, have.owner, importable=True))
+        wanted_topics = desired.topics_of(spec.id)
+        key = (spec, wanted_topics, have, owner, prune)
+        cached = memo.brokers.get(spec.id) if memo is not None else None
+        if cached is not None and cached[0] == key:
+            done = cached[1]
+        else:
+            done = _plan_broker(spec, wanted_topics, have, owner, prune)
+            if memo is not None:
+                claim, broker_change, _, topics = done
+                if claim is None:
+                    done = (*done, [_sort_key(c) for c in (broker_change, *topics.changes)])  # type: ignore[union-attr]
+        seen[spec.id] = (key, done)
+        claim, broker_change, fresh, topics = done[:4]
+        if claim is not None:
+            refusals.append(claim)  # type: ignore[arg-type]
             claimed.add(spec.id)
             continue
         quorum = _quorum_refusal(spec, have)
         if quorum is not None:
             refusals.append(quorum)
             continue
-        broker_change = _broker_change(spec, have)
-        changes.append(broker_change)
-        fresh = broker_change.action is Action.CREATE or (
-            broker_change.action is Action.REPLACE and _starts_empty(broker_change)
-        )
+        if memo is not None:
+            sort_keys.extend(done[4])  # type: ignore[arg-type]
+        changes.append(broker_change)  # type: ignore[arg-type]
         if fresh:
             fresh_brokers.add(spec.id)
-        topics = _topic_changes(spec, desired.topics_of(spec.id), have, fresh, owner, prune)
-        changes.extend(topics.changes)
-        refusals.extend(topics.refusals)
-        deletes.extend(topics.deletes)
-        foreign.extend(topics.foreign)
+        changes.extend(topics.changes)  # type: ignore[union-attr]
+        refusals.extend(topics.refusals)  # type: ignore[union-attr]
+        deletes.extend(topics.deletes)  # type: ignore[union-attr]
+        foreign.extend(topics.foreign)  # type: ignore[union-attr]
+    if memo is not None:
+        memo.brokers = seen
     wanted = {b.id for b in desired.brokers}
     for have in observed.brokers:
         if have.spec.id in wanted:
@@ -220,17 +248,24 @@ def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False)
             foreign.append(_foreign(have.spec.address, have.owner))
     hosts = {b.id: b.host for b in desired.brokers}
     held = {b.spec.id for b in observed.brokers if b.status is BrokerStatus.STOPPED_BY_OPERATOR}
+    bridges_seen: dict[str, tuple[tuple[object, ...], tuple[object, ...]]] = {}
     for bridge in desired.bridges:
         if hosts.get(bridge.local.id) in unreachable or bridge.local.id in claimed:
             continue
         have = None if bridge.local.id in fresh_brokers else observed.bridge(bridge.address)
-        whose = Ownership.MINE if have is None else ownership(have.owner, owner)
-        if whose is Ownership.OTHER:
-            refusals.append(_claimed_refusal(bridge.address, have.owner if have else None,
-                                             importable=False))
-            continue
-        change = _bridge_change(bridge, have, bridge.local.id in held)
-        changes.append(_adopted(change, owner) if whose is Ownership.NOBODY else change)
+        key = (bridge, have, bridge.local.id in held, owner)
+        cached = memo.bridges.get(bridge.address) if memo is not None else None
+        done = cached[1] if cached is not None and cached[0] == key else _plan_bridge(bridge, have, key[2], owner)
+        bridges_seen[bridge.address] = (key, done)
+        refusal, change = done
+        if refusal is not None:
+            refusals.append(refusal)  # type: ignore[arg-type]
+        else:
+            changes.append(change)  # type: ignore[arg-type]
+            if memo is not None:
+                sort_keys.append(_sort_key(change))  # type: ignore[arg-type]
+    if memo is not None:
+        memo.bridges = bridges_seen
     wanted_bridges = {b.address for b in desired.bridges}
     for seen in observed.bridges:
         if seen.spec.address in wanted_bridges:
@@ -242,7 +277,10 @@ def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False)
             deletes.append(_bridge_delete(seen.spec, _PRUNED))
         else:
             foreign.append(_foreign(seen.spec.address, seen.owner))
-    changes.sort(key=_sort_key)
+    if memo is None:
+        changes.sort(key=_sort_key)
+    else:  # the memo's keys, sorted by index: no Python call per change
+        changes = [changes[i] for i in sorted(range(len(changes)), key=sort_keys.__getitem__)]
     deletes.sort(key=_delete_key)
     return Plan(
         changes=tuple(changes) + tuple(deletes),
@@ -251,6 +289,30 @@ def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False)
         foreign=tuple(sorted(foreign, key=lambda f: f.address)),
         warnings=open_broker_warnings(desired.brokers),
     )
+
+
+def _plan_broker(spec: BrokerSpec, wanted_topics: tuple[TopicSpec, ...], have: ObservedBroker | None,
+                 owner: str | None, prune: bool) -> tuple[object, ...]:
+    """One desired broker's part of the plan: (refusal when another plant or nobody holds it,
+    its change, whether it starts empty, its topics' changes)."""
+    if have is not None and ownership(have.owner, owner) is not Ownership.MINE:
+        return (_claimed_refusal(spec.address, have.owner, importable=True), None, False, None)
+    broker_change = _broker_change(spec, have)
+    fresh = broker_change.action is Action.CREATE or (
+        broker_change.action is Action.REPLACE and _starts_empty(broker_change)
+    )
+    topics = _topic_changes(spec, wanted_topics, have, fresh, owner, prune)
+    return (None, broker_change, fresh, topics)
+
+
+def _plan_bridge(bridge: BridgeSpec, have: ObservedBridge | None, held: bool,
+                 owner: str | None) -> tuple[Refusal | None, Change | None]:
+    """One desired bridge's part of the plan: a refusal (another plant's) or its change."""
+    whose = Ownership.MINE if have is None else ownership(have.owner, owner)
+    if whose is Ownership.OTHER:
+        return _claimed_refusal(bridge.address, have.owner if have else None, importable=False), None
+    change = _bridge_change(bridge, have, held)
+    return None, (_adopted(change, owner) if whose is Ownership.NOBODY else change)
 
 
 def destroy_plan(desired: DesiredState, observed: ObservedState) -> Plan:

@@ -5,12 +5,16 @@
 - :func:`wait_until` polls a predicate until it returns something truthy or a deadline passes; it
   fails fast, with the log's tail, if the watched child exits meanwhile. No bare sleeps elsewhere.
 - :func:`stop` sends SIGTERM to the whole group, SIGKILL after a grace period, and reaps the child,
-  so a JVM and anything it forked are gone when it returns.
+  so a JVM and anything it forked are gone when it returns. :func:`stop_all` does that for many
+  children at once: every group is signalled first, then all are waited for together.
+- :func:`wait_exit` waits for a process to exit and wakes the moment it does (a pidfd, Linux 5.3+),
+  where ``Popen.wait(timeout)`` polls with sleeps growing to 50 ms, which a stop would pay.
 """
 
 from __future__ import annotations
 
 import os
+import select
 import signal
 import subprocess
 import time
@@ -101,13 +105,14 @@ def spawn(
 def wait_until(
     predicate: Callable[[], T],
     deadline: float,
-    interval: float = 0.05,
+    interval: float | Callable[[], float] = 0.05,
     *,
     what: str | None = None,
     child: Child | None = None,
     ignore: tuple[type[BaseException], ...] = (),
 ) -> T:
     """Call ``predicate`` every ``interval`` s until it returns a truthy value, and return it.
+    ``interval`` may be a function, asked before each pause (a poll that speeds up or slows down).
 
     ``deadline`` is a budget in seconds from now. Exceptions listed in ``ignore`` count as "not
     yet" (the last one is quoted on timeout). If ``child`` exits first, raise :class:`ProcessError`
@@ -135,7 +140,7 @@ def wait_until(
             if child is not None:
                 detail += f"\nlog {child.log_path}:\n{child.log_tail()}"
             raise WaitTimeoutError(label, deadline, detail.strip())
-        time.sleep(min(interval, remaining))
+        time.sleep(min(interval() if callable(interval) else interval, remaining))
 
 
 def stop(child: Child, grace: float = 10.0) -> int:
@@ -144,11 +149,24 @@ def stop(child: Child, grace: float = 10.0) -> int:
     Returns once no live process is left in the group (members the leader left behind are
     killed too)."""
     _signal_group(child, signal.SIGTERM)
-    try:
-        child.popen.wait(timeout=grace)
-    except subprocess.TimeoutExpired:
+    return _finish_stop(child, grace, time.monotonic() + grace)
+
+
+def stop_all(children: Sequence[Child], grace: float = 10.0) -> list[int]:
+    """:func:`stop` for many children at once: SIGTERM every group first, then wait for them all
+    (each until ``grace`` s after the signals, then SIGKILL), so stopping N brokers takes about
+    as long as the slowest one, not the sum. Returns the leaders' exit codes, in order."""
+    for child in children:
+        _signal_group(child, signal.SIGTERM)
+    end = time.monotonic() + grace
+    return [_finish_stop(child, grace, end) for child in children]
+
+
+def _finish_stop(child: Child, grace: float, end: float) -> int:
+    """Wait for a signalled child until ``end`` (SIGKILL then), reap it, then its group."""
+    if not wait_exit(child.popen, max(0.0, end - time.monotonic())):
         _signal_group(child, signal.SIGKILL)
-        child.popen.wait()
+    child.popen.wait()
     if child.group_alive():
         try:
             wait_until(lambda: not child.group_alive(), grace, 0.01, what="the group to exit")
@@ -157,6 +175,52 @@ def stop(child: Child, grace: float = 10.0) -> int:
             wait_until(lambda: not child.group_alive(), 5.0, 0.01,
                        what=f"process group {child.pid} to die after SIGKILL")
     return child.popen.returncode
+
+
+def wait_exit(target: subprocess.Popen[bytes] | int, timeout: float) -> bool:
+    """Wait up to ``timeout`` s for a process (our child's Popen, or any pid) to exit; True once
+    it has. Wakes when it exits (pidfd); where pidfds are missing, a child is waited for with
+    ``Popen.wait`` and another pid is polled every 10 ms. A child is not reaped here."""
+    pid = target.pid if isinstance(target, subprocess.Popen) else target
+    if isinstance(target, subprocess.Popen) and target.returncode is not None:
+        return True
+    try:
+        fd = os.pidfd_open(pid)
+    except ProcessLookupError:
+        return True
+    except (AttributeError, OSError):  # no pidfd here: the portable, slower ways
+        if isinstance(target, subprocess.Popen):
+            try:
+                target.wait(timeout=timeout)
+                return True
+            except subprocess.TimeoutExpired:
+                return False
+        try:
+            wait_until(lambda: not _exists(pid), timeout, 0.01, what=f"pid {pid} to exit")
+            return True
+        except WaitTimeoutError:
+            return False
+    try:
+        poller = select.poll()
+        poller.register(fd, select.POLLIN)
+        end = time.monotonic() + timeout
+        while True:  # poll() may return early on a signal (EINTR is retried with the rest)
+            if poller.poll(max(0.0, end - time.monotonic()) * 1000):
+                return True
+            if time.monotonic() >= end:
+                return False
+    finally:
+        os.close(fd)
+
+
+def _exists(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def _signal_group(child: Child, sig: signal.Signals) -> None:

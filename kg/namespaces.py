@@ -23,6 +23,9 @@ PKS = Namespace("https://w3id.org/plantkg/shapes#")
 GRAPH_ONTOLOGY = ONTOLOGY_IRI
 GRAPH_INFERRED = "https://w3id.org/plantkg/graph/inferred"
 GRAPH_OBSERVED = "https://w3id.org/plantkg/graph/observed"
+#: What the fast reasoner derived on the way but GRAPH_INFERRED does not hold, kept by an
+#: incremental session (engine.replan) to continue from the whole fixpoint.
+GRAPH_REASONING_SCRATCH = "https://w3id.org/plantkg/graph/reasoning-scratch"
 #: The NGSI-v2 context broker's context as RDF (docs/context-broker.md, "The context as RDF"):
 #: its vocabulary, the bases of minted entity/attribute/type IRIs and of the per-tenant graphs.
 NGSI = Namespace("https://w3id.org/plantkg/ngsi#")
@@ -49,6 +52,7 @@ __all__ = [
     "FLEET_ONTOLOGY_IRI",
     "GRAPH_INFERRED",
     "GRAPH_OBSERVED",
+    "GRAPH_REASONING_SCRATCH",
     "GRAPH_ONTOLOGY",
     "NGSI",
     "NGSI_ENTITY_BASE",

@@ -235,9 +235,16 @@ def validate(
         except ShapesError:
             used = "pyshacl"
     if used == "oxigraph":
-        results = _from_violations(plant, list(run(plant.store, shapes)))
-    else:
-        results = _run_pyshacl(plant, shapes)
+        return report_of(plant, shapes, list(run(plant.store, shapes)))
+    return _report(plant, shapes, _run_pyshacl(plant, shapes), used)
+
+
+def report_of(plant: PlantGraph, shapes: ShapesGraph, violations: list[Violation]) -> ValidationReport:
+    """The fast engine's report from its raw violations (shared with kg.validate_delta)."""
+    return _report(plant, shapes, _from_violations(plant, violations), "oxigraph")
+
+
+def _report(plant: PlantGraph, shapes: ShapesGraph, results: list[ValidationResult], used: str) -> ValidationReport:
     # None (no path or value) sorts first: plain tuple order would compare None with a string
     # when two results differ only there (e.g. MaxCount and Datatype on one property).
     results = sorted(set(results), key=lambda r: tuple("" if x is None else x for x in astuple(r)))

@@ -32,14 +32,11 @@ from flask import Blueprint, Flask, Response, current_app, jsonify, request
 from werkzeug.exceptions import HTTPException
 from werkzeug.routing import PathConverter
 
-from engine.agent.manager import (
-    BridgeConflictError,
-    BrokerManager,
-    BrokerNotFoundError,
-    BrokerNotRunningError,
-)
+from engine.agent.batch import parse_batch, run_batch
+from engine.agent.changes import REMOTE_TOKEN, Changes, check_remote_token, error_body, error_status
+from engine.agent.manager import BrokerManager, BrokerNotFoundError
 from engine.agent.openapi import openapi_document
-from engine.agent.owners import OWNER_FIELD, OwnershipConflictError, check_owner
+from engine.agent.owners import OWNER_FIELD, check_owner
 from engine.agent.wire import (
     BROKER_ID,
     WireError,
@@ -48,23 +45,11 @@ from engine.agent.wire import (
     topic_spec_from_json,
 )
 from engine.agent.workers import WorkerManager
-from engine.errors import (
-    BrokerUnavailableError,
-    ConfigValueError,
-    DriverRefusedError,
-    EngineError,
-    UnknownDriverError,
-)
-from engine.model import BridgeMechanism, to_dict
+from engine.model import to_dict
 
 log = logging.getLogger(__name__)
 
 MAX_BODY_BYTES = 1 << 20
-#: The bridge PUT's transport field carrying the remote broker's agent token (a context broker's
-#: write token; a closed Kafka's, from which the worker derives plantkg's password there); not a
-#: spec field.
-REMOTE_TOKEN = "remote_token"
-MAX_TOKEN = 4096
 EXTENSION = "plantkg_agent"
 
 
@@ -77,6 +62,10 @@ class AgentState:
     token: str
     name: str = "plantkg-agent"
     workers: WorkerManager | None = None
+
+    @property
+    def changes(self) -> Changes:
+        return Changes(self.brokers, self.workers)
 
 
 class TopicName(PathConverter):
@@ -147,6 +136,31 @@ def list_brokers() -> Response:
     return jsonify({"brokers": to_dict(_state().brokers.list())})
 
 
+def _bridges(state: AgentState) -> list[Any]:
+    found = state.brokers.native_bridges() + (state.workers.list() if state.workers else [])
+    return to_dict(sorted(found, key=lambda b: b.spec.address))
+
+
+@v1.get("/state")
+def state() -> Response:
+    """What GET /v1/brokers and GET /v1/bridges answer, in one request (the engine's observation)."""
+    st = _state()
+    return jsonify({"brokers": to_dict(st.brokers.list()), "bridges": _bridges(st)})
+
+
+@v1.post("/batch")
+def batch() -> Response:
+    """Many changes in one request (engine.agent.batch): lanes in parallel, items of a lane in
+    order, a result per item; with ``observe`` also the brokers and bridges afterwards."""
+    lanes, observe = parse_batch(_body())
+    state = _state()
+    answer: dict[str, Any] = {"lanes": run_batch(state.changes, lanes)}
+    if observe:
+        answer["brokers"] = to_dict(state.brokers.list())
+        answer["bridges"] = _bridges(state)
+    return jsonify(answer)
+
+
 @v1.get("/brokers/<broker_id>")
 def get_broker(broker_id: str) -> Response:
     observed = _state().brokers.get(_broker_id(broker_id))
@@ -163,7 +177,7 @@ def put_broker(broker_id: str) -> Response:
     spec = broker_spec_from_json(body)
     if spec.id != _broker_id(broker_id):
         raise WireError("id", f"{spec.id!r} differs from the id in the URL ({broker_id!r})")
-    return jsonify(to_dict(_state().brokers.put(spec, owner)))
+    return jsonify(to_dict(_state().changes.put_broker(spec, owner)))
 
 
 @v1.put("/brokers/<broker_id>/owner")
@@ -187,12 +201,7 @@ def put_owner(broker_id: str) -> Response:
 def delete_broker(broker_id: str) -> tuple[str, int]:
     """Stop the broker; the bridge workers it carries go with it. ``?owner=``: refused (409) if
     another plant owns it."""
-    state = _state()
-    state.brokers.delete(_broker_id(broker_id), _owner_arg())
-    if state.workers is not None:
-        for bridge in state.workers.list():
-            if bridge.spec.local.id == broker_id:
-                state.workers.delete(broker_id, bridge.spec.remote.id)
+    _state().changes.delete_broker(_broker_id(broker_id), _owner_arg())
     return "", 204
 
 
@@ -226,9 +235,7 @@ def _verb(verb: str, broker_id: str) -> Response:
 
 @v1.get("/bridges")
 def list_bridges() -> Response:
-    state = _state()
-    found = state.brokers.native_bridges() + (state.workers.list() if state.workers else [])
-    return jsonify({"bridges": to_dict(sorted(found, key=lambda b: b.spec.address))})
+    return jsonify({"bridges": _bridges(_state())})
 
 
 @v1.put("/brokers/<broker_id>/bridges/<remote_id>")
@@ -240,42 +247,16 @@ def put_bridge(broker_id: str, remote_id: str) -> Response:
     remote_token = body.pop(REMOTE_TOKEN, None) if isinstance(body, dict) else None
     owner = _owner_of(body)
     spec = bridge_spec_from_json(body)
-    if remote_token is not None:
-        if spec.mechanism not in (BridgeMechanism.NGSI, BridgeMechanism.WORKER):
-            raise WireError(REMOTE_TOKEN, f"only an mqtt-ngsi or mqtt-kafka bridge takes one, not "
-                            f"{spec.mechanism.value}")
-        if not isinstance(remote_token, str) or not remote_token.strip() or not remote_token.isprintable() \
-                or len(remote_token) > MAX_TOKEN:
-            raise WireError(REMOTE_TOKEN, f"must be a non-empty printable string of at most {MAX_TOKEN} characters")
-        remote_token = remote_token.strip()
+    remote_token = check_remote_token(remote_token, spec.mechanism)
     if (spec.local.id, spec.remote.id) != (_broker_id(broker_id), _broker_id(remote_id)):
         raise WireError("local", f"the bridge {spec.local.id} -> {spec.remote.id} differs from the "
                         f"URL ({broker_id} -> {remote_id})")
-    state = _state()
-    if spec.mechanism is BridgeMechanism.MOSQUITTO:
-        return jsonify(to_dict(state.brokers.put_native_bridge(spec, owner)))
-    local = state.brokers.get(broker_id)
-    if local is None:
-        raise BrokerNotFoundError(broker_id)
-    if owner is not None and local.owner not in (None, owner):
-        raise OwnershipConflictError(f"broker {broker_id!r} is owned by plant {local.owner!r}, "
-                                     f"not by {owner!r}",
-                                     hint="a plant changes only its own things")
-    if (local.spec.host, local.spec.port) != (spec.local.host, spec.local.port):
-        raise BridgeConflictError(f"{spec.address}: its local end is not broker {broker_id!r} here",
-                                  hint="PUT the broker first, then its bridges")
-    if state.workers is None:
-        raise EngineError("this agent runs no bridge workers", hint="start it with `plantkg agent`")
-    owned = {"owner": owner} if owner is not None else {}  # WorkerManager.put's keyword
-    return jsonify(to_dict(state.workers.put(spec, remote_token, **owned)))
+    return jsonify(to_dict(_state().changes.put_bridge(spec, owner, remote_token)))
 
 
 @v1.delete("/brokers/<broker_id>/bridges/<remote_id>")
 def delete_bridge(broker_id: str, remote_id: str) -> tuple[str, int]:
-    state = _state()
-    local, remote, owner = _broker_id(broker_id), _broker_id(remote_id), _owner_arg()
-    if not state.brokers.delete_native_bridge(local, remote, owner) and state.workers is not None:
-        state.workers.delete(local, remote, owner)
+    _state().changes.delete_bridge(_broker_id(broker_id), _broker_id(remote_id), _owner_arg())
     return "", 204
 
 
@@ -289,12 +270,12 @@ def put_topic(broker_id: str, name: str) -> Response:
                         f"({broker_id!r})")
     if topic.name != name:
         raise WireError("name", f"{topic.name!r} differs from the topic name in the URL ({name!r})")
-    return jsonify(to_dict(_state().brokers.put_topic(topic, owner)))
+    return jsonify(to_dict(_state().changes.put_topic(topic, owner)))
 
 
 @v1.delete("/brokers/<broker_id>/topics/<topic:name>")
 def delete_topic(broker_id: str, name: str) -> tuple[str, int]:
-    _state().brokers.delete_topic(_broker_id(broker_id), name, _owner_arg())
+    _state().changes.delete_topic(_broker_id(broker_id), name, _owner_arg())
     return "", 204
 
 
@@ -360,40 +341,16 @@ def _version() -> str:
 
 def _json_error(status: int, message: str, hint: str | None, *, retryable: bool,
                 field: str | None = None) -> Response:
-    body: dict[str, Any] = {"error": message, "hint": hint, "retryable": retryable}
-    if field is not None:
-        body["field"] = field
-    response = jsonify(body)
+    response = jsonify(error_body(message, hint, retryable=retryable, field=field))
     response.status_code = status
     return response
 
 
-#: Error type -> HTTP status, most specific first.
-_STATUS: tuple[tuple[type[BaseException], int], ...] = (
-    (WireError, 400),
-    (ConfigValueError, 400),
-    (BrokerNotFoundError, 404),
-    (DriverRefusedError, 409),
-    (BridgeConflictError, 409),
-    (OwnershipConflictError, 409),
-    (BrokerNotRunningError, 409),
-    (UnknownDriverError, 422),
-    (BrokerUnavailableError, 503),
-    (EngineError, 422),
-)
-
-
 def _error(exc: Exception) -> Response:
-    for cls, status in _STATUS:
-        if isinstance(exc, cls):
-            assert isinstance(exc, EngineError)
-            field = getattr(exc, "field", None)
-            if status >= 422 or status == 409:
-                log.warning("%s %s -> %d: %s", request.method, request.path, status, exc.message)
-            return _json_error(status, exc.message, exc.hint, retryable=status == 503, field=field)
-    log.exception("%s %s failed", request.method, request.path)
-    return _json_error(500, f"internal error: {type(exc).__name__}: {exc}",
-                       "see the agent's log; this is a bug in plantkg", retryable=True)
+    status, body = error_status(exc, f"{request.method} {request.path}")
+    response = jsonify(body)
+    response.status_code = status
+    return response
 
 
 def _http_error(exc: HTTPException) -> Response:

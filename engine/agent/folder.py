@@ -11,6 +11,8 @@
     logs/<kind>.log  the broker's stdout and stderr (and Mosquitto's own log)
 
 Files are written atomically (temporary file + rename), so a crash never leaves half a JSON file.
+The agent is the only writer of the folder: it keeps ``topics.json`` and ``bridges.json`` in
+memory as last read or written (an edit by hand is seen after the agent restarts).
 Rendered files are mode 0600 (:data:`RENDERED_MODE`): they may hold password hashes.
 """
 
@@ -18,7 +20,7 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from collections.abc import Callable
@@ -57,15 +59,23 @@ class PidRecord:
 
 
 def write_atomic(path: Path, text: str, mode: int = 0o644) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    """Write ``path`` whole or not at all: a file aside (named after this process and thread, so
+    writers never share one), then renamed over it. The folder is made only when missing (a
+    broker start writes several files; each saved syscall counts when 100 start at once)."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
+    flags = os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC
+    try:
+        fd = os.open(tmp, flags, mode)
+    except FileNotFoundError:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(tmp, flags, mode)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            os.fchmod(fh.fileno(), mode)  # exactly ``mode``, whatever the umask
             fh.write(text)
-        os.chmod(tmp, mode)
         os.replace(tmp, path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
 
 
@@ -74,6 +84,13 @@ class BrokerFolder:
 
     def __init__(self, path: Path) -> None:
         self.path = path
+        # topics.json and bridges.json as last read or written: the agent is their only writer,
+        # and every GET /v1/brokers read them for every broker (100 file reads per observe).
+        self._kept: dict[str, Any] = {}
+
+    def forget(self) -> None:
+        """Drop what is kept of the files (the folder was moved away or made anew)."""
+        self._kept.clear()
 
     def write_json(self, name: str, data: Any) -> None:
         write_atomic(self.path / name, json.dumps(data, indent=2, sort_keys=True) + "\n")
@@ -133,25 +150,37 @@ class BrokerFolder:
 
     # topics.json
     def read_topics(self) -> list[ObservedTopic]:
-        data = self._read_json(TOPICS_FILE) or []
-        return [observed_topic_from_json(t) for t in data]
+        if TOPICS_FILE not in self._kept:
+            data = self._read_json(TOPICS_FILE) or []
+            self._kept[TOPICS_FILE] = tuple(observed_topic_from_json(t) for t in data)
+        return list(self._kept[TOPICS_FILE])
 
     def write_topics(self, topics: list[ObservedTopic]) -> None:
-        self.write_json(TOPICS_FILE, [to_dict(t) for t in sorted(topics, key=lambda t: t.name)])
+        ordered = tuple(sorted(topics, key=lambda t: t.name))
+        self._kept.pop(TOPICS_FILE, None)
+        self.write_json(TOPICS_FILE, [to_dict(t) for t in ordered])
+        self._kept[TOPICS_FILE] = ordered
 
     # bridges.json
     def read_bridges(self) -> tuple[BridgeSpec, ...]:
-        return self.read_parsed(BRIDGES_FILE, lambda data: tuple(bridge_spec_from_json(b) for b in data),
-                                "PUT the bridges again, or delete the file") or ()
+        if BRIDGES_FILE not in self._kept:
+            self._kept[BRIDGES_FILE] = self.read_parsed(
+                BRIDGES_FILE, lambda data: tuple(bridge_spec_from_json(b) for b in data),
+                "PUT the bridges again, or delete the file") or ()
+        return self._kept[BRIDGES_FILE]
 
     def write_bridges(self, bridges: tuple[BridgeSpec, ...]) -> None:
+        self._kept.pop(BRIDGES_FILE, None)
         self.write_json(BRIDGES_FILE, [to_dict(b) for b in bridges])
+        self._kept[BRIDGES_FILE] = tuple(bridges)
 
     # rendered files
     def write_rendered(self, files: dict[str, str]) -> None:
         for name, text in files.items():
-            target = (self.path / name).resolve()
-            if target.parent != self.path.resolve() or name in (SPEC_FILE, PID_FILE, TOPICS_FILE, BRIDGES_FILE):
+            # A plain file name in this folder (no path, no symlink followed: the file is written
+            # aside and renamed over the name), and none of the agent's own files.
+            if not name or "/" in name or "\0" in name or name in (".", "..") \
+                    or name in (SPEC_FILE, PID_FILE, TOPICS_FILE, BRIDGES_FILE):
                 raise EngineError(f"driver tried to write {name!r} outside its config files",
                                   hint="fix the driver's render_config")
-            write_atomic(target, text, RENDERED_MODE)
+            write_atomic(self.path / name, text, RENDERED_MODE)

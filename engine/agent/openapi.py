@@ -250,6 +250,62 @@ _SCHEMAS["TopicPut"] = {**_SCHEMAS["TopicSpec"],
 _SCHEMAS["OwnerPut"] = {"type": "object", "additionalProperties": False, "required": ["owner"],
                         "properties": {"owner": _OWNER}}
 
+#: POST /v1/batch (engine.agent.batch): each item is one change, as its single request.
+_ITEM_ID = {"type": "string", "pattern": _BROKER_ID["schema"]["pattern"]}
+
+
+def _item(op: str, fields: dict[str, Any], required: tuple[str, ...], what: str) -> dict[str, Any]:
+    return {"type": "object", "additionalProperties": False, "description": what,
+            "required": ["op", *required],
+            "properties": {"op": {"const": op}, **fields, "owner": _OWNER}}
+
+
+_SCHEMAS["BatchItem"] = {"oneOf": [
+    _item("put_broker", {"spec": _ref("BrokerSpec")}, ("spec",), "as PUT /v1/brokers/{spec.id}"),
+    _item("delete_broker", {"broker_id": _ITEM_ID}, ("broker_id",), "as DELETE /v1/brokers/{broker_id}"),
+    _item("put_topic", {"spec": _ref("TopicSpec")}, ("spec",),
+          "as PUT /v1/brokers/{spec.broker_id}/topics/{spec.name}"),
+    _item("delete_topic", {"broker_id": _ITEM_ID, "name": {"type": "string", "minLength": 1}},
+          ("broker_id", "name"), "as DELETE /v1/brokers/{broker_id}/topics/{name}"),
+    _item("put_bridge", {"spec": _ref("BridgeSpec"),
+                         "remote_token": {"type": "string", "writeOnly": True,
+                                          "description": "mqtt-ngsi: the context broker's write token"}},
+          ("spec",), "as PUT /v1/brokers/{spec.local.id}/bridges/{spec.remote.id}"),
+    _item("delete_bridge", {"broker_id": _ITEM_ID, "remote_id": _ITEM_ID}, ("broker_id", "remote_id"),
+          "as DELETE /v1/brokers/{broker_id}/bridges/{remote_id}"),
+]}
+_SCHEMAS["Batch"] = {
+    "type": "object", "additionalProperties": False, "required": ["lanes"],
+    "properties": {
+        "lanes": {"type": "array", "maxItems": 512, "description":
+                  "Lanes run at the same time; the items of a lane in order, and after a failed "
+                  "item the rest of its lane is skipped. At most 4096 items in all.",
+                  "items": {"type": "array", "minItems": 1, "items": _ref("BatchItem")}},
+        "observe": {"type": "boolean", "description": "Answer also the brokers and bridges as "
+                    "GET /v1/brokers and GET /v1/bridges would, once every lane finished"},
+    },
+}
+_SCHEMAS["BatchResult"] = {
+    "type": "object", "required": ["outcome"],
+    "properties": {
+        "outcome": {"type": "string", "enum": ["done", "failed", "skipped"],
+                    "description": "skipped: an earlier item of the lane failed; not attempted"},
+        "status": {"type": "integer", "description": "The status the single request would have "
+                   "answered (200, 204, 400, 404, 409, 422, 503, 500)"},
+        "answer": {"description": "What the single request would have answered (null for 204)"},
+        "error": _ref("Error"),
+    },
+}
+_SCHEMAS["BatchAnswer"] = {
+    "type": "object", "required": ["lanes"],
+    "properties": {
+        "lanes": {"type": "array", "items": {"type": "array", "items": _ref("BatchResult")},
+                  "description": "One result per item, in the request's shape"},
+        "brokers": {"type": "array", "items": _ref("ObservedBroker")},
+        "bridges": {"type": "array", "items": _ref("ObservedBridge")},
+    },
+}
+
 
 #: The operator's verbs (docs/operating.md): no request body; each answers the broker.
 _VERBS: tuple[tuple[str, str, str, str, tuple[int, ...]], ...] = (
@@ -392,6 +448,32 @@ def openapi_document(version: str) -> dict[str, Any]:
                                   **_error_responses(400, 401, 409, 503)},
                 },
             },
+            "/v1/state": {"get": {
+                "operationId": "state",
+                "summary": "Every broker and every bridge of this agent, in one answer",
+                "description": "What GET /v1/brokers and GET /v1/bridges answer, together: the "
+                               "engine observes an agent with one request.",
+                "responses": {
+                    "200": _json({"type": "object", "required": ["brokers", "bridges"], "properties": {
+                        "brokers": {"type": "array", "items": _ref("ObservedBroker")},
+                        "bridges": {"type": "array", "items": _ref("ObservedBridge")}}},
+                        "The brokers sorted by id, the bridges by address"),
+                    **_error_responses(401),
+                },
+            }},
+            "/v1/batch": {"post": {
+                "operationId": "batch",
+                "summary": "Make many changes in one request, in lanes, with a result per item",
+                "description": "Each item is exactly the single request it names (same checks, "
+                               "owner rule and status). Lanes run at the same time, so brokers "
+                               "start and stop together; a failed item skips the rest of its "
+                               "lane only. A malformed request is refused whole (400 naming the "
+                               "field, e.g. lanes[1][0].spec.port): nothing is done.",
+                "requestBody": {"required": True, "content": {
+                    "application/json": {"schema": _ref("Batch")}}},
+                "responses": {"200": _json(_ref("BatchAnswer"), "Every item's result"),
+                              **_error_responses(400, 401, 500)},
+            }},
             "/v1/openapi.json": {"get": {
                 "operationId": "openapi", "summary": "This document", "security": [],
                 "responses": {"200": {"description": "OpenAPI 3.1",

@@ -10,6 +10,7 @@ Linux-only (``/proc``), like the agent.
 
 from __future__ import annotations
 
+import functools
 import os
 import signal
 from dataclasses import dataclass
@@ -17,7 +18,6 @@ from pathlib import Path
 from typing import Protocol
 
 from engine import process
-from engine.errors import WaitTimeoutError
 
 _CLK_TCK = os.sysconf("SC_CLK_TCK")
 
@@ -49,7 +49,10 @@ def proc_info(pid: int) -> ProcInfo | None:
     return ProcInfo(pid=pid, start_ticks=int(rest[19]), pgid=int(rest[2]), argv=argv)
 
 
+@functools.cache
 def _boot_time() -> float:
+    """When the machine booted (it does not change while the agent runs: read once; every GET
+    /v1/brokers asked it for every broker)."""
     for line in Path("/proc/stat").read_text().splitlines():
         if line.startswith("btime "):
             return float(line.split()[1])
@@ -159,8 +162,7 @@ def stop_foreign(info: ProcInfo, grace: float) -> None:
             pass
 
     send(signal.SIGTERM)
-    try:
-        process.wait_until(lambda: not same(), grace, 0.02, what=f"pid {info.pid} to exit")
-    except WaitTimeoutError:
-        send(signal.SIGKILL)
-        process.wait_until(lambda: not same(), 10.0, 0.02, what=f"pid {info.pid} to die")
+    if not same() or process.wait_exit(info.pid, grace) or not same():
+        return
+    send(signal.SIGKILL)
+    process.wait_until(lambda: not same(), 10.0, 0.02, what=f"pid {info.pid} to die")

@@ -2,7 +2,9 @@
 
 The app is served by werkzeug's threaded WSGI server in a thread of its own (werkzeug comes
 with Flask; one engine talks to an agent over loopback or a plant network, a handful of requests
-at a time, so a production server such as waitress would add a dependency and buy nothing here).
+at a time, so a production server such as waitress would add a dependency and buy nothing here),
+with a request handler of our own that keeps connections open between requests
+(:mod:`engine.agent.keepalive`).
 The main thread waits for SIGTERM/SIGINT, then stops the server and the supervisor; brokers keep
 running unless ``stop_brokers_on_exit`` (they are the plant's, the agent only manages them).
 """
@@ -27,6 +29,7 @@ from werkzeug.serving import BaseWSGIServer, make_server
 
 from engine.agent import tls
 from engine.agent.app import AgentState, create_app
+from engine.agent.keepalive import KeepAliveHandler, close_connections, keep_alive
 from engine.agent.manager import BrokerManager
 from engine.agent.workers import WorkerManager
 from engine.drivers.base import AGENT_TOKEN_FILE_ENV
@@ -154,6 +157,7 @@ class RunningAgent:
             self.tls_stop.set()
         self.server.shutdown()
         self.thread.join()
+        close_connections(self.server)
         self.server.server_close()
         if self.workers is not None:
             self.workers.close(stop_workers=stop_brokers)
@@ -181,7 +185,8 @@ def start_agent(
     app = create_app(AgentState(manager, token, name or f"plantkg-agent@{listen.url}", workers))
     try:
         context = tls.server_context(state_dir, listen.host) if listen.tls else None
-        server = make_server(listen.host, listen.port, app, threaded=True, ssl_context=context)
+        server = keep_alive(make_server(listen.host, listen.port, app, threaded=True, ssl_context=context,
+                                        request_handler=KeepAliveHandler))
     except (OSError, SystemExit, ca.CaError) as exc:  # werkzeug exits when the port is taken
         workers.close()
         manager.close()

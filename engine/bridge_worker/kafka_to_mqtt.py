@@ -1,7 +1,7 @@
 """Kafka -> MQTT: records of the routed Kafka topics are published at QoS 1 on their MQTT topic;
 an offset is committed only after the PUBACK of it and of everything before it in its partition.
 
-Everything here runs on the worker's main thread (paho's callbacks only queue events), so the
+Everything here runs on the worker's main thread (the MQTT client's callbacks only queue events), so the
 ledgers need no lock. Rules that make it lose nothing:
 
 - The consumer group is ``plantkg-bridge-<bridge id>``, auto-commit off. A partition the group
@@ -38,6 +38,7 @@ COMMIT_LAG = 5.0
 STOP_COMMIT_LAG = 1.0    # at a clean stop (Mosquitto is up) wait at most this for commits
 COMMIT_EVERY = 0.2       # seconds between commit passes
 MAX_UNACKED = 5000       # records published and not yet PUBACKed before consuming pauses
+BATCH = 500              # records taken from the consumer per pass (only those already fetched)
 ASSIGN_TIMEOUT = 30.0    # seconds to read (and first commit) the positions of new partitions
 
 Partition = tuple[str, int]
@@ -90,12 +91,17 @@ class KafkaToMqtt:
         return len(self._by_mid)
 
     def step(self, timeout: float) -> None:
-        """One turn of the main loop: apply paho's events, consume a record, commit."""
+        """One turn of the main loop: apply the MQTT client's events, consume a record, commit."""
         self._drain_events()
         self._pause_or_resume()
         msg = self.consumer.poll(timeout if self._paused else min(timeout, 0.01))
         if msg is not None:
-            self._forward(msg)
+            # poll returns at the first record; what else is already fetched comes without waiting
+            room = MAX_UNACKED - self.unacked
+            batch = [msg, *self.consumer.consume(min(BATCH, room), 0)] if room > 1 else [msg]
+            for record in batch:
+                self._forward(record)
+            self.link.flush()
         now = time.monotonic()
         if self._connected and now - self._last_commit >= COMMIT_EVERY:
             self._last_commit = now
@@ -147,15 +153,15 @@ class KafkaToMqtt:
             ledger.skipped(msg.offset())
             return
         route = self.routes[msg.topic()]
-        info = self.link.publish(self._generation, route.mqtt_topic, msg.value() or b"", route.qos)
-        if info is None:  # the connection changed: the rewind that follows publishes it again
+        mid = self.link.publish(self._generation, route.mqtt_topic, msg.value() or b"", route.qos)
+        if mid is None:  # the connection changed: the rewind that follows publishes it again
             return
         record = ledger.sent(msg.offset())
         if route.qos == 0:
             PartitionLedger.acked(record, time.monotonic())
             self.health.count("forwarded_kafka_to_mqtt")
         else:
-            self._by_mid[info.mid] = record
+            self._by_mid[mid] = record
 
     def _commit(self, now: float, lag: float = COMMIT_LAG) -> None:
         offsets = []
@@ -237,5 +243,5 @@ class KafkaToMqtt:
         while time.monotonic() < deadline and self._connected and any(l.records for l in self.ledgers.values()):
             self._drain_events()
             self._commit(time.monotonic(), STOP_COMMIT_LAG)
-            time.sleep(0.05)  # bounded by the deadline; PUBACKs arrive on paho's thread
+            time.sleep(0.05)  # bounded by the deadline; PUBACKs arrive on the MQTT client's thread
         self.consumer.close()

@@ -28,15 +28,14 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from functools import partial
 
-import paho.mqtt.client as mqtt
 from confluent_kafka import KafkaError, KafkaException, Message, Producer
 
 from engine.bridge_worker.config import Direction, KeyMode, Route, WorkerConfig
 from engine.bridge_worker.health import Health
 from engine.bridge_worker.ledgers import InOrderAcks, PendingAck
-from engine.bridge_worker.mqtt_link import MqttLink
+from engine.bridge_worker.mqtt_link import RECEIVE_MAXIMUM, MqttLink
+from engine.bridge_worker.mqtt_wire import Publish
 
 log = logging.getLogger("plantkg.bridge.mqtt-to-kafka")
 
@@ -59,23 +58,37 @@ def producer_config(cfg: WorkerConfig, on_error: Callable[[KafkaError], None]) -
     }
 
 
+class _Record:
+    """One Kafka record to write, and the MQTT message it acknowledges once written."""
+
+    __slots__ = ("topic", "value", "key", "headers", "timestamp", "entry", "half")
+
+    def __init__(self, topic: str, value: bytes, key: bytes | None, headers: list[tuple[str, bytes]],
+                 timestamp: int, entry: PendingAck | None, half: MqttToKafka) -> None:
+        self.topic, self.value, self.key, self.headers = topic, value, key, headers
+        self.timestamp, self.entry, self.half = timestamp, entry, half
+
+    def delivered(self, err: KafkaError | None, _msg: Message) -> None:
+        self.half._delivered(self, err)
+
+
 @dataclass(order=True)
 class _Retry:
     due: float
     seq: int
-    args: tuple = field(compare=False)
+    record: _Record = field(compare=False)
 
 
 class MqttToKafka:
-    """Subscribed MQTT messages -> Kafka records. Messages arrive on paho's thread; deliveries are
-    confirmed on this half's own polling thread."""
+    """Subscribed MQTT messages -> Kafka records. Messages arrive on the MQTT client's thread;
+    deliveries are confirmed on this half's own polling thread."""
 
     def __init__(self, cfg: WorkerConfig, mqtt_link: MqttLink, health: Health) -> None:
         self.cfg = cfg
         self.health = health
         self.routes: dict[str, Route] = {r.mqtt_topic: r for r in cfg.routes_of(Direction.MQTT_TO_KAFKA)}
         self.link = mqtt_link
-        self.acks = InOrderAcks(mqtt_link.ack)
+        self.acks = InOrderAcks(mqtt_link.ack_later)   # sent in batches: see _poll_loop
         self.producer = Producer(producer_config(cfg, self._kafka_error))
         self._stopping = threading.Event()
         self._done = threading.Event()
@@ -83,96 +96,106 @@ class MqttToKafka:
         self._parked: dict[str, tuple[int, float]] = {}  # topic -> (records in _retries, last due)
         self._retry_lock = threading.Lock()
         self._seq = 0
+        self._written = 0   # records confirmed since the last pass of _poll_loop (its thread only)
+        self._own = cfg.bridge_id.encode("utf-8")
         self._thread = threading.Thread(target=self._poll_loop, name="kafka-producer", daemon=True)
         mqtt_link.on_message = self.on_message
         mqtt_link.on_connection.append(self._connection_changed)
+        mqtt_link.hold_reading_while(lambda: len(self.acks) >= RECEIVE_MAXIMUM)
 
     def start(self) -> None:
         self._thread.start()
 
-    def on_message(self, msg: mqtt.MQTTMessage) -> None:
-        """paho's thread: one PUBLISH received."""
+    def on_message(self, msg: Publish) -> None:
+        """The MQTT client's thread: one PUBLISH received."""
         if self._stopping.is_set():
             return  # not acknowledged: the broker sends it again to the next worker session
         route = self.routes.get(msg.topic)
         if route is None:  # a subscription left in the session by an earlier configuration
             log.warning("dropping a message on %r: no route (unsubscribing)", msg.topic)
-            self.link.client.unsubscribe(msg.topic)
+            self.link.unsubscribe(msg.topic)
             self.link.ack(msg.mid, msg.qos)
             return
         entry = self.acks.add(msg.mid, msg.qos) if msg.qos > 0 else None
         received_ms = int(time.time() * 1000)
-        key = msg.topic.encode("utf-8") if route.key is KeyMode.MQTT_TOPIC else None
-        headers = [("mqtt.topic", msg.topic.encode("utf-8")), ("mqtt.qos", str(msg.qos).encode()),
-                   ("mqtt.received_at", str(received_ms).encode()),
-                   (BRIDGE_HEADER, self.cfg.bridge_id.encode("utf-8"))]
-        self._send((route.kafka_topic, bytes(msg.payload), key, headers, received_ms, entry))
+        topic = msg.topic.encode("utf-8")
+        headers = [("mqtt.topic", topic), ("mqtt.qos", b"1" if msg.qos else b"0"),
+                   ("mqtt.received_at", str(received_ms).encode()), (BRIDGE_HEADER, self._own)]
+        self._send(_Record(route.kafka_topic, msg.payload, topic if route.key is KeyMode.MQTT_TOPIC else None,
+                           headers, received_ms, entry, self))
 
-    def _send(self, args: tuple) -> None:
+    def _send(self, record: _Record) -> None:
         """Produce, unless older records of the topic wait for a retry: then queue behind them."""
-        with self._retry_lock:
-            parked = self._parked.get(args[0])
-            if parked is not None:
-                self._park(args, parked[1])
-                return
-        self._produce(args)
+        if self._parked:  # only then is the lock needed: _parked is empty on the fast path
+            with self._retry_lock:
+                parked = self._parked.get(record.topic)
+                if parked is not None:
+                    self._park(record, parked[1])
+                    return
+        self._produce(record)
 
-    def _produce(self, args: tuple) -> None:
-        topic, value, key, headers, ts, _entry = args
+    def _produce(self, record: _Record) -> None:
         while True:
             try:
-                self.producer.produce(topic, value=value, key=key, headers=headers, timestamp=ts,
-                                      on_delivery=partial(self._delivered, args))
+                self.producer.produce(record.topic, value=record.value, key=record.key,
+                                      headers=record.headers, timestamp=record.timestamp,
+                                      on_delivery=record.delivered)
                 return
             except BufferError:  # librdkafka's queue is full: let deliveries drain it
                 self.producer.poll(0.05)
             except KafkaException as exc:  # e.g. _UNKNOWN_TOPIC: the topic does not exist (yet)
-                self._retry_later(args, exc.args[0].str() if exc.args else str(exc))
+                self._retry_later(record, exc.args[0].str() if exc.args else str(exc))
                 return
 
-    def _retry_later(self, args: tuple, why: str) -> None:
+    def _retry_later(self, record: _Record, why: str) -> None:
         self.health.count("retried")
-        self.health.error(f"Kafka delivery to {args[0]!r} failed: {why}; retrying")
+        self.health.error(f"Kafka delivery to {record.topic!r} failed: {why}; retrying")
         with self._retry_lock:
-            self._park(args, time.monotonic() + RETRY_BACKOFF)
+            self._park(record, time.monotonic() + RETRY_BACKOFF)
 
-    def _park(self, args: tuple, due: float) -> None:
-        """Queue ``args`` for a produce at ``due`` (the caller holds the retry lock)."""
-        count, last = self._parked.get(args[0], (0, due))
+    def _park(self, record: _Record, due: float) -> None:
+        """Queue ``record`` for a produce at ``due`` (the caller holds the retry lock)."""
+        count, last = self._parked.get(record.topic, (0, due))
         due = max(due, last)  # never before an older record of the same topic
-        self._parked[args[0]] = (count + 1, due)
+        self._parked[record.topic] = (count + 1, due)
         self._seq += 1
-        heapq.heappush(self._retries, _Retry(due, self._seq, args))
+        heapq.heappush(self._retries, _Retry(due, self._seq, record))
 
-    def _delivered(self, args: tuple, err: KafkaError | None, _msg: Message) -> None:
+    def _delivered(self, record: _Record, err: KafkaError | None) -> None:
         """The producer thread: Kafka's answer about one record."""
-        entry = args[-1]
         if err is None:
-            self.health.count("forwarded_mqtt_to_kafka")
-            if entry is not None:
-                self.acks.confirm(entry)
+            self._written += 1
+            if record.entry is not None:
+                self.acks.confirm(record.entry)
             return
-        self._retry_later(args, err.str())
+        self._retry_later(record, err.str())
 
     def _poll_loop(self) -> None:
+        """Serve delivery reports; after each pass, send the PUBACKs now due in one write and
+        add the records written to the counter."""
         while not self._done.is_set():
             self.producer.poll(0.05)
-            self._resend_due()
+            self.link.flush()
+            if self._written:
+                self.health.count("forwarded_mqtt_to_kafka", self._written)
+                self._written = 0
+            if self._retries:
+                self._resend_due()
 
     def _resend_due(self) -> None:
         now = time.monotonic()
         due = []
         with self._retry_lock:
             while self._retries and self._retries[0].due <= now:
-                args = heapq.heappop(self._retries).args
-                count, last = self._parked[args[0]]
+                record = heapq.heappop(self._retries).record
+                count, last = self._parked[record.topic]
                 if count > 1:
-                    self._parked[args[0]] = (count - 1, last)
+                    self._parked[record.topic] = (count - 1, last)
                 else:
-                    del self._parked[args[0]]
-                due.append(args)
-        for args in due:  # in order; one that fails again parks the rest of its topic behind it
-            self._send(args)
+                    del self._parked[record.topic]
+                due.append(record)
+        for record in due:  # in order; one that fails again parks the rest of its topic behind it
+            self._send(record)
 
     def _connection_changed(self, up: bool, _generation: int) -> None:
         if not up:
@@ -191,6 +214,7 @@ class MqttToKafka:
         self._stopping.set()
         while len(self.acks) and time.monotonic() < deadline:
             self.producer.flush(min(0.2, max(0.0, deadline - time.monotonic())))
+            self.link.flush()
         if len(self.acks):
             log.warning("%d messages still unconfirmed at stop: the broker sends them again", len(self.acks))
         self._done.set()

@@ -1,7 +1,7 @@
 """MQTT -> NGSI: every message of a subscribed topic becomes one upsert of the topic's entity; the
 MQTT message is acknowledged only after the context broker answered 2xx.
 
-Messages arrive on paho's thread and are queued on a *lane*: a thread with its own keep-alive
+Messages arrive on the MQTT client's thread and are queued on a *lane*: a thread with its own keep-alive
 connection that sends one request at a time. A topic always goes to the same lane, so its
 messages reach the context broker in arrival order; PUBACKs leave in arrival order across lanes
 (:class:`engine.bridge_worker.ledgers.InOrderAcks`). What the answer means
@@ -27,10 +27,10 @@ import time
 import zlib
 from dataclasses import dataclass
 
-import paho.mqtt.client as mqtt
 
 from engine.bridge_worker.ledgers import InOrderAcks, PendingAck
-from engine.bridge_worker.mqtt_link import MqttLink
+from engine.bridge_worker.mqtt_link import RECEIVE_MAXIMUM, MqttLink
+from engine.bridge_worker.mqtt_wire import Publish
 from engine.bridge_worker.ngsi_client import NgsiClient, NgsiRefused, NgsiUnavailable
 from engine.bridge_worker.ngsi_config import NgsiDirection, NgsiRoute, NgsiWorkerConfig
 from engine.bridge_worker.ngsi_health import NgsiHealth
@@ -69,20 +69,21 @@ class MqttToNgsi:
         self._taking = True
         link.on_message = self.on_message
         link.on_connection.append(self._connection_changed)
+        link.hold_reading_while(lambda: len(self.acks) >= RECEIVE_MAXIMUM)
 
     def start(self) -> None:
         for thread in self._threads:
             thread.start()
 
-    # --- paho's thread -----------------------------------------------------------------------
+    # --- the MQTT client's thread ------------------------------------------------------------
 
-    def on_message(self, msg: mqtt.MQTTMessage) -> None:
+    def on_message(self, msg: Publish) -> None:
         if not self._taking:
             return  # not acknowledged: the broker sends it again to the next session
         route = self.routes.get(msg.topic)
         if route is None:  # a subscription left in the session by an earlier configuration
             log.warning("dropping a message on %r: no route (unsubscribing)", msg.topic)
-            self.link.client.unsubscribe(msg.topic)
+            self.link.unsubscribe(msg.topic)
             self.link.ack(msg.mid, msg.qos)
             return
         entry = self.acks.add(msg.mid, msg.qos) if msg.qos > 0 else None

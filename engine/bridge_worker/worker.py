@@ -1,7 +1,7 @@
 """One bridge worker: its MQTT connection, the forwarding halves its routes need, a Kafka health
 probe and the stats file, run until asked to stop.
 
-Threads: paho's network thread (MQTT in and out), the producer's polling thread (Kafka delivery
+Threads: the MQTT client's I/O thread (MQTT in and out), the producer's polling thread (Kafka delivery
 reports -> PUBACKs), a probe thread (is the Kafka cluster reachable?) and the main thread, which
 runs the Kafka -> MQTT half and writes ``stats.json``. A stop (SIGTERM, SIGINT) ends consuming
 first, then waits, bounded, for the writes and PUBACKs in flight, then disconnects: the MQTT session

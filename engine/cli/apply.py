@@ -24,7 +24,7 @@ from engine.cli.options import agents_option, owner_option, prune_option, result
 @yes_option
 @agents_option
 @click.option("--parallelism", type=click.IntRange(1, 64), default=8, show_default=True,
-              help="how many brokers are changed at once")
+              help="how many agents are sent their changes at once (each gets one request per wave; an agent changes all its brokers at once)")
 @owner_option
 @result_format_option
 @prune_option

@@ -20,7 +20,7 @@ from engine.cli.options import agents_option, owner_option, result_format_option
 @yes_option
 @agents_option
 @click.option("--parallelism", type=click.IntRange(1, 64), default=8, show_default=True,
-              help="how many brokers are removed at once")
+              help="how many agents are sent their removals at once (an agent stops all its brokers at once)")
 @owner_option
 @result_format_option
 def destroy_command(files: tuple[str, ...], yes: bool, agents_file: Path | None, parallelism: int,

@@ -32,12 +32,12 @@ from typing import Literal as Lit
 
 import pyoxigraph as ox
 
-from engine.reasoning import rules_fast, rules_owlready
+from engine.reasoning import rules_fast, rules_owlready, tbox_cache
 from engine.reasoning.rules_errors import (
     InconsistentPlantError, ReasonerFailedError, ReasonerTimeoutError, ReasoningError,
     UnsupportedConstructError,
 )
-from engine.reasoning.rules_tbox import RESERVED_NAMESPACES, read_tbox
+from engine.reasoning.rules_tbox import RESERVED_NAMESPACES
 from kg.load import PlantGraph
 from kg.namespaces import GRAPH_INFERRED, GRAPH_ONTOLOGY, OWL, PK, RDF, RDFS, SWRL
 
@@ -93,9 +93,14 @@ def is_reasoned(plant: PlantGraph) -> bool:
     return any(True for _ in plant.store.quads_for_pattern(INFERRED, _MARKER, None, INFERRED))
 
 
-def reason(plant: PlantGraph, *, engine: Engine = "auto", timeout: float = HERMIT_TIMEOUT) -> Inferences:
+def reason(plant: PlantGraph, *, engine: Engine = "auto", timeout: float = HERMIT_TIMEOUT,
+           scratch: ox.NamedNode | None = None) -> Inferences:
     """Infer what the ontology's definitions and rules conclude about ``plant``; write it into
     ``GRAPH_INFERRED`` (replacing an earlier run's) and summarise it.
+
+    ``scratch`` (the fast engine only): keep the facts the fixpoint needed but ``GRAPH_INFERRED``
+    does not hold in that graph instead of dropping them, so an incremental run
+    (:mod:`engine.reasoning.rules_delta`) can continue from the whole fixpoint.
 
     Raises :class:`InconsistentPlantError` when the plant contradicts the ontology,
     :class:`UnsupportedConstructError` when ``engine="fast"`` cannot translate the TBox or the
@@ -106,22 +111,22 @@ def reason(plant: PlantGraph, *, engine: Engine = "auto", timeout: float = HERMI
         raise ReasoningError(f"unknown reasoning engine {engine!r}", hint=f"use one of {', '.join(ENGINES)}")
     start = time.perf_counter()
     store = plant.store
-    _clear(store)
+    _clear(store, scratch)
     fallback = None
     try:
         if engine in ("auto", "fast"):
             try:
-                used = _run_fast(plant)
+                used = _run_fast(plant, scratch)
             except UnsupportedConstructError as exc:
                 if engine == "fast":
                     raise
-                _clear(store)
+                _clear(store, scratch)
                 fallback = exc.message
                 used = _run_owlready2(plant, timeout)
         else:
             used = _run_owlready2(plant, timeout)
     except BaseException:
-        _clear(store)
+        _clear(store, scratch)
         raise
     seconds = time.perf_counter() - start
     store.add(ox.Quad(INFERRED, _MARKER, ox.Literal(f"inferred by plantkg reason, engine {used}"), INFERRED))
@@ -129,9 +134,10 @@ def reason(plant: PlantGraph, *, engine: Engine = "auto", timeout: float = HERMI
     return Inferences(used, seconds, classes, properties, fallback)
 
 
-def _clear(store: ox.Store) -> None:
-    if store.contains_named_graph(INFERRED):
-        store.remove_graph(INFERRED)
+def _clear(store: ox.Store, scratch: ox.NamedNode | None = None) -> None:
+    for graph in (INFERRED, scratch):
+        if graph is not None and store.contains_named_graph(graph):
+            store.remove_graph(graph)
 
 
 def _where(plant: PlantGraph):  # noqa: ANN202 - a small closure
@@ -149,23 +155,33 @@ def _where(plant: PlantGraph):  # noqa: ANN202 - a small closure
     return describe
 
 
-def _run_fast(plant: PlantGraph) -> str:
+def _run_fast(plant: PlantGraph, scratch: ox.NamedNode | None = None) -> str:
     inputs = input_graphs(plant)
     where = _where(plant)
-    tbox = read_tbox(plant.store, inputs, where)
-    program = rules_fast.compile_tbox(tbox)
-    exported = derived_properties(plant)
-    outcome = rules_fast.run(program, plant.store, inputs, INFERRED, where)
+    known = tbox_cache.schema(plant, inputs, where, derived_properties)  # read once per process
+    program, exported = known.program, known.exported
+    outcome = rules_fast.run(program, plant.store, inputs, INFERRED, where, trace=False)
     # Keep what is read back (plantkg classes of named individuals, derived properties); the
     # rest (other classes, other super-properties, hasValue data) was only a step on the way.
+    keep = exported_test(exported)
+    aside = [q for q in outcome.added if not keep(q.subject, q.predicate, q.object)]
+    for q in aside:
+        plant.store.remove(q)
+    if scratch is not None:
+        plant.store.extend([ox.Quad(q.subject, q.predicate, q.object, scratch) for q in aside])
+    return "fast"
+
+
+def exported_test(exported: frozenset[str]):  # noqa: ANN201 - a predicate on (s, p, o)
+    """Whether a fact the fast engine derived belongs in ``GRAPH_INFERRED``: a plantkg class of a
+    named individual, or a value of a derived property between named individuals."""
     pk, named = str(PK), ox.NamedNode
     keep = {ox.NamedNode(p) for p in exported}
-    for q in outcome.added:
-        s, p, o = q.subject, q.predicate, q.object
-        if not (isinstance(s, named) and isinstance(o, named)
-                and (p in keep or (p == _TYPE and o.value.startswith(pk)))):
-            plant.store.remove(q)
-    return "fast"
+
+    def test(s: object, p: ox.NamedNode, o: object) -> bool:
+        return (isinstance(s, named) and isinstance(o, named)
+                and (p in keep or (p == _TYPE and o.value.startswith(pk))))
+    return test
 
 
 def _run_owlready2(plant: PlantGraph, timeout: float) -> str:

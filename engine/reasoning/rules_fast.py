@@ -493,6 +493,15 @@ def _facts(head: tuple[Slot, Slot, Slot], solutions: Iterable[ox.QuerySolution],
     return out
 
 
+def _keys_of(head: tuple[Slot, Slot, Slot], facts: list[ox.Quad]) -> set[Key]:
+    """The keys ``facts`` (all from a rule with ``head``) are about: one when the head's
+    predicate (and, for rdf:type, its class) is a constant."""
+    _, p, o = head
+    if isinstance(p, ox.NamedNode) and (p != TYPE or isinstance(o, ox.NamedNode)):
+        return {_key(p, o)}
+    return {_key(q.predicate, q.object) for q in facts}
+
+
 @dataclass
 class Outcome:
     """What the fixpoint did: the facts it added to the working graph, and how long it ran."""
@@ -505,9 +514,10 @@ class Outcome:
 
 
 def run(program: Program, store: ox.Store, inputs: list[ox.NamedNode], work: ox.NamedNode,
-        where: Callable[[object], str]) -> Outcome:
+        where: Callable[[object], str], *, trace: bool = True) -> Outcome:
     """Run ``program`` on ``store`` (reading ``inputs`` and ``work``, writing into ``work``) to a
-    fixpoint, then its checks and constraints."""
+    fixpoint, then its checks and constraints. ``trace`` False leaves ``Outcome.provenance``
+    empty (a dict entry per derived fact: ~0.3 s and tens of MiB at 100k resources)."""
     options = dataset_options(store, [*inputs, work])
 
     def select(query: str):  # noqa: ANN202
@@ -545,9 +555,11 @@ def run(program: Program, store: ox.Store, inputs: list[ox.NamedNode], work: ox.
                 clock += 1
                 store.extend(new)
                 added.extend(new)
-                for q in new:
-                    version[_key(q.predicate, q.object)] = clock
-                    provenance.setdefault((q.subject, q.predicate, q.object), rule.name)
+                for key in _keys_of(rule.head, new):
+                    version[key] = clock
+                if trace:
+                    for q in new:
+                        provenance.setdefault((q.subject, q.predicate, q.object), rule.name)
                 progress = True
         if not progress:
             break

@@ -81,3 +81,24 @@ def test_burst_refuses_more_one_to_one_messages_than_publishers(tmp_path: Path) 
                 rig.burst(3, 64, "one-to-one")
     finally:
         process.stop(child)
+
+
+def test_the_hand_baseline_waits_for_every_broker_at_once(tmp_path: Path) -> None:
+    """benchmarks.mqtt_ready: three brokers spawned by hand all answer a raw CONNECT; a port where
+    nothing listens is named when the deadline passes."""
+    from benchmarks import mqtt_ready
+    from engine import netutil, process
+    from engine.errors import WaitTimeoutError
+
+    ports, confs = bench_load._hand_confs(3, tmp_path)
+    children: list = []
+    try:
+        bench_load._spawn_all(confs, tmp_path, children)
+        mqtt_ready.wait_all_ready([(bench_load.HOST, p) for p in ports], 30)
+        with BurstRig([(bench_load.HOST, p) for p in ports], 0) as rig:  # they really answer MQTT
+            assert rig.burst(3, 64, "spread").lost == 0
+        silent = netutil.free_port(bench_load.HOST)
+        with pytest.raises(WaitTimeoutError, match=str(silent)):
+            mqtt_ready.wait_all_ready([(bench_load.HOST, ports[0]), (bench_load.HOST, silent)], 0.3)
+    finally:
+        assert process.stop_all(children) and not any(c.group_alive() for c in children)

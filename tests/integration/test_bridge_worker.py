@@ -5,6 +5,8 @@ when the remote is down at the worker's start."""
 
 from __future__ import annotations
 
+import shutil
+import subprocess
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -21,6 +23,7 @@ from benchmarks import bridge_rig as rig
 from engine import process
 from engine.errors import WaitTimeoutError
 from engine.bridge_worker.config import Direction, Route, WorkerConfig
+from engine.bridge_worker.mqtt_link import RECEIVE_MAXIMUM
 from engine.bridge_worker.stats import WorkerStats, read_stats
 from tests.integration.conftest import KafkaBroker, start_kafka
 
@@ -332,6 +335,40 @@ def test_mqtt_to_kafka_worker_killed(tmp_path: Path, mosquitto: rig.Mosquitto, k
 
     mqtt_to_kafka(tmp_path, mosquitto, kafka_broker.bootstrap_servers, workers, "m2k-worker-killed",
                   kill_and_restart)
+
+
+def test_mqtt_to_kafka_at_full_speed_worker_killed(tmp_path: Path, mosquitto: rig.Mosquitto,
+                                                   kafka_broker: KafkaBroker, workers: Workers) -> None:
+    """Many messages in flight: mosquitto_pub (C, 1000 in flight) sends 10,000 messages on one topic
+    as fast as it can while the worker is SIGKILLed and started again. Nothing is missing, the
+    order holds, and the duplicates are bounded: the worker takes at most RECEIVE_MAXIMUM messages
+    it has not confirmed (Mosquitto 2.0.11 sends past the Receive Maximum, the worker stops
+    reading), and Mosquitto may not have read the PUBACKs of up to about as many more: it reads one
+    packet per connection per pass of its event loop. (With several publishers at full speed that
+    lag grows without bound, which is why this test has one.)"""
+    bootstrap = kafka_broker.bootstrap_servers
+    topic = MQTT_TOPICS[0]
+    rig.create_topics(bootstrap, ["m2k-full-speed"], PARTITIONS)
+    cfg = worker_config(tmp_path, "m2k-full-speed", mosquitto.port, bootstrap, Direction.MQTT_TO_KAFKA,
+                        "m2k-full-speed")
+    workers.start(cfg)
+    lines = tmp_path / "lines"
+    lines.write_bytes(b"".join(payload(topic, i) + b"\n" for i in range(N)))
+    with open(lines, "rb") as stdin:
+        sender = subprocess.Popen([shutil.which("mosquitto_pub") or "mosquitto_pub", "-h", "127.0.0.1",
+                                   "-p", str(mosquitto.port), "-t", topic, "-q", "1", "-M", "1000",
+                                   "-i", "full-speed", "-l"], stdin=stdin)
+    try:
+        workers.kill_when(lambda s: s.forwarded_mqtt_to_kafka >= N // 4)
+        workers.start(workers.cfg)
+        values = read_kafka(bootstrap, "m2k-full-speed", N)
+        assert sender.wait(60) == 0
+    finally:
+        if sender.poll() is None:
+            sender.kill()
+            sender.wait()
+    duplicates = check_delivery("m2k-full-speed", [topic], values)
+    assert duplicates <= 2 * RECEIVE_MAXIMUM, duplicates
 
 
 def test_kafka_to_mqtt_worker_killed(tmp_path: Path, mosquitto: rig.Mosquitto, kafka_broker: KafkaBroker,

@@ -40,7 +40,6 @@ from paho.mqtt.enums import CallbackAPIVersion
 from engine import netutil, process
 from engine.agent.client import AgentClient
 from engine.cli import main
-from engine.drivers.mosquitto import runtime as mosquitto_runtime
 from engine.errors import PermanentDispatchError
 from engine.model import BridgeStatus
 from engine.security import ca
@@ -52,6 +51,7 @@ pytestmark = pytest.mark.integration
 SRC_HOST, DST_HOST = "127.0.0.2", "127.0.0.3"
 POSE, CMD = "cell/robot/pose", "cell/robot/cmd"
 MESSAGES = 10_000
+PERSIST_EVERY = 10    # dst's pk:persistEvery: the kill test's bound on unsaved changes (as test_bridges)
 ROBOT_ENV, HMI_ENV = "PLANTKG_TEST_TLS_ROBOT_PW", "PLANTKG_TEST_TLS_HMI_PW"
 
 PLANT = """\
@@ -60,7 +60,7 @@ PLANT = """\
 :src a pk:Broker ; pk:id "src" ; pk:name "cell broker" ; pk:brokerType "mosquitto" ;
     pk:ip "{src_host}" ; pk:port {src_port} ; pk:tls true ; pk:hasTopic :pose , :cmd .
 :dst a pk:Broker ; pk:id "dst" ; pk:name "line broker" ; pk:brokerType "mosquitto" ;
-    pk:ip "{dst_host}" ; pk:port {dst_port} ; pk:tls true ; pk:hasTopic :pose .
+    pk:ip "{dst_host}" ; pk:port {dst_port} ; pk:tls true ; pk:persistEvery {persist_every} ; pk:hasTopic :pose .
 :pose a pk:Topic ; pk:id "pose" ; pk:name "{pose}" ; pk:qos 1 .
 :cmd a pk:Topic ; pk:id "cmd" ; pk:name "{cmd}" ; pk:qos 1 .
 :robot a pk:Resource ; pk:id "robot1" ; pk:name "Robot" ; pk:sendsTo :src ; pk:publishes :pose ;
@@ -90,7 +90,7 @@ def secure(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Secure]:
     plant = tmp / "plant.ttl"
     plant.write_text(PLANT.format(src_host=SRC_HOST, dst_host=DST_HOST, src_port=ports["src"],
                                   dst_port=ports["dst"], pose=POSE, cmd=CMD, robot_env=ROBOT_ENV,
-                                  hmi_env=HMI_ENV))
+                                  hmi_env=HMI_ENV, persist_every=PERSIST_EVERY))
     try:
         assert all(a.url.startswith("https://") for a in fleet.agents.values())
         assert main(["apply", str(plant), "--agents", str(fleet.agents_file), "--yes"]) == 0
@@ -175,7 +175,7 @@ def test_a_closed_target_killed_mid_stream_loses_at_most_its_unsaved_changes(sec
     (dynamic security plugin) checks a session restored from dst's database by its user name, so
     what the bridge delivers before the HMI has reconnected is kept for it (Mosquitto's ACL file
     denied it: docs/security.md)."""
-    allowed = mosquitto_runtime.DEFAULT_PERSIST_EVERY
+    allowed = PERSIST_EVERY  # dst saves after every PERSIST_EVERY changes (the default saves by time)
     dst = secure.fleet.client(DST_HOST)
     before = dst.get_broker("dst")
     assert before is not None and before.pid

@@ -15,6 +15,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from urllib.parse import urlsplit
 
+from engine.agent.calls import AgentCall, BatchAnswer, run_calls
 from engine.agents_config import AgentDirectory
 from engine.apply import operations
 from engine.errors import PermanentDispatchError, TemporaryDispatchError
@@ -111,6 +112,11 @@ class FakeClient:
             raise PermanentDispatchError(f"404: broker {broker_id} is not on the agent of {self.host}",
                                          host=self.host)
         return broker
+
+    def batch(self, lanes: list[list[AgentCall]], observe: bool = False) -> BatchAnswer:
+        """The agent's batch as its single calls, one lane after another (``observe`` is not
+        honoured: the answer carries no state, so apply asks the fleet afterwards)."""
+        return run_calls(self, lanes)
 
     def health(self) -> dict:
         self._enter("health", "")

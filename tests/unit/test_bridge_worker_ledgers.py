@@ -18,6 +18,40 @@ def test_pubacks_leave_in_arrival_order() -> None:
     assert len(acks) == 0
 
 
+def test_many_in_flight_confirmed_out_of_order_from_other_threads_ack_in_arrival_order() -> None:
+    """The MQTT thread adds while Kafka threads confirm, each taking every third message from the
+    newest back (deliveries of different partitions come back in any order): every PUBACK leaves
+    once, in the order the messages came."""
+    import threading
+
+    total = 5000
+    sent: list[int] = []
+    acks = InOrderAcks(lambda mid, qos: sent.append(mid))
+    entries: list[object] = []
+    ready = threading.Condition()
+
+    def add_all() -> None:
+        for mid in range(1, total + 1):
+            entry = acks.add(mid, 1)
+            with ready:
+                entries.append(entry)
+                ready.notify_all()
+
+    def confirm(part: int) -> None:
+        for i in range(total - 1 - part, -1, -3):
+            with ready:
+                ready.wait_for(lambda: len(entries) > i, timeout=30)
+                entry = entries[i]
+            acks.confirm(entry)  # type: ignore[arg-type]
+
+    threads = [threading.Thread(target=add_all), *(threading.Thread(target=confirm, args=(p,)) for p in range(3))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    assert sent == list(range(1, total + 1)) and len(acks) == 0
+
+
 def test_messages_of_a_lost_connection_are_never_acked() -> None:
     sent: list[int] = []
     acks = InOrderAcks(lambda mid, qos: sent.append(mid))

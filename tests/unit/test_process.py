@@ -67,3 +67,38 @@ def test_free_ports_are_distinct_and_free() -> None:
     ports = netutil.free_ports(3)
     assert len(set(ports)) == 3
     assert not any(netutil.port_open("127.0.0.1", p) for p in ports)
+
+
+def test_stop_all_signals_every_child_before_waiting_for_any(tmp_path: Path) -> None:
+    """Each child exits on SIGTERM only once all of them got it: stopping one after another would
+    wait for the first until its grace ran out and SIGKILL it (-9)."""
+    shared = tmp_path / "got"
+    shared.touch()
+    script = (f"trap 'echo got >> {shared}; while [ $(wc -l < {shared}) -lt 4 ]; do sleep 0.01; done; "
+              "exit 0' TERM; echo ready; while :; do sleep 0.05; done")
+    children = [process.spawn(["sh", "-c", script], log_dir=tmp_path, name=f"c{i}") for i in range(4)]
+    for child in children:
+        process.wait_until(lambda c=child: "ready" in c.log_tail(), 5.0, 0.01)
+    assert process.stop_all(children, grace=20.0) == [0, 0, 0, 0]
+    assert not any(c.group_alive() for c in children)
+
+
+def test_wait_exit_wakes_when_the_process_exits(tmp_path: Path) -> None:
+    child = process.spawn(["sleep", "60"], log_dir=tmp_path, name="sleeper")
+    assert process.wait_exit(child.popen, 0.05) is False
+    assert process.wait_exit(child.pid, 0.05) is False  # any pid, not only a Popen
+    child.popen.terminate()
+    assert process.wait_exit(child.popen, 10.0) is True
+    assert child.popen.wait() != 0 and process.wait_exit(child.popen, 0.0) is True
+
+
+def test_wait_until_asks_a_callable_interval_before_each_pause() -> None:
+    asked: list[int] = []
+    calls = iter([False, False, True])
+
+    def interval() -> float:
+        asked.append(1)
+        return 0.001
+
+    assert process.wait_until(lambda: next(calls), 5.0, interval) is True
+    assert len(asked) == 2

@@ -6,9 +6,10 @@ broker (``allow_anonymous false``, with a password file and an ACL file: see "Us
 below). Settings that make bridges lose nothing:
 
 - persistence on (with a ``data_dir``): queued messages and sessions survive a clean restart;
-  the state is saved after every ``persist_every`` changes (``pk:persistEvery``; default
-  :data:`DEFAULT_PERSIST_EVERY`), so a broker killed with SIGKILL keeps what it acknowledged but
-  the last few changes (1: every change; Mosquitto has no write-ahead log to close that window);
+  the state is saved every :data:`DEFAULT_SAVE_SECONDS` s, or after every ``persist_every``
+  changes when the plant sets ``pk:persistEvery``. A broker killed with SIGKILL keeps what it
+  acknowledged but what changed since its last save (Mosquitto has no write-ahead log to close
+  that window; docs/bridges.md measures it);
 - ``max_queued_messages`` raised from Mosquitto's 1000, past which it silently drops QoS 1
   messages queued for a disconnected persistent session (a bridge, a bridge worker);
 - ``max_inflight_messages`` raised from 20, so a consumer that acknowledges late (a worker waiting
@@ -44,10 +45,15 @@ from engine.values import check_host, check_path, check_port, check_user
 MAX_QUEUED_MESSAGES = 1_000_000
 #: QoS 1/2 messages in flight to one client at once (its default: 20).
 MAX_INFLIGHT_MESSAGES = 1000
-#: Changes (queued messages, subscriptions, retained messages) after which the in-memory database
-#: is saved, when the plant sets no ``pk:persistEvery`` (also saved on a clean stop). Was 60 s, which
-#: lost 6,654 of 10,000 bridged messages through a SIGKILL of the target (benchmarks/bench_durability).
-DEFAULT_PERSIST_EVERY = 10
+#: ``autosave_interval`` when the plant sets no ``pk:persistEvery``: a save by time (Mosquitto counts
+#: whole seconds and saves once the current one is more than this past the last save's, so every
+#: 1-2 s; also on a clean stop). Mosquitto's own default, 1800 s (plantkg had 60 s), lost thousands
+#: of acknowledged messages through a SIGKILL; saving after every 10 changes (plantkg's default
+#: before issue 16) lost fewer, but every save writes the whole database and syncs it, and with a
+#: backlog every queued message is a change: the broker did little but save (a bridge at full
+#: speed: 0.06x the unsafe setting's throughput, benchmarks/bench_durability). A save by time costs
+#: the same whatever the backlog.
+DEFAULT_SAVE_SECONDS = 1
 #: Bridge reconnection backoff: first delay and cap, in seconds.
 BRIDGE_RESTART_TIMEOUT = (1, 10)
 BRIDGE_DIRECTIONS = ("out", "in", "both")
@@ -146,7 +152,7 @@ class MosquittoConfig:
     log_file: Path
     run_as: str | None = None
     data_dir: Path | None = None          # persistence on, in this folder; None: off
-    persist_every: int | None = None      # save after this many changes; None: DEFAULT_PERSIST_EVERY
+    persist_every: int | None = None      # save after this many changes; None: every DEFAULT_SAVE_SECONDS
     bridges: tuple[MosquittoBridge, ...] = ()
     allow_anonymous: bool = True          # False: only clients of the password file connect
     dynsec_plugin: Path | None = None     # Mosquitto's dynamic security plugin (users and ACLs)
@@ -215,9 +221,11 @@ def render_mosquitto_conf(cfg: MosquittoConfig) -> str:
 def _persistence_lines(data_dir: Path | None, every: int | None) -> list[str]:
     if data_dir is None:
         return ["persistence false"]
+    if every is None:  # saved by time: autosave_on_changes is false by default
+        return ["persistence true", f"persistence_location {data_dir}/", f"autosave_interval {DEFAULT_SAVE_SECONDS}"]
     # autosave_on_changes: autosave_interval counts changes (queued messages, subscriptions).
     return ["persistence true", f"persistence_location {data_dir}/", "autosave_on_changes true",
-            f"autosave_interval {DEFAULT_PERSIST_EVERY if every is None else every}"]
+            f"autosave_interval {every}"]
 
 
 def _bridge_lines(bridge: MosquittoBridge) -> list[str]:
