@@ -3,17 +3,15 @@
 # fleet (FLEET_DEMO_ARGS, e.g. FLEET_DEMO_ARGS='--vehicles 5 --keep 60').
 # Pass pytest options with PYTEST_ARGS, e.g. make test PYTEST_ARGS='-m "not integration"'
 # PYTEST_WORKERS=N runs the suite on N pytest-xdist workers (a file stays on one worker; every test
-# picks free ports and its own tmp dir): PYTEST_WORKERS=2 takes ~17 min on a 2-core machine against
-# ~32 min in one process. Default 0 (one process) for now: under two workers' load, tests that read
-# an asynchronous result right after a related wait showed up one by one (4 such races fixed in
-# this stop's runs, 3 of 5 runs had one); parallel becomes the default once a series of runs is clean.
+# picks free ports and its own tmp dir). Default 2; PYTEST_WORKERS=0 runs one process. The suite's
+# time on a 2-core machine is in the README.
 # `make bench` runs the benchmark studies and rebuilds benchmarks/RESULTS.md (BENCH_ARGS, e.g.
 # BENCH_ARGS='load --tiny'; see benchmarks/README.md).
 
 SHELL := /bin/bash
 VENV := .venv
 PYTEST_ARGS ?=
-PYTEST_WORKERS ?= 0
+PYTEST_WORKERS ?= 2
 DEMO_ARGS ?=
 FLEET_DEMO_ARGS ?=
 BENCH_ARGS ?=

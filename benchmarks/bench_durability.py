@@ -259,7 +259,14 @@ def policy_target_killed(work: Path, policy: Policy, count: int, rate: float,
     stops: list[Callable[[], object]] = []
     try:
         source, target = bridge_pair(work, policy, stops)
+        saved_before = rig.mtime(target.folder / "data" / "mosquitto.db")
         plant_session(target.port, "probe-session")
+        if policy.every is None:
+            # The claim measured is "a session outlives a SIGKILL once the 1-2 s save window
+            # after it was made has passed": wait for that save (the tiny test's stream is over
+            # in well under a second, and on a loaded machine its kill could come first).
+            process.wait_until(lambda: rig.mtime(target.folder / "data" / "mosquitto.db") != saved_before,
+                               4 * DEFAULT_SAVE_SECONDS + 5, 0.02, what="the target's first save after the probe")
         name = "offline-sub" if offline else "kill-sub"
         arrivals = subscriber(target, name, work, stops)
         receiver_stop = stops.pop()

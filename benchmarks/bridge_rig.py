@@ -54,9 +54,9 @@ class Mosquitto:
     def save(self) -> None:
         """Make Mosquitto write its in-memory database (sessions, queues) to disk now (SIGUSR1)."""
         assert self.child is not None
-        before = _mtime(self.folder / "data" / "mosquitto.db")
+        before = mtime(self.folder / "data" / "mosquitto.db")
         os.kill(self.child.pid, signal.SIGUSR1)
-        process.wait_until(lambda: _mtime(self.folder / "data" / "mosquitto.db") != before, 10.0,
+        process.wait_until(lambda: mtime(self.folder / "data" / "mosquitto.db") != before, 10.0,
                            what="mosquitto to save its database")
 
     def kill(self) -> None:
@@ -71,7 +71,8 @@ class Mosquitto:
             self.child = None
 
 
-def _mtime(path: Path) -> float | None:
+def mtime(path: Path) -> int | None:
+    """The file's modification time in ns (None while it does not exist): a save shows as a change."""
     try:
         return path.stat().st_mtime_ns
     except OSError:

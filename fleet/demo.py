@@ -164,7 +164,14 @@ def run_fleet_demo(*, vehicles: int, work_dir: Path | None, deadline: float, kee
         finished = _follow(api, planner, deadline)
 
         click.secho("\n5. the Task entities on the context broker (GET /v2/entities?type=Task)", bold=True)
-        for entity in _task_entities(ports[CONTEXT_ID]):
+        entities = _task_entities(ports[CONTEXT_ID])
+        if finished:  # the planner writes each Task entity after its own state changed: wait for it
+            try:
+                entities = process.wait_until(lambda: _ended(_task_entities(ports[CONTEXT_ID])), 30, 0.1,
+                                              what="the context broker to show every task ended")
+            except process.WaitTimeoutError as exc:
+                click.secho(f"   {exc}", fg="red")
+        for entity in entities:
             click.echo(f"   {entity.get('id')}: {entity.get('state')} {entity.get('vehicle', '')}")
         if keep > 0:
             click.echo(f"\n   keeping everything running for {keep:g} s (logs under {logs})")
@@ -229,6 +236,12 @@ def _follow(api: Api, planner: process.Child, deadline: float) -> bool:
         return False
     _, body = api.call("GET", "/v1/tasks")
     return all(t["state"] == "FINISHED" for t in body["tasks"])
+
+
+def _ended(entities: list[dict[str, Any]]) -> list[dict[str, Any]] | None:
+    """The Task entities once every one has ended (None before: the poll goes on)."""
+    done = ("FINISHED", "FAILED", "WITHDRAWN")
+    return entities if entities and all(e.get("state") in done for e in entities) else None
 
 
 def _task_entities(port: int) -> list[dict[str, Any]]:
