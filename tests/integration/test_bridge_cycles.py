@@ -41,8 +41,11 @@ HEADER = """\
 :sensor a pk:Resource ; pk:id "sensor" ; pk:name "sensor" ; pk:sendsTo :a ; pk:publishes :t .
 """
 BROKER = """:{id} a pk:Broker ; pk:id "{id}" ; pk:name "{id}" ; pk:brokerType "{kind}" ;
-    pk:ip "{host}" ; pk:port {port} ; pk:hasTopic :t ; pk:bridgesTo {to} .
+    pk:ip "{host}" ; pk:port {port} ; pk:hasTopic :t ; pk:bridgesTo {to} {open}.
 """
+#: The counting clients below connect anonymously: the ring's Mosquittos are open labs (closed is
+#: the default, docs/security.md); Kafka is open while it has no users.
+OPEN_LAB = "; pk:allowAnonymous true "
 
 
 @dataclass
@@ -56,7 +59,7 @@ class Machines:
         path.write_text(HEADER + "".join(
             BROKER.format(id=b, host=HOSTS[b] if b in HOSTS else MORE[b][0],
                           kind="mosquitto" if b in HOSTS else MORE[b][1], port=self.ports[b],
-                          to=" , ".join(f":{t}" for t in to))
+                          to=" , ".join(f":{t}" for t in to), open=OPEN_LAB if b in HOSTS or MORE[b][1] == "mosquitto" else "")
             for b, to in bridges.items()))
         return path
 

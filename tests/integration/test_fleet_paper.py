@@ -82,7 +82,8 @@ def plant_text(mqtt_port: int, cb_port: int) -> str:
         'p:agv-type a owl:NamedIndividual , pk:ResourceType ; pk:id "agv-interface-type" ; pk:name "AGV interface" .',
         'p:planner-type a owl:NamedIndividual , pk:ResourceType ; pk:id "task-planner-type" ; pk:name "Task planner" .',
         f'p:fleet-mqtt a owl:NamedIndividual , pk:Broker ; pk:id "fleet-mqtt" ; pk:name "fleet-mqtt" ; pk:brokerType "mosquitto" ;',
-        f'    pk:ip "{MQTT_IP}" ; pk:port {mqtt_port} ; pk:hasTopic ' + " , ".join(f"p:{t}" for t in topics) + " .",
+        f'    pk:ip "{MQTT_IP}" ; pk:port {mqtt_port} ; pk:allowAnonymous true ; pk:hasTopic '  # the sim logs in as nobody
+        + " , ".join(f"p:{t}" for t in topics) + " .",
         f'p:fleet-context a owl:NamedIndividual , pk:Broker ; pk:id "fleet-context" ; pk:name "fleet-context" ; pk:brokerType "ngsi-v2" ;',
         f'    pk:ip "{CB_IP}" ; pk:port {cb_port} ; pk:hasTopic ' + " , ".join(f"p:{t}" for t in topics) + " .",
     ]

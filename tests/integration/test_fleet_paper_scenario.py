@@ -104,7 +104,8 @@ def plant_text(mqtt_port: int, cb_port: int) -> str:
         f"    pk:isType p:planner-type ; pk:sendsTo p:fleet-context ; pk:subscribes {' , '.join(outgoing)} ;",
         f"    pk:publishes {' , '.join(incoming)} .",
         f'p:fleet-mqtt a owl:NamedIndividual , pk:Broker ; pk:id "fleet-mqtt" ; pk:name "fleet-mqtt" ; '
-        f'pk:brokerType "mosquitto" ; pk:ip "{MQTT_IP}" ; pk:port {mqtt_port} ; pk:hasTopic {" , ".join(all_topics)} .',
+        f'pk:brokerType "mosquitto" ; pk:ip "{MQTT_IP}" ; pk:port {mqtt_port} ; pk:allowAnonymous true ; '  # the sims log in as nobody
+        f'pk:hasTopic {" , ".join(all_topics)} .',
         f'p:fleet-context a owl:NamedIndividual , pk:Broker ; pk:id "fleet-context" ; pk:name "fleet-context" ; '
         f'pk:brokerType "ngsi-v2" ; pk:ip "{CB_IP}" ; pk:port {cb_port} ; pk:hasTopic {" , ".join(all_topics)} .',
     ]

@@ -195,9 +195,11 @@ def test_mirrormaker_copies_every_record_to_the_site(cluster: Deployed) -> None:
 
     def caught_up():  # type: ignore[no-untyped-def]
         [mirror] = [b for b in cluster.fleet.client(host).list_bridges()]
-        return mirror if mirror.status is BridgeStatus.RUNNING and mirror.lag == 0 else None
+        # a snapshot taken before the records came also says lag 0: wait for one counting them
+        done = mirror.status is BridgeStatus.RUNNING and mirror.lag == 0 and (mirror.forwarded or 0) >= MIRRORED
+        return mirror if done else None
 
-    mirror = process.wait_until(caught_up, 60, 0.5, what="the mirror to report lag 0")
+    mirror = process.wait_until(caught_up, 60, 0.5, what="the mirror to report every record copied, lag 0")
     assert mirror.spec.mechanism.value == "kafka-mirror" and mirror.forwarded >= MIRRORED
     code, out = cluster.run("status", cluster.plant, "--agents", cluster.fleet.agents_file, "--format", "json")
     assert code == 0, out

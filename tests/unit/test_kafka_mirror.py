@@ -85,3 +85,11 @@ def test_lag_counts_what_the_target_lacks_per_partition() -> None:
     assert lag_of(source, {("t", 0): 90, ("t", 1): 50}) == 10 + 7
     # a target ahead on one partition (another writer) hides nothing on the others
     assert lag_of(source, {("t", 0): 120, ("t", 1): 40, ("u", 0): 7}) == 10
+
+
+@pytest.mark.parametrize(("name", "internal"), [
+    ("__consumer_offsets", True), ("mm2-offsets.source.internal", True), ("source.checkpoints.internal", True),
+    ("heartbeats", True), ("source.heartbeats", True), ("plant.kpi", False), ("heartbeats-of-line-1", False)])
+def test_mirrormakers_own_topics_are_not_plant_topics(name: str, internal: bool) -> None:
+    from engine.drivers.kafka.topics import is_internal
+    assert is_internal(name) is internal

@@ -11,7 +11,10 @@ and every ``interval`` seconds measures the mirror against both clusters into ``
   partition as ``max(0, source end offset - target end offset)``. Exact while MirrorMaker 2 is the
   only writer of those topics on the target and both started empty (plantkg creates them there);
   a producer of the same topic on the target would hide lag, never invent it.
-- ``forwarded``: records the target's mirrored topics gained since this worker started.
+- ``forwarded``: the records the target's mirrored topics hold (the sum of their end offsets):
+  all copied by MirrorMaker 2 under the same condition as ``lag``, and cumulative across restarts
+  of this worker (a count taken from its first answer undercounted everything copied before the
+  clusters first answered it, 0 in one loaded run).
 - ``ready``: MirrorMaker 2 runs and both clusters answered the last measure.
 
 It exits with MirrorMaker's exit code when MirrorMaker exits (the agent restarts it), 0 after
@@ -147,23 +150,20 @@ class MirrorWorker:
                  ",".join(cfg.mirror.source), ",".join(cfg.mirror.target), ",".join(cfg.mirror.topics))
         source = Offsets(cfg.mirror.source, cfg.mirror.topics)
         target = Offsets(cfg.mirror.target, cfg.mirror.topics)
-        baseline: int | None = None
         try:
             while not self.stop_event.is_set():
                 code = self.child.poll()
                 if code is not None:
                     log.error("MirrorMaker 2 exited with code %d", code)
-                    self._write(False, None, 0, f"MirrorMaker 2 exited with code {code}")
+                    self._write(False, None, self._last(), f"MirrorMaker 2 exited with code {code}")
                     return code or 1
                 try:
                     ends_t = target.ends(5.0)
                     ends_s = source.ends(5.0)
                 except KafkaException as exc:
-                    self._write(False, None, 0 if baseline is None else self._last(), f"cluster not answering: {exc}")
+                    self._write(False, None, self._last(), f"cluster not answering: {exc}")
                 else:
-                    total = sum(ends_t.values())
-                    baseline = total if baseline is None else baseline
-                    self._write(True, lag_of(ends_s, ends_t), total - baseline, None)
+                    self._write(True, lag_of(ends_s, ends_t), sum(ends_t.values()), None)
                 self.stop_event.wait(cfg.interval)
             return 0
         finally:

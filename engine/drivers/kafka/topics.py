@@ -59,8 +59,10 @@ def admin_client(bootstrap: Sequence[str], *, quiet: bool = False,
 
 def is_internal(name: str) -> bool:
     """Kafka's own topics (``__consumer_offsets``...) and MirrorMaker 2's (``mm2-offsets.x.internal``,
-    ``x.checkpoints.internal``...: MirrorClient's convention, names ending in ``.internal``)."""
-    return name.startswith("__") or name.endswith(".internal")
+    ``x.checkpoints.internal``...: MirrorClient's convention, names ending in ``.internal``; and
+    ``heartbeats``, which its heartbeat connector creates on the target even with heartbeats off —
+    MirrorClient.isHeartbeatTopic — so a plan showed it as a foreign topic ``--prune`` would delete)."""
+    return name.startswith("__") or name.endswith(".internal") or name == "heartbeats" or name.endswith(".heartbeats")
 
 
 def check_kafka_topic_name(name: object) -> str:
