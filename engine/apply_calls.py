@@ -159,6 +159,12 @@ def lanes(ops: Sequence[Operation]) -> list[list[Operation]]:
             if src != dst:
                 merged[dst] = merged[dst] + merged.pop(src)
                 home = {b: (dst if h == src else h) for b, h in home.items()}
+        # The cluster's topic changes (planned on its lead) go after the whole roll: a node that
+        # restarts after a config change can answer for it with its stale metadata at first
+        # (the check after apply once read the old retention from one).
+        lane, rolled = merged[dst], set(nodes)
+        restarts = [op for op in lane if op.change.address.startswith("broker.") and broker_of(op.change) in rolled]
+        merged[dst] = restarts + [op for op in lane if op not in restarts]
     return [lane for lane in merged.values() if lane]
 
 
