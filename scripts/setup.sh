@@ -82,6 +82,8 @@ have_mosquitto || APT_WANTED+=(mosquitto)
 # mosquitto_pub/mosquitto_sub: independent clients of the broker-users tests (issue 13), and the
 # bridge benchmarks' C load generator and receiver (benchmarks/bridge_load.py, issue 16).
 have mosquitto_pub || APT_WANTED+=(mosquitto-clients)
+# kcat: the independent Kafka client of the Kafka users/ACL tests (issue 13).
+have kcat || APT_WANTED+=(kcat)
 # RabbitMQ for plugins/plantkg-rabbitmq; the plugin runs the real script, not /usr/sbin's wrapper.
 [ -x /usr/lib/rabbitmq/bin/rabbitmq-server ] || APT_WANTED+=(rabbitmq-server)
 have java || APT_WANTED+=(default-jre-headless)
