@@ -93,6 +93,14 @@ def _json_type(value: Any) -> str:
                                          int: "an integer", float: "a number"}.get(type(value), "?")
 
 
+def _matching(data: dict[str, Any], name: str, pattern: re.Pattern[str], where: str, problem: str) -> str:
+    """A string field that must match ``pattern`` whole; else ``problem`` names what it must be."""
+    value = _typed(data, name, (str,), where)
+    if not pattern.fullmatch(value):
+        raise WireError(_join(where, name), problem)
+    return value
+
+
 def _checked(where: str, check: Any, *args: Any) -> Any:
     try:
         return check(*args)
@@ -104,17 +112,13 @@ def broker_spec_from_json(data: Any, where: str = "", *, strict: bool = True) ->
     """A validated BrokerSpec. The host is kept as written (an IPv6 address is not compressed),
     so the spec an agent reports equals the one it was given."""
     data = _fields(data, BrokerSpec, where, strict=strict)
-    broker_id = _typed(data, "id", (str,), where)
-    if not BROKER_ID.fullmatch(broker_id):
-        raise WireError(_join(where, "id"), "must be 1 to 128 characters of A-Z a-z 0-9 _ . - "
-                        "starting with a letter, a digit or _")
+    broker_id = _matching(data, "id", BROKER_ID, where, "must be 1 to 128 characters of A-Z a-z 0-9 _ . - "
+                          "starting with a letter, a digit or _")
     iri = _checked(where, check_text, "iri", _typed(data, "iri", (str,), where))
     if any(c.isspace() for c in iri):
         raise WireError(_join(where, "iri"), "an IRI must not contain whitespace")
     name = _checked(where, check_text, "name", _typed(data, "name", (str,), where))
-    kind = _typed(data, "kind", (str,), where)
-    if not KIND.fullmatch(kind):
-        raise WireError(_join(where, "kind"), "must be a lower-case driver name such as mosquitto")
+    kind = _matching(data, "kind", KIND, where, "must be a lower-case driver name such as mosquitto")
     host = _typed(data, "host", (str,), where)
     _checked(where, check_host, "host", host)
     port = _checked(where, check_port, "port", _typed(data, "port", (int,), where))
@@ -137,12 +141,8 @@ def broker_spec_from_json(data: Any, where: str = "", *, strict: bool = True) ->
 def _kafka_node(data: Any, where: str, strict: bool) -> KafkaNode:
     """A cluster node's place (engine.model.KafkaNode); the driver checks what it renders."""
     data = _fields(data, KafkaNode, where, strict=strict)
-    cluster = _typed(data, "cluster", (str,), where)
-    if not BROKER_ID.fullmatch(cluster):
-        raise WireError(_join(where, "cluster"), "not a broker id")
-    cluster_id = _typed(data, "cluster_id", (str,), where)
-    if not KRAFT_CLUSTER_ID.fullmatch(cluster_id):
-        raise WireError(_join(where, "cluster_id"), "expected 22 base64url characters, not starting with -")
+    cluster = _matching(data, "cluster", BROKER_ID, where, "not a broker id")
+    cluster_id = _matching(data, "cluster_id", KRAFT_CLUSTER_ID, where, "expected 22 base64url characters, not starting with -")
     roles = _typed(data, "roles", (list,), where)
     if not roles or any(r not in ("broker", "controller") for r in roles) or len(set(roles)) != len(roles):
         raise WireError(_join(where, "roles"), "expected 'broker', 'controller' or both")
@@ -289,12 +289,8 @@ def _enum(data: dict[str, Any], name: str, cls: type, where: str) -> Any:
 
 def _bridge_end(data: Any, where: str, strict: bool) -> BridgeEnd:
     data = _fields(data, BridgeEnd, where, strict=strict)
-    end_id = _typed(data, "id", (str,), where)
-    if not BROKER_ID.fullmatch(end_id):
-        raise WireError(_join(where, "id"), "not a broker id")
-    kind = _typed(data, "kind", (str,), where)
-    if not KIND.fullmatch(kind):
-        raise WireError(_join(where, "kind"), "must be a lower-case driver name such as mosquitto")
+    end_id = _matching(data, "id", BROKER_ID, where, "not a broker id")
+    kind = _matching(data, "kind", KIND, where, "must be a lower-case driver name such as mosquitto")
     host = _typed(data, "host", (str,), where)
     _checked(where, check_host, "host", host)
     port = _checked(where, check_port, "port", _typed(data, "port", (int,), where))
