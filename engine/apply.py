@@ -411,6 +411,7 @@ def apply(
     sleep: Callable[[float], None] = time.sleep,
     rng: random.Random | None = None,
     prune: bool = False,
+    settle: float = 15.0,
 ) -> ApplyResult:
     """Dispatch ``plan`` (made from ``desired``) to the agents, then check it converged.
 
@@ -418,6 +419,7 @@ def apply(
     ``on_event`` is called for every start, finish, retry, failure and skip (one call at a time).
     ``hosts``: the agents to ask again afterwards (default: every host the plan or plant names,
     and the agents file's). ``prune``: the plan was made with ``prune`` (the check re-plans so).
+    ``settle``: how long the check asks again while something reported done does not show yet.
     Every call names ``desired.owner``, so an agent refuses to touch another plant's things.
     """
     if not plan.applicable:
@@ -443,8 +445,27 @@ def apply(
         problem = Unexpected("check", f"could not ask the agents again: {exc}")
         return ApplyResult(plan, tuple(outcomes), None, (problem,), clock() - began)
     after = destroy_plan(desired, observed) if destroy else make_plan(desired, observed, prune=prune)
-    return ApplyResult(plan, tuple(outcomes), after, tuple(unexpected(plan, outcomes, after)),
-                       clock() - began)
+    found = unexpected(plan, outcomes, after)
+    deadline, pause = clock() + settle, 0.25
+    # What an agent reported done may show late: a Kafka cluster's brokers learn a new topic from
+    # the controller's log a moment apart, and the metadata may come from one that has not yet.
+    # Ask again (all hosts, fresh) until the differences are gone or ``settle`` seconds passed.
+    while _still_pending(outcomes, after) and clock() < deadline:
+        sleep(min(pause, max(0.0, deadline - clock())))
+        pause = min(pause * 2, 2.0)
+        try:
+            observed = observe_fn(directory, ask)
+        except PlantKGError:
+            break  # keep the last check's answer
+        after = destroy_plan(desired, observed) if destroy else make_plan(desired, observed, prune=prune)
+        found = unexpected(plan, outcomes, after)
+    return ApplyResult(plan, tuple(outcomes), after, tuple(found), clock() - began)
+
+
+def _still_pending(outcomes: Sequence[Outcome], after: Plan) -> bool:
+    """Some change an agent reported done is still in the re-made plan."""
+    done = {o.change.address for o in outcomes if o.status is OutcomeStatus.DONE}
+    return any(c.address in done for c in after.pending)
 
 
 def _merge(known: ObservedState, asked: ObservedState) -> ObservedState:

@@ -285,3 +285,43 @@ def test_a_failing_check_is_reported_not_raised() -> None:
     result = apply(the_plan, desired, fleet.directory(), observe_fn=broken_observe)
     assert len(result.changed) == 6 and result.after is None and not result.ok
     assert [u.address for u in result.unexpected] == ["check"]
+
+
+def test_the_check_waits_for_a_change_that_shows_late() -> None:
+    """A Kafka cluster's brokers learn a new topic a moment apart: the first look after apply
+    may miss it. The check asks again (time is faked) and finds nothing unexpected."""
+    fleet = FakeFleet()
+    desired = robot_cell()
+    looks = []
+
+    def late_observe(_d, hosts):  # type: ignore[no-untyped-def]
+        seen = observe_fleet(fleet, desired, hosts)
+        looks.append(seen)
+        if len(looks) == 1:  # the first look misses every topic
+            return replace(seen, brokers=tuple(replace(b, topics=()) for b in seen.brokers))
+        return seen
+
+    t = FakeTime()
+    the_plan = plan(desired, observe_fleet(fleet, desired))
+    result = apply(the_plan, desired, fleet.directory(), observe_fn=late_observe,
+                   hosts={b.host for b in desired.brokers}, clock=t.clock, sleep=t.sleep,
+                   rng=random.Random(7))
+    assert len(looks) >= 2 and t.sleeps, "the check did not ask again"
+    assert result.unexpected == () and result.after is not None
+
+
+def test_the_check_gives_up_after_settle_seconds() -> None:
+    fleet = FakeFleet()
+    desired = robot_cell()
+
+    def never(_d, hosts):  # type: ignore[no-untyped-def]
+        seen = observe_fleet(fleet, desired, hosts)
+        return replace(seen, brokers=tuple(replace(b, topics=()) for b in seen.brokers))
+
+    t = FakeTime()
+    the_plan = plan(desired, observe_fleet(fleet, desired))
+    result = apply(the_plan, desired, fleet.directory(), observe_fn=never,
+                   hosts={b.host for b in desired.brokers}, clock=t.clock, sleep=t.sleep,
+                   rng=random.Random(7), settle=5.0)
+    assert 5.0 <= t.now < 8.0
+    assert result.unexpected and all("reported the topic done" in u.detail for u in result.unexpected)
