@@ -4,7 +4,7 @@
 # Pass pytest options with PYTEST_ARGS, e.g. make test PYTEST_ARGS='-m "not integration"'
 # PYTEST_WORKERS=N runs the suite on N pytest-xdist workers (a file stays on one worker; every test
 # picks free ports and its own tmp dir). Default 2; PYTEST_WORKERS=0 runs one process. The suite's
-# time on a 2-core machine is in the README.
+# time on a 2-core machine is in the README; the 30 slowest tests are listed at the end of a run.
 # `make bench` runs the benchmark studies and rebuilds benchmarks/RESULTS.md (BENCH_ARGS, e.g.
 # BENCH_ARGS='load --tiny'; see benchmarks/README.md).
 
@@ -22,7 +22,7 @@ setup:
 	bash scripts/setup.sh
 
 test: setup
-	$(VENV)/bin/python -m pytest -n $(PYTEST_WORKERS) --dist loadfile $(PYTEST_ARGS)
+	$(VENV)/bin/python -m pytest -n $(PYTEST_WORKERS) --dist loadfile --durations=30 $(PYTEST_ARGS)
 
 lint: setup
 	$(VENV)/bin/lint-imports
