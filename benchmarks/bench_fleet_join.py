@@ -42,7 +42,7 @@ from paho.mqtt.enums import CallbackAPIVersion
 
 from benchmarks.common import RESULTS, ROOT, command_line, machine, summarize, write_results
 from engine import process
-from engine.local_plant import LocalPlant, copy_on_free_ports
+from engine.demo.local_plant import LocalPlant, copy_on_free_ports
 from fleet.vda5050 import topics
 from fleet.vda5050.headers import HeaderCounter
 from fleet.vda5050.messages import Action, BlockingType, InstantActions

@@ -55,7 +55,7 @@ from benchmarks.common import RESULTS, ROOT, command_line, machine, summarize, w
 from benchmarks.bench_fleet_join import EXAMPLE, MQTT_HOST, cpu_seconds, read_status, rss_mib
 from benchmarks.fleet_ideal import Limits, executed, loaded_only, path_length, trapezoid_seconds
 from engine import process
-from engine.local_plant import LocalPlant, copy_on_free_ports
+from engine.demo.local_plant import LocalPlant, copy_on_free_ports
 from fleet.demo import Api
 from fleet.manager.client import ManagerClient
 from fleet.sim.actions import ActionTimes

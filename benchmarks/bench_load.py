@@ -55,7 +55,7 @@ from engine import netutil, process
 from engine.agent.local import start_local_agents
 from engine.agents_config import AgentDirectory
 from engine.apply import apply
-from engine.desired_cache import DesiredCache
+from engine.incremental.desired_cache import DesiredCache
 from engine.drivers.mosquitto.runtime import MosquittoConfig, default_run_as, mosquitto_command, render_mosquitto_conf
 from engine.parts import mosquitto_binary
 from engine.pipeline import run_pipeline

@@ -1,7 +1,7 @@
 """Benchmark: re-planning a plant that did not change, against planning it from scratch.
 
 For a synthetic plant: ``cold`` = load + validate + reason + derive + plan (what every plan costs
-without the cache); ``warm`` = the same through :class:`engine.desired_cache.DesiredCache` after a
+without the cache); ``warm`` = the same through :class:`engine.incremental.desired_cache.DesiredCache` after a
 first run (hash the files, read the cached desired state, plan). The observed state is made equal
 to the desired one, so both plans are empty, and the agents' HTTP round trip (one per machine,
 paid either way) is not included, nor is building the observed state (it stands for the agents'
@@ -14,7 +14,7 @@ observed state, i.e. everything to create) so the study doubles as the plant-siz
 slope says how it grows (1 = linear, 2 = quadratic).
 
 A third arm measures one-line edits (``--edits``, default on): in a fresh process an
-:class:`engine.replan.ReplanSession` loads the plant and runs every stage once, then each edit of
+:class:`engine.incremental.replan.ReplanSession` loads the plant and runs every stage once, then each edit of
 :func:`edits` (a resource renamed; a subscription to another broker's topic added with the topic
 carried, which makes a bridge route; the same taken back; a topic renamed) is written to the file
 and re-planned (read the edit, re-validate, re-reason, derive, plan against an empty observed
@@ -41,7 +41,7 @@ from benchmarks.common import RESULTS, command_line, loglog_slope, machine, run_
 _CHILD = r"""
 import json, resource, sys, time
 t0 = time.perf_counter()
-from engine.desired_cache import DesiredCache
+from engine.incremental.desired_cache import DesiredCache
 from engine.model import BridgeStatus, BrokerStatus, ObservedBridge, ObservedBroker, ObservedState, ObservedTopic
 from engine import pipeline
 from engine.pipeline import run_pipeline
@@ -100,7 +100,7 @@ _EDIT_CHILD = r"""
 import json, resource, sys, time
 from pathlib import Path
 from engine.model import ObservedState
-from engine.replan import ReplanSession
+from engine.incremental.replan import ReplanSession
 plant, edits = Path(sys.argv[1]), json.loads(sys.argv[2])
 w, c = time.perf_counter(), time.process_time()
 session = ReplanSession([plant])
@@ -186,7 +186,7 @@ def to_markdown(data: dict[str, object]) -> str:
                                                   for k in names) + " |")
     edited = [r for r in data["rows"] if r.get("edits")]  # type: ignore[union-attr]
     if edited:
-        lines += ["", "## One-line edits re-planned by a session (engine.replan), against planning the edited plant "
+        lines += ["", "## One-line edits re-planned by a session (engine.incremental.replan), against planning the edited plant "
                   "from scratch (the cold run above, same run)", "",
                   "Each edit: read it, re-validate, re-reason, derive, plan against an empty observed state. "
                   "CPU s (wall s); the stage split is CPU time (wall time inflates with the machine's other load).", "",

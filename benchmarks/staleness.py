@@ -23,7 +23,7 @@ MEASURES: dict[str, tuple[str, ...]] = {
              "engine/process.py", "benchmarks/bench_load.py",
              "benchmarks/mqtt_ready.py"),
     "replan": ("kg", "shapes", "ontology", "engine/pipeline.py", "engine/derive.py", "engine/plan.py",
-               "engine/replan.py", "engine/reasoning/reason.py", "engine/reasoning/rules_fast.py",
+               "engine/incremental/replan.py", "engine/reasoning/reason.py", "engine/reasoning/rules_fast.py",
                "engine/reasoning/rules_delta.py"),
     "bridge": ("engine/bridge_worker", "engine/drivers"),
     "durability": ("engine/bridge_worker", "engine/drivers"),

@@ -146,7 +146,7 @@ def derive(plant: PlantGraph) -> DesiredState:
 @dataclass
 class Parts:
     """What derive concludes per deployed broker (by IRI), before the steps that look at all of
-    them (bridge pairs, cycles, access, order): an incremental derive (engine.replan) recomputes
+    them (bridge pairs, cycles, access, order): an incremental derive (engine.incremental.replan) recomputes
     the parts of the brokers an edit can reach and keeps the others."""
 
     brokers: dict[str, BrokerSpec] = field(default_factory=dict)

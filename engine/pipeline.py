@@ -20,7 +20,7 @@ from typing import Any
 
 from engine.agents_config import AgentDirectory
 from engine.derive import derive
-from engine.desired_cache import DesiredCache
+from engine.incremental.desired_cache import DesiredCache
 from engine.model import DesiredState, ObservedState, Plan
 from engine.observed import observe as observe_agents
 from engine.observed import write_observed

@@ -174,7 +174,7 @@ def ownership(owner: str | None, mine: str | None) -> Ownership:
 class PlanMemo:
     """What :func:`plan` concluded per desired broker, keyed by everything that conclusion reads
     (the broker's spec and topics, what its agent reported, the owner, ``prune``), so a re-plan
-    after a small edit recomputes only the brokers whose inputs changed (engine.replan). The
+    after a small edit recomputes only the brokers whose inputs changed (engine.incremental.replan). The
     inputs are compared for equality; kept specs are the same objects, so that is quick."""
 
     def __init__(self) -> None:

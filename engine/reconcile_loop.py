@@ -39,7 +39,7 @@ from engine.model import DesiredState, ObservedState, Plan
 from engine.observed import observe
 from engine.pipeline import Pipeline, run_pipeline
 from engine.plan import plan as make_plan
-from engine.render_plan import summary_counts
+from engine.render.plan import summary_counts
 from kg.errors import PlantKGError
 
 log = logging.getLogger(__name__)

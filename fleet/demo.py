@@ -38,7 +38,7 @@ import click
 
 from engine import process
 from engine.cli.progress import result_lines
-from engine.local_plant import LocalPlant, copy_on_free_ports, processes_under
+from engine.demo.local_plant import LocalPlant, copy_on_free_ports, processes_under
 from kg.load import load_plant
 from kg.query import run_query
 

@@ -24,7 +24,7 @@ GRAPH_ONTOLOGY = ONTOLOGY_IRI
 GRAPH_INFERRED = "https://w3id.org/plantkg/graph/inferred"
 GRAPH_OBSERVED = "https://w3id.org/plantkg/graph/observed"
 #: What the fast reasoner derived on the way but GRAPH_INFERRED does not hold, kept by an
-#: incremental session (engine.replan) to continue from the whole fixpoint.
+#: incremental session (engine.incremental.replan) to continue from the whole fixpoint.
 GRAPH_REASONING_SCRATCH = "https://w3id.org/plantkg/graph/reasoning-scratch"
 #: The NGSI-v2 context broker's context as RDF (docs/context-broker.md, "The context as RDF"):
 #: its vocabulary, the bases of minted entity/attribute/type IRIs and of the per-tenant graphs.

@@ -11,7 +11,7 @@ holds a unique id, and so does the JSON payload, because bridges do not carry th
 (Mosquitto bridges speak MQTT 3.1.1, the MQTT <-> Kafka worker writes its own headers): a tap
 recognises a probe by either. Real consumers of the topic see it too.
 
-The demo's :class:`engine.simulate.Tap` is not reused: it reads Kafka from the earliest offset
+The demo's :class:`engine.demo.simulate.Tap` is not reused: it reads Kafka from the earliest offset
 (old messages would pass a flow) and keeps only the last payload per topic, not each probe.
 """
 

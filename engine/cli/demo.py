@@ -20,7 +20,7 @@ def demo_command(files: tuple[str, ...], duration: float | None, work_dir: Path 
     paper's AGV middleware, with its context broker: ontology/examples/agv-middleware.ttl.
     """
     from engine.cli import main  # the same commands a person would type, run in-process
-    from engine.demo import run_demo
+    from engine.demo.run import run_demo
     from kg import resources
 
     plant = list(files) or [str(resources.examples_dir() / "robot-cell.ttl")]

@@ -43,7 +43,7 @@ def plan_command(files: tuple[str, ...], fmt: str, agents_file: Path | None,
       plantkg plan ontology/examples/robot-cell.ttl --agents agents.toml
     """
     from engine.cli.reconcile import prepare, print_violations  # noqa: PLC0415 - only when run
-    from engine.render_plan import plan_json, render_plan  # noqa: PLC0415
+    from engine.render.plan import plan_json, render_plan  # noqa: PLC0415
 
     try:
         result, _ = prepare(files, agents_file, owner=owner, prune=prune)

@@ -43,7 +43,7 @@ def prepare(files: tuple[str, ...], agents_file: Path | None, *, destroy: bool =
             observe: bool = True, owner: str | None = None,
             prune: bool = False) -> tuple[Pipeline, AgentDirectory | None]:
     """Run the pipeline; the directory is None when ``observe`` is False."""
-    from engine.desired_cache import DesiredCache  # noqa: PLC0415
+    from engine.incremental.desired_cache import DesiredCache  # noqa: PLC0415
     from engine.pipeline import run_pipeline  # noqa: PLC0415
 
     directory = load_directory(agents_file) if observe else None
@@ -95,7 +95,7 @@ def make_changes(files: tuple[str, ...], agents_file: Path | None, *, yes: bool,
     """What ``apply`` and ``destroy`` share: validate, plan, show, confirm, dispatch, report.
 
     ``fmt`` "json": no plan text, no progress, no prompt (changes need ``--yes``), and one JSON
-    document on stdout at the end (:mod:`engine.render_result`; the violations report for an
+    document on stdout at the end (:mod:`engine.render.result`; the violations report for an
     invalid plant, the plan for one that cannot be applied).
 
     Exit codes: 0 converged, 1 violations (nothing dispatched), 3 some changes failed or did not
@@ -103,9 +103,9 @@ def make_changes(files: tuple[str, ...], agents_file: Path | None, *, yes: bool,
     """
     from engine.apply import PlanNotApplicableError, apply  # noqa: PLC0415
     from engine.cli.progress import Progress, result_lines  # noqa: PLC0415
-    from engine.render_plan import render_plan  # noqa: PLC0415
+    from engine.render.plan import render_plan  # noqa: PLC0415
 
-    from engine import render_result  # noqa: PLC0415
+    from engine.render import result as render_result  # noqa: PLC0415
 
     verb = "destroy" if destroy else "apply"
     as_json = fmt == "json"
@@ -117,7 +117,7 @@ def make_changes(files: tuple[str, ...], agents_file: Path | None, *, yes: bool,
     assert plan is not None and desired is not None and directory is not None
     if as_json and (plan.empty or not plan.applicable):
         if not plan.applicable:
-            from engine.render_plan import plan_json  # noqa: PLC0415
+            from engine.render.plan import plan_json  # noqa: PLC0415
 
             click.echo(plan_json(plan))
             raise PlanNotApplicableError(plan)

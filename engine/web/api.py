@@ -13,7 +13,7 @@ from flask import Blueprint, Response, current_app, jsonify, request
 
 from engine.errors import DispatchError, TemporaryDispatchError
 from engine.model import to_dict
-from engine.render_plan import plan_dict, render_plan
+from engine.render.plan import plan_dict, render_plan
 from engine.web.auth import login_required
 from engine.web.openapi import openapi_document
 from engine.web.plant_state import ApplyRefused, PlantState

@@ -13,7 +13,7 @@ import click
 from flask import Blueprint, current_app, render_template
 
 from engine.model import Action, Change
-from engine.render_plan import SIGNS, summary_line
+from engine.render.plan import SIGNS, summary_line
 from engine.web.examples import EXAMPLES
 from engine.web.plant_state import PlantState
 from kg.render import validation_text

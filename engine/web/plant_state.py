@@ -42,7 +42,7 @@ from engine.observed import observe, write_observed
 from engine.pipeline import run_pipeline
 from engine.plan import plan as make_plan
 from engine.reconcile_loop import LoopRun, ReconcileLoop, plant_files
-from engine.render_plan import plan_json
+from engine.render.plan import plan_json
 from engine.web import views
 from engine.web.rwlock import ReadWriteLock
 from kg.errors import PlantKGError

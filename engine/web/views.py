@@ -18,7 +18,7 @@ from typing import Any
 
 from engine.context_view import ContextView
 from engine.model import BridgeSpec, BrokerStatus, DesiredState, ObservedBridge, ObservedState, Plan
-from engine.render_plan import plan_dict, summary_line
+from engine.render.plan import plan_dict, summary_line
 from kg.validate import ValidationReport
 
 #: Above this many resources the graph shows one node per broker ("N resources") instead.

@@ -3,7 +3,7 @@
 Two ``plantkg agent`` processes serve 127.0.0.2 (Mosquitto) and 127.0.0.3 (Kafka); the plant is a
 copy of ontology/examples/robot-cell.ttl with free ports, applied once for the module. In file
 order: ``--probe`` passes (the exact probe reaches Mosquitto and, through the bridge worker, Kafka);
-passive passes while simulated resources publish (engine.simulate) and reports "no traffic" when
+passive passes while simulated resources publish (engine.demo.simulate) and reports "no traffic" when
 none do; an unreachable broker or agent exits 2; then the Mosquitto -> Kafka bridge is deleted on
 its agent (nothing re-creates it: no reconcile loop runs) and both modes exit 1 naming the ROS
 machine, the robot's position topic, Kafka and the bridge. The fixture stops the sources, deletes
@@ -26,9 +26,9 @@ from paho.mqtt.enums import CallbackAPIVersion
 
 from engine import netutil, process
 from engine.cli import main
-from engine.demo import feeds
+from engine.demo.run import feeds
 from engine.model import BridgeStatus
-from engine.simulate import Source
+from engine.demo.simulate import Source
 from tests.integration.agents import AgentFleet, _alive, plant_copy, set_port, start_agents
 
 pytestmark = pytest.mark.integration

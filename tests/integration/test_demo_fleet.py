@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from engine.local_plant import processes_under
+from engine.demo.local_plant import processes_under
 from tests.integration.agents import ROOT
 
 pytestmark = pytest.mark.integration

@@ -39,7 +39,7 @@ from paho.mqtt.enums import CallbackAPIVersion
 from benchmarks.context_broker_rig import Http
 from engine import process
 from engine.cli import main
-from engine.render_plan import NO_CHANGES
+from engine.render.plan import NO_CHANGES
 from engine.model import BridgeMechanism
 from tests.integration.agents import AgentFleet, plant_copy, start_agents
 from tests.unit.fleet import discovery_data as d

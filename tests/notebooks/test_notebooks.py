@@ -23,7 +23,7 @@ from nbclient.exceptions import CellExecutionError
 from traitlets.config import Config
 
 from engine.errors import WaitTimeoutError
-from engine.local_plant import processes_under
+from engine.demo.local_plant import processes_under
 from engine.process import wait_until
 from kg.namespaces import PK
 from kg.resources import examples_dir, project_root

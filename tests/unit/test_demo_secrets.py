@@ -1,12 +1,12 @@
-"""``plantkg demo`` makes the passwords its plant's resources need (engine.demo.make_demo_secrets)."""
+"""``plantkg demo`` makes the passwords its plant's resources need (engine.demo.run.make_demo_secrets)."""
 
 from __future__ import annotations
 
 import pytest
 
-from engine.demo import make_demo_secrets
+from engine.demo.run import make_demo_secrets
 from engine.model import BrokerSpec
-from engine.simulate import Feed
+from engine.demo.simulate import Feed
 
 BROKER = BrokerSpec(id="m", iri="urn:m", name="m", kind="mosquitto", host="127.0.0.1", port=1883)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-from engine.desired_cache import DesiredCache
+from engine.incremental.desired_cache import DesiredCache
 from engine.pipeline import run_pipeline
 
 ROOT = Path(__file__).resolve().parents[2]

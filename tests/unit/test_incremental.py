@@ -1,4 +1,4 @@
-"""An incremental re-plan (engine.replan) gives exactly what a full run gives, edit after edit.
+"""An incremental re-plan (engine.incremental.replan) gives exactly what a full run gives, edit after edit.
 
 A synthetic plant (benchmarks.synthetic) is edited by a seeded random sequence of small edits —
 renames, values that break a shape and values that mend it, subscriptions that make a bridge and
@@ -24,7 +24,7 @@ from engine.model import BridgeStatus, BrokerStatus, ObservedBridge, ObservedBro
 from engine.pipeline import run_pipeline
 from engine.plan import plan
 from engine.reasoning.reason import INFERRED
-from engine.replan import ReplanSession
+from engine.incremental.replan import ReplanSession
 from kg.file_delta import FileText, turtle_delta
 
 N = 60

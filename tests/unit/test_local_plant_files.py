@@ -1,4 +1,4 @@
-"""engine.local_plant's plant-file edits and process scan (no agent, no broker)."""
+"""engine.demo.local_plant's plant-file edits and process scan (no agent, no broker)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import rdflib
 
 from engine import process
 from engine.errors import EngineError
-from engine.local_plant import copy_on_free_ports, processes_under, set_port
+from engine.demo.local_plant import copy_on_free_ports, processes_under, set_port
 from kg.namespaces import PK
 from kg.resources import examples_dir
 

@@ -16,7 +16,7 @@ from engine.model import (
     TopicSpec,
 )
 from engine.plan import TOPIC_SETTINGS, destroy_plan, plan
-from engine.render_plan import NO_CHANGES, plan_dict, plan_json, render_plan, summary_line
+from engine.render.plan import NO_CHANGES, plan_dict, plan_json, render_plan, summary_line
 from tests.unit.plan_data import load_case
 
 MQ = BrokerSpec("mq", "urn:x:mq", "mq", "mosquitto", "127.0.0.2", 1883)

@@ -13,7 +13,7 @@ import pytest
 
 from engine.model import Action, Plan
 from engine.plan import plan
-from engine.render_plan import summary_counts
+from engine.render.plan import summary_counts
 from tests.unit.plan_data import case_names, load_case
 
 

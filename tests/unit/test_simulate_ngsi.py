@@ -7,10 +7,10 @@ from __future__ import annotations
 import json
 import threading
 
-from engine.demo import _table
+from engine.demo.run import _table
 from engine.model import BrokerSpec
-from engine.simulate import AGV_PAYLOADS, Feed, Seen, payload
-from engine.simulate_ngsi import NgsiTap, entity_path
+from engine.demo.simulate import AGV_PAYLOADS, Feed, Seen, payload
+from engine.demo.simulate_ngsi import NgsiTap, entity_path
 
 CB = BrokerSpec("cb", "urn:cb", "cb", "ngsi-v2", "127.0.0.3", 1026, allow_anonymous=False)
 #: Orion refuses these characters in any string value ("Field syntax restrictions").

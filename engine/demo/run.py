@@ -2,14 +2,14 @@
 
 The steps are the ones a person would take on a real plant, each with its real part: start an agent
 per machine of the plant (each on its own loopback address), ``validate``, ``apply``, ``status``,
-then simulated resources publish (:mod:`engine.simulate`) and taps on every topic of every broker
+then simulated resources publish (:mod:`engine.demo.simulate`) and taps on every topic of every broker
 show what arrives, live — on Kafka that is the merged stream: the power meter's readings published
 there and the robot's pose carried over from Mosquitto by the bridge; at the end (``--duration`` or Ctrl-C) ``destroy`` and the agents stop. Nothing is
 left running, whatever happens in between.
 
 A context broker of the plant (``ngsi-v2``, the AGV example) takes part the same way: a resource
 publishing there writes the topic's entity with its agent's token, and its tap reads the entities
-and shows their attribute values (:mod:`engine.simulate_ngsi`).
+and shows their attribute values (:mod:`engine.demo.simulate_ngsi`).
 """
 
 from __future__ import annotations
@@ -27,8 +27,8 @@ import click
 from engine.agent.local import LocalAgents, start_local_agents
 from engine.model import BridgeDirection, BrokerSpec, DesiredState
 from engine.pipeline import run_pipeline
-from engine.simulate import Feed, Source, Tap
-from engine.simulate_ngsi import NgsiSource, NgsiTap
+from engine.demo.simulate import Feed, Source, Tap
+from engine.demo.simulate_ngsi import NgsiSource, NgsiTap
 
 NGSI = "ngsi-v2"
 from kg.query import run_query

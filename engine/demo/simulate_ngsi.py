@@ -19,7 +19,7 @@ import urllib.parse
 from typing import Any
 
 from engine.model import BrokerSpec
-from engine.simulate import Feed, Seen, payload
+from engine.demo.simulate import Feed, Seen, payload
 
 #: How often an NGSI source writes, and how often a tap reads.
 RATE_HZ = 1.0

@@ -1,7 +1,7 @@
 """What ``apply`` and ``destroy`` did, as JSON-able data for programs (``--format json``).
 
 Typed values: numbers as numbers, booleans as booleans, ``null`` where there is nothing. The
-document carries the plan that was applied (:func:`engine.render_plan.plan_dict`), one entry per
+document carries the plan that was applied (:func:`engine.render.plan.plan_dict`), one entry per
 change with its outcome, what the agents did unexpectedly, and what the plan made afterwards
 still lists (``stillToDo``): the same facts as the text summary, for a pipeline or a CI job.
 """
@@ -13,7 +13,7 @@ from typing import Any
 
 from engine.apply import ApplyResult
 from engine.model import Plan
-from engine.render_plan import plan_dict
+from engine.render.plan import plan_dict
 
 FORMAT_VERSION = 1
 

@@ -1,0 +1,1 @@
+"""What the engine shows people and programs: a plan (``plan``) and what apply did (``result``)."""
