@@ -38,6 +38,8 @@ from engine.security import mqtt_client, principals
 
 #: The broker kinds whose driver renders users and ACLs.
 USER_KINDS = frozenset({"mosquitto", "kafka"})
+#: The broker kinds that take users as principals with tokens (the context broker), not passwords.
+TOKEN_KINDS = frozenset({"ngsi-v2"})
 #: The broker kinds closed by default (a Kafka is closed when its clients have users) and whose
 #: brokers plantkg's own MQTT principals log in to.
 CLOSED_BY_DEFAULT = mqtt_client.USER_KINDS
@@ -155,11 +157,16 @@ def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
                 "context broker publishes its notifications to MQTT without TLS",
                 hint=f"keep {bridge.local.id!r} plain, or bridge only MQTT -> context broker there")
     for spec in by_id.values():
-        if spec.users and spec.kind not in USER_KINDS:
+        if spec.users and spec.kind in TOKEN_KINDS and spec.allow_anonymous:
+            raise AccessNotSupportedError(
+                f"broker {spec.id!r} (context broker): the plant says pk:allowAnonymous true, but its "
+                f"clients {', '.join(u.name for u in spec.users)} have a pk:secretRef (principals "
+                "close it)", hint="remove pk:allowAnonymous, or the clients' pk:secretRef")
+        if spec.users and spec.kind not in USER_KINDS | TOKEN_KINDS:
             names = ", ".join(u.name for u in spec.users)
             raise AccessNotSupportedError(
                 f"broker {spec.id!r} ({spec.kind}): its clients {names} have a pk:secretRef, but "
-                f"plantkg renders users and ACLs for {', '.join(sorted(USER_KINDS))} brokers only (yet)",
+                f"plantkg renders users and ACLs for {', '.join(sorted(USER_KINDS | TOKEN_KINDS))} brokers only (yet)",
                 hint="remove pk:secretRef from those resources, or let them send to a Mosquitto broker")
         reserved = [u.name for u in spec.users
                     if principals.is_reserved(u.name) and u.secret_ref != principals.PRINCIPAL_REF]
@@ -200,6 +207,8 @@ def access_label(spec: BrokerSpec) -> str:
             return f"users ({len(spec.users)}){tls}"
         return (f"open + users ({len(spec.users)}){tls}" if spec.users else f"open{tls}")
     if spec.kind == "ngsi-v2":
+        if spec.users:
+            return f"principals ({len(spec.users)})"
         return "open" if spec.allow_anonymous else "token for writes"
     return "open"
 
