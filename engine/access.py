@@ -11,7 +11,8 @@ of its topics the broker carries. Nothing here decides who may do what: the rule
   (closed by default) unless the plant says ``pk:allowAnonymous true``;
 - :func:`with_bridge_principals` adds plantkg's own principal of each bridge to the broker it
   logs in to (engine.security.principals): a Mosquitto bridge on its remote, a worker on its MQTT
-  broker, with exactly the topics it forwards there;
+  broker, with exactly the topics it forwards there; and, for an MQTT <-> NGSI bridge that brings
+  entities back, the context broker's notify principal, writing exactly those topics;
 - :func:`check_access_supported` refuses, before anything is deployed, what plantkg cannot run
   yet: users on a broker whose driver renders none (Mosquitto's and Kafka's do; not a Kafka
   cluster's nodes), a resource whose ``pk:id`` is one of plantkg's principal names, and a
@@ -38,6 +39,8 @@ from engine.security import mqtt_client, principals
 
 #: The broker kinds whose driver renders users and ACLs.
 USER_KINDS = frozenset({"mosquitto", "kafka"})
+#: The broker kinds that take users as principals with tokens (the context broker), not passwords.
+TOKEN_KINDS = frozenset({"ngsi-v2"})
 #: The broker kinds closed by default (a Kafka is closed when its clients have users) and whose
 #: brokers plantkg's own MQTT principals log in to.
 CLOSED_BY_DEFAULT = mqtt_client.USER_KINDS
@@ -99,7 +102,8 @@ def with_bridge_principals(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
     """The specs with each bridge's principal as a user of the closed broker the bridge logs in to:
     a Mosquitto bridge on its remote (writes what it sends there, reads what it fetches), a
     worker on its MQTT broker (reads what it forwards to Kafka or the context broker, writes what
-    it brings back). A broker that admits anonymous clients and has no plant users gets none: it
+    it brings back; an MQTT <-> NGSI worker writes nothing: the context broker publishes what comes
+    back, as the bridge's notify principal). A broker that admits anonymous clients and has no plant users gets none: it
     has no users file, the bridge's login is not checked there, and a users file would cost its
     anonymous persistent sessions the messages that arrive between a restart and their
     reconnection (docs/security.md). Only a Mosquitto takes these principals: a worker logs in to
@@ -115,6 +119,13 @@ def with_bridge_principals(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
         sends = {BridgeDirection.OUT, BridgeDirection.BOTH}
         fetches = {BridgeDirection.IN, BridgeDirection.BOTH}
         write, read = (sends, fetches) if bridge.mechanism is BridgeMechanism.MOSQUITTO else (fetches, sends)
+        if bridge.mechanism is BridgeMechanism.NGSI:
+            # the context broker, not the worker, publishes what comes back: a principal of its own
+            back = tuple(sorted(r.topic for r in bridge.routes if r.direction in fetches))
+            if back:
+                extra[at.id].append(BrokerUser(name=principals.notify_principal(bridge.local.id, bridge.remote.id),
+                                               secret_ref=principals.PRINCIPAL_REF, write=back))
+            write = set()
         extra[at.id].append(BrokerUser(
             name=principals.bridge_principal(bridge.local.id, bridge.remote.id),
             secret_ref=principals.PRINCIPAL_REF,
@@ -142,24 +153,21 @@ def kafka_internal_password(agent_token: str) -> str:
 
 def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[BridgeSpec] = ()) -> None:
     """Refuse users on a broker whose driver renders none or on a Kafka cluster's nodes, plant
-    users named like plantkg's own principals (``plantkg.``...), a MirrorMaker 2 at a closed Kafka,
-    and an MQTT <-> NGSI bridge bringing entities back to a TLS broker (the context broker
-    publishes its notifications over plain MQTT)."""
+    users named like plantkg's own principals (``plantkg.``...), principals on a context broker
+    open to anonymous writes, and a MirrorMaker 2 at a closed Kafka."""
     bridges = tuple(bridges)
     by_id = {b.id: b for b in brokers}
-    for bridge in bridges:
-        if (bridge.mechanism is BridgeMechanism.NGSI and bridge.local.tls
-                and any(r.direction is not BridgeDirection.OUT for r in bridge.routes)):
-            raise AccessNotSupportedError(
-                f"{bridge.address}: broker {bridge.local.id!r} speaks TLS (pk:tls true), but the "
-                "context broker publishes its notifications to MQTT without TLS",
-                hint=f"keep {bridge.local.id!r} plain, or bridge only MQTT -> context broker there")
     for spec in by_id.values():
-        if spec.users and spec.kind not in USER_KINDS:
+        if spec.users and spec.kind in TOKEN_KINDS and spec.allow_anonymous:
+            raise AccessNotSupportedError(
+                f"broker {spec.id!r} (context broker): the plant says pk:allowAnonymous true, but its "
+                f"clients {', '.join(u.name for u in spec.users)} have a pk:secretRef (principals "
+                "close it)", hint="remove pk:allowAnonymous, or the clients' pk:secretRef")
+        if spec.users and spec.kind not in USER_KINDS | TOKEN_KINDS:
             names = ", ".join(u.name for u in spec.users)
             raise AccessNotSupportedError(
                 f"broker {spec.id!r} ({spec.kind}): its clients {names} have a pk:secretRef, but "
-                f"plantkg renders users and ACLs for {', '.join(sorted(USER_KINDS))} brokers only (yet)",
+                f"plantkg renders users and ACLs for {', '.join(sorted(USER_KINDS | TOKEN_KINDS))} brokers only (yet)",
                 hint="remove pk:secretRef from those resources, or let them send to a Mosquitto broker")
         reserved = [u.name for u in spec.users
                     if principals.is_reserved(u.name) and u.secret_ref != principals.PRINCIPAL_REF]
@@ -200,6 +208,8 @@ def access_label(spec: BrokerSpec) -> str:
             return f"users ({len(spec.users)}){tls}"
         return (f"open + users ({len(spec.users)}){tls}" if spec.users else f"open{tls}")
     if spec.kind == "ngsi-v2":
+        if spec.users:
+            return f"principals ({len(spec.users)})"
         return "open" if spec.allow_anonymous else "token for writes"
     return "open"
 

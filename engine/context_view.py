@@ -16,7 +16,8 @@ ask "which broker carries AGV 7's state, and what does it say now".
   named in :attr:`ContextView.unavailable`, so the dashboard can say so; it never fails the
   observation of brokers.
 
-Reads need no token (the context broker's reads are open); only loopback or plant addresses the
+Reads send no token (the context broker's reads are open; one with principals answers 401 and is
+reported unavailable, docs/security.md); only loopback or plant addresses the
 plant itself names are asked.
 """
 

@@ -223,7 +223,11 @@ def derive_parts(plant: PlantGraph, only: frozenset[str] | None = None, known: P
     by_iri = {b.iri: b for b in brokers} | leads  # a cluster's topics and bridges: on its lead node
     topics = _topics(plant, select(TOPICS), select(SETTINGS), by_iri)
     iri_of_id = {b.id: b.iri for b in brokers}
-    users = broker_users(select, {(iri_of_id[t.broker_id], t.iri): t.name for t in topics})
+    topics = [_with_entity(plant, t) if CONTEXT_BROKER in classes[iri_of_id[t.broker_id]] else t
+              for t in topics]
+    # a context broker's principals get their topics' entities (the broker knows no topic names)
+    users = broker_users(select, {(iri_of_id[t.broker_id], t.iri): t.name if t.entity_id is None else t.entity_id
+                                  for t in topics})
     for cluster, lead in leads.items():  # a cluster's clients are its nodes' users (refused below)
         if cluster in users and lead.kafka is not None:
             users |= {b.iri: users[cluster] for b in brokers if b.kafka and b.kafka.cluster == lead.kafka.cluster}
@@ -232,8 +236,6 @@ def derive_parts(plant: PlantGraph, only: frozenset[str] | None = None, known: P
     by_iri = {b.iri: b for b in brokers}
     by_iri |= {cluster: by_iri[lead.iri] for cluster, lead in leads.items()}
     iri_of = {b.id: b.iri for b in brokers}
-    topics = [_with_entity(plant, t) if CONTEXT_BROKER in classes[iri_of[t.broker_id]] else t
-              for t in topics]
     parts = Parts(brokers=by_iri, external=set(external),
                   classes={b.iri: frozenset(classes[b.iri]) for b in brokers})
     for t in topics:

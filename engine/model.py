@@ -46,7 +46,8 @@ class BrokerUser:
     broker's machine — ``env:NAME`` or ``file:/absolute/path`` — never the password itself; the
     broker's agent reads it when it renders the broker's files. ``write``/``read``: the topic names
     it may publish / subscribe to on this broker (``pk:mayWrite``/``pk:mayRead``, which
-    ``pk:publishes``/``pk:subscribes`` imply), sorted."""
+    ``pk:publishes``/``pk:subscribes`` imply), sorted; on a context broker, the entity ids of
+    those topics."""
 
     name: str                     # the resource's pk:id: its user name on the broker
     secret_ref: str

@@ -138,7 +138,16 @@ def ngsi_worker_config(spec: BridgeSpec, state_dir: Path, token_file: Path | Non
         ngsi_url=f"http://{host_in_url(spec.remote.host)}:{spec.remote.port}",
         routes=tuple(routes), state_dir=state_dir, token_file=token_file,
         mqtt_username=_mqtt_login(spec), mqtt_ca_file=_mqtt_ca(spec),
+        notify_username=_notify_login(spec, routes),
     )
+
+
+def _notify_login(spec: BridgeSpec, routes: list[NgsiRoute]) -> str | None:
+    """The principal the context broker publishes the bridge's notifications as, where plantkg
+    renders users and the bridge brings entities back (engine.access makes it a user there)."""
+    if _mqtt_login(spec) is None or not any(r.direction is NgsiDirection.NGSI_TO_MQTT for r in routes):
+        return None
+    return principals.notify_principal(spec.local.id, spec.remote.id)
 
 
 def _mqtt_ca(spec: BridgeSpec) -> Path | None:

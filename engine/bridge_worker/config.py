@@ -158,11 +158,11 @@ class WorkerConfig:
         return cls(**values)
 
 
-def check_mqtt_username(value: object) -> None:
+def check_mqtt_username(value: object, field: str = "mqtt_username") -> None:
     """None, or a plantkg principal's name (the worker derives its password; nothing else)."""
     if value is not None and (not isinstance(value, str) or not value.startswith("plantkg.")
                               or not _BRIDGE_ID.fullmatch(value)):
-        raise ConfigValueError("mqtt_username", value, "must be null or a plantkg principal "
+        raise ConfigValueError(field, value, "must be null or a plantkg principal "
                                "(plantkg.<letters, digits, _ . ->)")
 
 

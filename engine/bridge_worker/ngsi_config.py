@@ -93,12 +93,15 @@ class NgsiWorkerConfig:
     check_every: float = 30.0      # seconds between checks that the subscriptions are still right
     mqtt_username: str | None = None  # as WorkerConfig.mqtt_username
     mqtt_ca_file: Path | None = None  # as WorkerConfig.mqtt_ca_file
+    #: The principal the context broker publishes the notifications as (a closed MQTT broker).
+    notify_username: str | None = None
     mechanism: str = MECHANISM
 
     def __post_init__(self) -> None:
         if self.mechanism != MECHANISM:
             raise ConfigValueError("mechanism", self.mechanism, f"must be {MECHANISM!r}")
         check_mqtt_username(self.mqtt_username)
+        check_mqtt_username(self.notify_username, "notify_username")
         if self.mqtt_ca_file is not None:
             object.__setattr__(self, "mqtt_ca_file", check_path("mqtt_ca_file", self.mqtt_ca_file))
         if not isinstance(self.bridge_id, str) or not _BRIDGE_ID.fullmatch(self.bridge_id):
@@ -133,9 +136,10 @@ class NgsiWorkerConfig:
 
     @property
     def mqtt_url(self) -> str:
-        """Where the context broker publishes notifications (the worker's own MQTT broker)."""
+        """Where the context broker publishes notifications (the worker's own MQTT broker):
+        ``mqtts://`` when it speaks TLS (the context broker verifies it against the plant CA)."""
         host = f"[{self.mqtt_host}]" if ":" in self.mqtt_host else self.mqtt_host
-        return f"mqtt://{host}:{self.mqtt_port}"
+        return f"{'mqtt' if self.mqtt_ca_file is None else 'mqtts'}://{host}:{self.mqtt_port}"
 
     def routes_of(self, direction: NgsiDirection) -> tuple[NgsiRoute, ...]:
         return tuple(r for r in self.routes if r.direction is direction)
@@ -149,6 +153,7 @@ class NgsiWorkerConfig:
             "stats_interval": self.stats_interval, "check_every": self.check_every,
             "mqtt_username": self.mqtt_username,
             "mqtt_ca_file": None if self.mqtt_ca_file is None else str(self.mqtt_ca_file),
+            **({"notify_username": self.notify_username} if self.notify_username else {}),
         }, indent=2)
 
     @classmethod

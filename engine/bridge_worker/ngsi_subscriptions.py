@@ -41,12 +41,13 @@ def owned_by(bridge_id: str, sub: dict[str, Any]) -> bool:
 
 
 def subscription_body(cfg: NgsiWorkerConfig, route: NgsiRoute) -> dict[str, Any]:
-    """The subscription of one ``ngsi-to-mqtt`` route, as POSTed. With an MQTT user (a closed
-    broker), the context broker publishes the notifications as the bridge's own principal: its
-    ``user`` and ``passwd`` (Orion's fields; the context broker never shows the password back)."""
+    """The subscription of one ``ngsi-to-mqtt`` route, as POSTed. With a notify user (a closed
+    broker), the context broker publishes the notifications as the bridge's notify principal: its
+    ``user`` and ``passwd`` (Orion's fields; the context broker never shows the password back).
+    To a TLS broker the url is ``mqtts://``."""
     mqtt: dict[str, Any] = {"url": cfg.mqtt_url, "topic": route.mqtt_topic, "qos": route.qos}
-    if cfg.mqtt_username is not None:
-        mqtt.update(user=cfg.mqtt_username, passwd=principal_key.password_for(cfg.mqtt_username))
+    if cfg.notify_username is not None:
+        mqtt.update(user=cfg.notify_username, passwd=principal_key.password_for(cfg.notify_username))
     return {
         "description": description(cfg.bridge_id, route.mqtt_topic),
         "subject": {"entities": [{"id": route.entity_id, "type": route.entity_type}]},

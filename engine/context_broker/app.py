@@ -4,6 +4,8 @@ What every request goes through, before its view (in this order):
 
 1. writes (POST, PUT, PATCH, DELETE; ``POST /v2/op/query`` is a read) need
    ``Authorization: Bearer <token>`` when the app has a token: 401 ``Unauthorized`` otherwise;
+   on a closed broker (a ``gate``, :mod:`.access`) every request but ``/version`` needs a
+   principal's token (401 without, 403 outside its rights, checked after step 2);
 2. a body-carrying request without ``Content-Length`` (nor chunked encoding): 411
    ``ContentLengthRequired``; over 1 MB (Orion's limit): 413 ``RequestEntityTooLarge``;
 3. tenancy headers are checked by the views (``Fiware-Service``, ``Fiware-ServicePath``).
@@ -33,6 +35,7 @@ from flask import Blueprint, Flask, Response, request
 from werkzeug.exceptions import HTTPException, MethodNotAllowed, NotFound, RequestEntityTooLarge
 
 from engine.context_broker import batch, routes
+from engine.context_broker.access import PUBLIC_PATHS, Gate, authorize
 from engine.context_broker.contract import ChangeListener, NgsiError
 from engine.context_broker.fastpath import fast_writes
 from engine.context_broker.openapi import openapi_document
@@ -56,8 +59,12 @@ def _error(err: NgsiError) -> Response:
 def create_app(store: ContextStore, *, token: str | None = None,
                listeners: Iterable[ChangeListener] = (),
                subscriptions_blueprint: Blueprint | None = None,
-               clock: Callable[[], float] = time.time, fast: bool = True) -> Flask:
-    """The WSGI app over ``store``. ``token`` None: writes are open. ``listeners`` are told
+               clock: Callable[[], float] = time.time, fast: bool = True,
+               gate: Gate | None = None) -> Flask:
+    """The WSGI app over ``store``. ``token`` None: writes are open. ``gate``: the broker is
+    closed (:mod:`.access`): every request but ``/version`` needs a principal's token (or
+    ``token``, which ``gate`` holds as plantkg's own principal) and stays within its rights.
+    ``listeners`` are told
     every change (see :class:`ChangeListener`); ``subscriptions_blueprint`` serves
     ``/v2/subscriptions`` under the same token check and error handling. ``fast`` False: every
     request goes through Flask (the fast path's tests compare the two)."""
@@ -70,10 +77,13 @@ def create_app(store: ContextStore, *, token: str | None = None,
     for listener in listeners:
         store.add_listener(listener)
 
+    access = gate
+
     @app.before_request
-    def gate() -> Response | None:
+    def check_request() -> Response | None:
         method = request.method
-        if method in WRITE_METHODS and token is not None and not (
+        who = access.principal(request.headers) if access is not None and request.path not in PUBLIC_PATHS else None
+        if who is None and method in WRITE_METHODS and token is not None and not (
                 method == "POST" and request.path.rstrip("/") in READ_POSTS):
             given = request.headers.get("Authorization", "")
             scheme, _, value = given.partition(" ")
@@ -94,6 +104,9 @@ def create_app(store: ContextStore, *, token: str | None = None,
             if length is not None and length > MAX_BODY:
                 _drain(request.environ, length)
                 raise _too_large(length)
+        if who is not None:
+            body = request.get_json(silent=True) if method == "POST" else None
+            authorize(who, method, request.path, request.args, body)
         return None
 
     app.register_error_handler(NgsiError, _error)

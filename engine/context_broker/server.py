@@ -1,11 +1,12 @@
 """The context broker as a process: arguments, token, store, subscriptions, WSGI server, signals.
 
 ``python -m engine.context_broker --host H --port P --data-dir D [--token-file F | --open]
-[--log-file L] [--allow-remote] [--threads N] [--fsync]``
+[--principals P] [--log-file L] [--allow-remote] [--threads N] [--fsync]``
 
 - Binds loopback unless ``--allow-remote`` (a non-loopback ``--host`` is refused otherwise).
 - Writes need ``Authorization: Bearer <token>`` (the first line of ``--token-file``) unless
-  ``--open``; one of the two must be given.
+  ``--open``; one of the two must be given. ``--principals P`` (with ``--token-file``) closes
+  it: reads need a token too, and each principal of ``P`` may use only its entities (:mod:`.access`).
 - The store lives in ``D/oxigraph`` and its write-ahead log in ``D/context.wal`` (``D/context.lock``
   keeps a second process out, with a clear message and exit code 2); subscriptions in
   ``D/subscriptions``. An answered write survives kill -9; ``--fsync`` also makes it survive a
@@ -25,6 +26,8 @@ import logging
 import sys
 from pathlib import Path
 
+from engine.context_broker.access import Gate
+from engine.security.ngsi_principals import PrincipalsFileError, load_principals
 from engine.context_broker.app import MAX_BODY, create_app
 from engine.context_broker.store import ContextStore, StoreLocked
 
@@ -44,6 +47,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--data-dir", type=Path, required=True)
     parser.add_argument("--token-file", type=Path)
     parser.add_argument("--open", action="store_true", help="writes need no token")
+    parser.add_argument("--principals", type=Path,
+                        help="the principals file (token digests and entities): closes the broker")
     parser.add_argument("--log-file", type=Path)
     parser.add_argument("--allow-remote", action="store_true", help="allow a non-loopback --host")
     parser.add_argument("--threads", type=int, default=DEFAULT_THREADS)
@@ -83,6 +88,18 @@ def read_token(args: argparse.Namespace) -> str | None:
     return token[0].strip()
 
 
+def read_gate(args: argparse.Namespace, token: str | None) -> Gate | None:
+    if args.principals is None:
+        return None
+    if token is None:
+        raise ConfigError("--principals closes the broker: give --token-file (plantkg's own "
+                          "token), not --open")
+    try:
+        return Gate(token, load_principals(args.principals))
+    except PrincipalsFileError as err:
+        raise ConfigError(str(err)) from None
+
+
 def _logging(log_file: Path | None) -> None:
     try:
         handler: logging.Handler = (logging.FileHandler(log_file, encoding="utf-8") if log_file
@@ -100,6 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         check_host(args.host, args.allow_remote)
         token = read_token(args)
+        gate = read_gate(args, token)
         _logging(args.log_file)
     except ConfigError as err:
         print(f"error: {err}", file=sys.stderr)
@@ -116,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     subscriptions = SubscriptionService(args.data_dir / "subscriptions", fsync=args.fsync)
     subscriptions.start()
     try:
-        app = create_app(store, token=token, listeners=[subscriptions],
+        app = create_app(store, token=token, gate=gate, listeners=[subscriptions],
                          subscriptions_blueprint=subscriptions.blueprint())
         # with --fsync a write waits for the disk: keep it off the event loop
         server = make_server(app, args.host, args.port, args.threads,
@@ -127,7 +145,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: cannot listen on {args.host}:{args.port}: {err.strerror or err}", file=sys.stderr)
         return 2
     log.info("context broker on http://%s:%d (data %s, %d entities, writes %s)", args.host,
-             args.port, args.data_dir, store.count(), "open" if token is None else "need a token")
+             args.port, args.data_dir, store.count(),
+             "open" if token is None else "need a token" if gate is None else "closed: every request needs a token")
     try:
         stopped_by = server.run()
         log.info("%s: stopping", stopped_by)

@@ -35,8 +35,10 @@ from engine.drivers.base import (
     check_topic_fields,
     log_file,
     refuse_bridges,
+    resolve_secret,
     spec_essence,
 )
+from engine.security.ngsi_principals import render_principals
 from engine.errors import ConfigValueError
 from engine.model import BridgeSpec, BrokerSpec, ObservedTopic, TopicSpec
 from engine.values import check_host, check_ngsi_id, check_path, check_port
@@ -45,6 +47,8 @@ from engine.values import check_host, check_ngsi_id, check_path, check_port
 SERVER_MODULE = "engine.context_broker"
 TOKEN_FILE = "token"
 TOKEN_FILE_ENV = AGENT_TOKEN_FILE_ENV
+#: The principals file of a broker with users (token digests and entities; engine.context_broker.access).
+PRINCIPALS_FILE = "principals.json"
 #: How much of a /version answer health reads (Orion's is a few hundred bytes).
 MAX_VERSION_BYTES = 65_536
 
@@ -68,17 +72,29 @@ class NgsiDriver:
         check_port("port", spec.port)
         if spec.allow_anonymous is not None and not isinstance(spec.allow_anonymous, bool):
             raise ConfigValueError("allow_anonymous", spec.allow_anonymous, "must be true or false")
+        if spec.users and spec.allow_anonymous:
+            raise ConfigValueError("allow_anonymous", True, "a context broker with principals (users) "
+                                   "is closed; remove allow_anonymous or the users")
+        for user in spec.users:
+            check_text(f"users[{user.name}].name", user.name)
+            for eid in (*user.write, *user.read):
+                check_ngsi_id(f"users[{user.name}] entity", eid)
         if spec.persist_every is not None:
             raise ConfigValueError("persist_every", spec.persist_every,
                                    "does not apply to a context broker (it saves every write)")
 
     def render_config(self, spec: BrokerSpec, broker_dir: Path,
                       bridges: tuple[BridgeSpec, ...] = ()) -> dict[str, str]:
-        """No file: everything is on the command line. Bridges run as workers beside MQTT."""
+        """The principals file of a broker with users (each user's token read here, on the broker's
+        machine, and written as its SHA-256 digest only; 0600 like every rendered file); else no
+        file. Bridges run as workers beside MQTT."""
         self.validate(spec)
         check_path("broker_dir", broker_dir)
         refuse_bridges(self.kind, bridges)
-        return {}
+        if not spec.users:
+            return {}
+        tokens = {u.name: (resolve_secret(u), u.write, u.read) for u in spec.users}
+        return {PRINCIPALS_FILE: render_principals(tokens)}
 
     def token_file(self, broker_dir: Path) -> Path:
         """The agent's token file, which the context broker reads its write token from."""
@@ -101,11 +117,14 @@ class NgsiDriver:
             raise ConfigValueError("token_file", str(token),
                                    "the agent's token file is missing, and the context broker needs "
                                    f"it for writes (set {TOKEN_FILE_ENV}, or pk:allowAnonymous true)")
-        return [*argv, "--token-file", str(token)]
+        argv = [*argv, "--token-file", str(token)]
+        return [*argv, "--principals", str(broker_dir / PRINCIPALS_FILE)] if spec.users else argv
 
     def prepare(self, spec: BrokerSpec, broker_dir: Path) -> None:
         """The data folder the entities are stored in."""
         (broker_dir / DATA_DIR).mkdir(parents=True, exist_ok=True)
+        if not spec.users:
+            (broker_dir / PRINCIPALS_FILE).unlink(missing_ok=True)
 
     def health(self, spec: BrokerSpec, timeout: float) -> bool:
         """``GET /version`` answered 200 with a JSON object holding an ``orion`` object."""
@@ -145,5 +164,9 @@ class NgsiDriver:
         return []
 
     def essence(self, spec: BrokerSpec) -> dict[str, Any]:
-        """Listener and whether writes need the token: both are on the command line."""
-        return {**spec_essence(spec), "allow_anonymous": bool(spec.allow_anonymous)}
+        """Listener, whether writes need the token (both on the command line), and the principals."""
+        out = {**spec_essence(spec), "allow_anonymous": bool(spec.allow_anonymous)}
+        if spec.users:  # principals: who they are and their entities (their tokens are not in it)
+            out["users"] = [{"name": u.name, "secret_ref": u.secret_ref, "write": sorted(u.write),
+                             "read": sorted(u.read)} for u in sorted(spec.users, key=lambda u: u.name)]
+        return out

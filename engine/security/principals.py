@@ -12,6 +12,7 @@ in a spec, a plan or a request.
 | ``plantkg.observer`` | the dashboard's rates, ``check``'s taps, the demo's taps | read every topic (``#``) |
 | ``plantkg.check`` | ``plantkg check``'s probes | write every topic (``#``) |
 | ``plantkg.bridge.<local>.<remote>`` | a bridge, on the broker it connects to | exactly the topics it forwards there |
+| ``plantkg.notify.<local>.<remote>`` | the context broker's notifications of an MQTT <-> NGSI bridge | write the topics the bridge brings back |
 
 The first three are the same on every broker (its driver adds them); a bridge's principal is
 derived from the bridge (engine.access) and shows in the plan like a plant user.
@@ -30,6 +31,13 @@ PRINCIPAL_REF = "plantkg:principal-key"
 def bridge_principal(local_id: str, remote_id: str) -> str:
     """The user a bridge carried by ``local_id`` has on the broker it connects to."""
     return f"{PREFIX}bridge.{local_id}.{remote_id}"
+
+
+def notify_principal(local_id: str, remote_id: str) -> str:
+    """The user the context broker publishes an MQTT <-> NGSI bridge's notifications as, on the
+    bridge's MQTT broker ``local_id``: a principal of its own, writing exactly the topics the
+    bridge brings back (the worker's principal reads what it forwards)."""
+    return f"{PREFIX}notify.{local_id}.{remote_id}"
 
 
 def is_reserved(name: str) -> bool:

@@ -239,3 +239,16 @@ def test_reconcile_replaces_an_inactive_one_and_remove_all_deletes_only_ours(tmp
 def test_a_one_way_bridge_wants_no_subscription(tmp_path: Path) -> None:
     cfg = config(tmp_path, NgsiRoute("t", "e", "T", NgsiDirection.MQTT_TO_NGSI))
     assert reconcile(cfg, []).create == ()
+
+
+def test_at_a_closed_tls_broker_the_context_broker_publishes_over_mqtts_as_the_notify_principal(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("PLANTKG_PRINCIPAL_KEY", str(tmp_path / "principal-key"))
+    cfg = config(tmp_path, mqtt_username="plantkg.bridge.mqtt.orion", mqtt_ca_file=tmp_path / "ca.pem",
+                 notify_username="plantkg.notify.mqtt.orion")
+    assert NgsiWorkerConfig.from_json(cfg.to_json()) == cfg
+    mqtt = subscription_body(cfg, cfg.routes_of(NgsiDirection.NGSI_TO_MQTT)[0])["notification"]["mqtt"]
+    assert mqtt["url"] == "mqtts://127.0.0.2:1883" and mqtt["user"] == "plantkg.notify.mqtt.orion"
+    assert mqtt["passwd"] and mqtt["passwd"] != "plantkg.notify.mqtt.orion"
+    with pytest.raises(ConfigValueError, match="notify_username"):
+        config(tmp_path, notify_username="robot1")

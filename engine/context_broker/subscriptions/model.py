@@ -89,6 +89,7 @@ class MqttTarget:
     retain: bool = False
     user: str | None = None
     passwd: str | None = None
+    tls: bool = False   # mqtts://: TLS, the broker verified against the plant CA
 
 
 @dataclass(frozen=True)

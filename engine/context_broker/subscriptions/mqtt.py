@@ -1,6 +1,7 @@
 """MQTT notifications (paho-mqtt 2.x): the notification JSON published on ``topic``.
 
-One persistent client per broker and credentials (``url``, ``user``, ``passwd``), created at its first notification; paho's
+One persistent client per broker and credentials (``url``, ``user``, ``passwd``), created at its
+first notification (``mqtts://``: TLS, verified against the plant CA's ``ca.pem``); paho's
 network thread reconnects it (0.5 s doubling to 30 s). A publish counts as sent when the broker
 acknowledged it: for QoS 1 and 2 the PUBACK/PUBCOMP must arrive within :data:`ACK_TIMEOUT`, for
 QoS 0 the message must have been handed to a connected client. A client that is not connected is
@@ -12,6 +13,7 @@ PUBACK was late, or that followed one, may arrive twice.
 
 from __future__ import annotations
 
+import ssl
 import threading
 import time
 import uuid
@@ -22,6 +24,7 @@ from paho.mqtt.enums import CallbackAPIVersion
 from engine.context_broker.subscriptions.model import MqttTarget
 from engine.context_broker.subscriptions.render import Outgoing
 from engine.context_broker.subscriptions.result import Result
+from engine.security import ca
 
 CONNECT_WAIT = 5.0
 ACK_TIMEOUT = 10.0
@@ -31,10 +34,12 @@ KEEPALIVE = 30
 class MqttSender:
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._clients: dict[tuple[str, int, str | None, str | None], paho.Client] = {}
+        self._clients: dict[tuple[str, int, str | None, str | None, bool], paho.Client] = {}
 
     def _client(self, target: MqttTarget) -> paho.Client:
-        key = (target.host, target.port, target.user, target.passwd)
+        """The client of ``target``'s broker and login; raises OSError, ssl.SSLError or CaError
+        when the plant CA's certificate cannot be read for an ``mqtts://`` target."""
+        key = (target.host, target.port, target.user, target.passwd, target.tls)
         with self._lock:
             client = self._clients.get(key)
             if client is None:
@@ -42,6 +47,8 @@ class MqttSender:
                                      client_id=f"plantkg-cb-{uuid.uuid4().hex[:12]}")
                 if target.user is not None:
                     client.username_pw_set(target.user, target.passwd)
+                if target.tls:  # verified against the plant CA only, with the broker's address
+                    client.tls_set(ca_certs=str(ca.ca_cert_file()))
                 client.reconnect_delay_set(0.5, 30)
                 client.user_data_set({"last": "no answer yet"})
                 client.on_connect = _remember
@@ -59,7 +66,11 @@ class MqttSender:
         """Publish ``msgs`` back to back, then wait for their acknowledgements in order: one
         result per message up to and including the first failure (paho keeps the order on its
         one connection, so pipelining changes nothing the receiver sees)."""
-        client = self._client(target)
+        try:
+            client = self._client(target)
+        except (OSError, ssl.SSLError, ca.CaError) as err:  # the plant CA for mqtts://
+            return [Result.temporary(f"MQTT broker {target.host}:{target.port}: cannot set up TLS "
+                                     f"with the plant CA ({err})")]
         deadline = time.monotonic() + CONNECT_WAIT
         while not client.is_connected():
             if time.monotonic() >= deadline:

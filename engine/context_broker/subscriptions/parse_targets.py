@@ -1,7 +1,8 @@
 """The transports of ``notification``: ``http``, ``httpCustom``, ``mqtt``, ``kafka``.
 
 URLs as Orion checks them: ``http(s)://host[:port]/...`` for HTTP (an ``mqtt://`` or ``kafka://``
-URL there is refused with the field to use instead), ``mqtt://host[:port]`` and
+URL there is refused with the field to use instead), ``mqtt://host[:port]`` (``mqtts://``: over
+TLS, the broker's certificate verified against the plant CA) and
 ``kafka://host:port[,host:port]`` with no path. MQTT topics to publish to hold no ``+``/``#``;
 Kafka topic names are Kafka's legal ones. Header values hold no line breaks.
 """
@@ -20,6 +21,8 @@ from engine.context_broker.subscriptions.model import HttpTarget, KafkaTarget, M
 
 MAX_HTTP_TIMEOUT_MS = 1_800_000
 HTTP_METHODS = ("GET", "PUT", "POST", "DELETE", "PATCH", "HEAD", "OPTIONS", "TRACE", "CONNECT")
+#: A broker URL's port when it names none; ``mqtts://`` is MQTT over TLS (plantkg's extension).
+DEFAULT_PORTS = {"mqtt": 1883, "mqtts": 8883, "kafka": 9092}
 KAFKA_TOPIC = re.compile(r"[A-Za-z0-9._-]{1,249}")
 
 def _http_url(value: Any, path: str) -> str:
@@ -81,7 +84,7 @@ def _broker_url(value: Any, path: str, scheme: str) -> tuple[str, list[tuple[str
     prefix = f"{scheme}://"
     if not url.startswith(prefix):
         raise fail(path, f"{url!r} must start with {prefix} (e.g. {prefix}127.0.0.1:"
-                          f"{1883 if scheme == 'mqtt' else 9092})")
+                          f"{DEFAULT_PORTS[scheme]})")
     rest = url[len(prefix):].rstrip("/")
     if "/" in rest or "?" in rest:
         raise fail(path, f"path cannot be used in a {scheme} url, use topic instead")
@@ -98,7 +101,7 @@ def _broker_url(value: Any, path: str, scheme: str) -> tuple[str, list[tuple[str
         if port is None:
             if scheme == "kafka":
                 raise fail(path, f"{item!r} needs a port (host:port)")
-            port = 1883
+            port = DEFAULT_PORTS[scheme]
         out.append((parts.hostname, port))
     return url, out
 
@@ -109,7 +112,9 @@ def mqtt_target(obj: Mapping[str, Any]) -> MqttTarget:
     for name in ("url", "topic"):
         if name not in obj:
             raise fail(f"{path}.{name}", "missing")
-    url, [(host, port)] = _broker_url(obj["url"], f"{path}.url", "mqtt")
+    given = obj["url"]
+    tls = isinstance(given, str) and given.startswith("mqtts://")
+    url, [(host, port)] = _broker_url(given, f"{path}.url", "mqtts" if tls else "mqtt")
     topic = obj["topic"]
     if not isinstance(topic, str) or not topic:
         raise fail(f"{path}.topic", f"must be a non-empty string, got {topic!r}")
@@ -125,6 +130,7 @@ def mqtt_target(obj: Mapping[str, Any]) -> MqttTarget:
         retain=boolean(obj["retain"], f"{path}.retain") if "retain" in obj else False,
         user=text_field(obj["user"], f"{path}.user") if "user" in obj else None,
         passwd=text_field(obj["passwd"], f"{path}.passwd", free_text=True) if "passwd" in obj else None,
+        tls=tls,
     )
 
 
