@@ -53,7 +53,7 @@ from benchmarks.common import RESULTS, command_line, machine, write_results
 from engine import netutil, parts, process
 from engine.agent.local import LocalAgents, start_local_agents
 from engine.drivers.kafka import runtime
-from engine.kafka_cluster import kraft_cluster_id
+from engine.derived.kafka_cluster import kraft_cluster_id
 
 HOSTS = ("127.0.0.2", "127.0.0.3", "127.0.0.4")
 SITE = "127.0.0.5"

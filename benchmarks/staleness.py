@@ -34,8 +34,8 @@ MEASURES: dict[str, tuple[str, ...]] = {
     "fleet_tasks": ("fleet/planner", "fleet/sim"),
     "cli": ("engine/cli",),
     "security": ("engine/drivers/mosquitto", "engine/security"),
-    "kafka_cluster": ("engine/drivers/kafka", "engine/kafka_cluster.py", "engine/apply.py", "engine/agent",
-                      "engine/bridge_pairs.py"),
+    "kafka_cluster": ("engine/drivers/kafka", "engine/derived/kafka_cluster.py", "engine/apply.py", "engine/agent",
+                      "engine/derived/bridge_pairs.py"),
     "validate": ("kg", "shapes"),
     "reason": ("engine/reasoning/reason.py", "engine/reasoning/rules_fast.py", "engine/reasoning/rules_owlready.py", "ontology"),
 }

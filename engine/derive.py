@@ -5,7 +5,7 @@ run), only what the ontology concluded:
 
 - a :class:`BrokerSpec` for every ``pk:DeployedBroker`` (kind = ``pk:brokerType``, host =
   ``pk:ip``, port = ``pk:port``; ``allow_anonymous`` = ``pk:allowAnonymous``, false on a
-  ``pk:ContextBroker`` or a Mosquitto that does not say (closed by default: engine.access), so
+  ``pk:ContextBroker`` or a Mosquitto that does not say (closed by default: engine.derived.access), so
   a plan shows who may connect; users from ``pk:secretRef`` and the bridges' principals;
   ``tls`` = ``pk:tls`` (a TLS-only listener, Mosquitto);
   ``mqtt_port`` = ``pk:mqttPort``, the MQTT listener of a broker type that speaks MQTT beside its
@@ -22,9 +22,9 @@ run), only what the ontology concluded:
 - a :class:`BridgeSpec` for every pair of brokers joined by ``pk:requiresBridge`` (either way),
   forwarding the topics both brokers must carry (a bridge only R1 derives: the topics that made
   it fire, from publisher to subscriber — query ``SHARED``), its mechanism chosen from the brokers' inferred
-  classes (:mod:`engine.bridge_pairs`), ``asserted`` when the plant states ``pk:bridgesTo``.
+  classes (:mod:`engine.derived.bridge_pairs`), ``asserted`` when the plant states ``pk:bridgesTo``.
   Bridges that would forward a topic round a cycle of three or more brokers are refused
-  (:mod:`engine.bridge_cycles`) before anything is deployed.
+  (:mod:`engine.derived.bridge_cycles`) before anything is deployed.
 
 No value is spliced into a query: the only constants are vocabulary IRIs, serialised by Oxigraph.
 A deployed broker or carried topic missing what its spec needs raises :class:`DeriveError` naming
@@ -41,11 +41,11 @@ from typing import Iterable
 
 import pyoxigraph as ox
 
-from engine.access import broker_users, check_access_supported, close_brokers, with_bridge_principals
+from engine.derived.access import broker_users, check_access_supported, close_brokers, with_bridge_principals
 from engine.errors import ConfigValueError, EngineError
-from engine.bridge_cycles import check_no_cycles
-from engine.kafka_cluster import join_clusters, read_clusters
-from engine.bridge_pairs import DirectedBridge, TopicOptions, pair_bridges
+from engine.derived.bridge_cycles import check_no_cycles
+from engine.derived.kafka_cluster import join_clusters, read_clusters
+from engine.derived.bridge_pairs import DirectedBridge, TopicOptions, pair_bridges
 from engine.model import BridgeSpec, BrokerSpec, DesiredState, TopicSpec
 from engine.reasoning.reason import INFERRED, input_graphs, is_reasoned
 from engine.reasoning.rules_fast import short_name

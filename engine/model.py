@@ -66,7 +66,7 @@ class KafkaVoter:
 
 @dataclass(frozen=True)
 class KafkaNode:
-    """A broker's place in a multi-node Kafka cluster (``pk:nodeOf``; engine.kafka_cluster).
+    """A broker's place in a multi-node Kafka cluster (``pk:nodeOf``; engine.derived.kafka_cluster).
 
     ``cluster_id`` is the KRaft cluster id every node is formatted with, derived from the
     cluster's IRI (the same on every machine and after every restart). ``lead``: this node's

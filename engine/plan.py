@@ -53,7 +53,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
-from engine.access import open_broker_warnings
+from engine.derived.access import open_broker_warnings
 from engine.model import (
     Action,
     BridgeSpec,

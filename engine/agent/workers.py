@@ -10,7 +10,7 @@ A worker bridge lives in ``<state-dir>/bridges/<local>--<remote>/``::
                   engine.drivers.kafka.mirror_worker.MirrorWorkerConfig for kafka-mirror)
     remote.token  mqtt-ngsi: the context broker's write token (the token of the agent that runs
                   it); mqtt-kafka to a closed Kafka: plantkg's password there, derived from that
-                  Kafka's agent token given with the PUT (engine.access.kafka_internal_password);
+                  Kafka's agent token given with the PUT (engine.derived.access.kafka_internal_password);
                   mode 0600; absent for an open remote
     pid.json      pid, start time, argv, restarts, config hash (as for brokers)
     stats.json    what the worker reports: readiness, counters, forwarding rate, last error
@@ -42,7 +42,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from engine import process
-from engine.access import kafka_internal_password
+from engine.derived.access import kafka_internal_password
 from engine.agent.folder import SPEC_FILE, BrokerFolder, PidRecord, write_atomic
 from engine.agent.owners import Owners, claim
 from engine.agent.procs import (
@@ -144,7 +144,7 @@ def ngsi_worker_config(spec: BridgeSpec, state_dir: Path, token_file: Path | Non
 
 def _notify_login(spec: BridgeSpec, routes: list[NgsiRoute]) -> str | None:
     """The principal the context broker publishes the bridge's notifications as, where plantkg
-    renders users and the bridge brings entities back (engine.access makes it a user there)."""
+    renders users and the bridge brings entities back (engine.derived.access makes it a user there)."""
     if _mqtt_login(spec) is None or not any(r.direction is NgsiDirection.NGSI_TO_MQTT for r in routes):
         return None
     return principals.notify_principal(spec.local.id, spec.remote.id)
@@ -156,7 +156,7 @@ def _mqtt_ca(spec: BridgeSpec) -> Path | None:
 
 
 def _mqtt_login(spec: BridgeSpec) -> str | None:
-    """The worker's principal on its MQTT broker where plantkg renders users (engine.access
+    """The worker's principal on its MQTT broker where plantkg renders users (engine.derived.access
     makes it a user there), else None (anonymous)."""
     if spec.local.kind not in USER_KINDS:
         return None

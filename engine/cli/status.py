@@ -1,7 +1,7 @@
 """``plantkg status FILE...``: what each broker of the plant is doing, as its agent reports it.
 
 One row per broker: id, kind, host:port, status, pid, uptime, restarts, topics (present/asked),
-access (who may use it: ``users (N)``, ``token for writes``, ``open``; engine.access);
+access (who may use it: ``users (N)``, ``token for writes``, ``open``; engine.derived.access);
 then, if the plant has bridges, one row per bridge: its address, mechanism, status, routes,
 messages forwarded, its forwarding rate (``rate/s``: messages per second over the worker's last
 ~10 s) and messages retried (Mosquitto's own bridges count nothing: "-"), last error.
@@ -11,7 +11,7 @@ also written into the observed graph (see docs/reconciliation.md). Read-only.
 
 A bridge forwarding more than ``--max-bridge-rate`` messages/s (default 10,000) gets a warning:
 defence in depth for what the plan cannot see (bridge rings are refused at plan time, see
-engine/bridge_cycles.py, but not a loop through a bridge set up outside the plant, nor a publisher
+engine/derived/bridge_cycles.py, but not a loop through a bridge set up outside the plant, nor a publisher
 flooding); a bridge loop once delivered one publish ~36,000 times per broker in 5 s.
 
 Exit codes: 0 the plant has converged (every agent answered, a plan would change nothing and no
@@ -52,8 +52,8 @@ _COLOURS = {"running": "green", "starting": "yellow", "connecting": "yellow", "s
 
 def status_rows(desired: DesiredState, observed: ObservedState, now: float) -> list[dict[str, str]]:
     """The table's rows as strings (desired brokers first, then others the agents run). ``access``
-    is who may use the broker as it runs (``-`` when nothing runs: engine.access.access_label)."""
-    from engine.access import access_label  # noqa: PLC0415
+    is who may use the broker as it runs (``-`` when nothing runs: engine.derived.access.access_label)."""
+    from engine.derived.access import access_label  # noqa: PLC0415
 
     rows = []
     for spec in desired.brokers:

@@ -1,7 +1,7 @@
 """plantkg's own principals: the clients plantkg itself runs against the plant's brokers.
 
 A closed broker admits only users, so every client plantkg runs needs a user there too. Their
-names start with ``plantkg.`` (a plant resource may not take such a ``pk:id``: engine.access
+names start with ``plantkg.`` (a plant resource may not take such a ``pk:id``: engine.derived.access
 refuses it), and their passwords are never configured: each is derived from the plant's principal
 key (:mod:`engine.security.principal_key`) on the machine that needs it, so nothing secret travels
 in a spec, a plan or a request.
@@ -15,7 +15,7 @@ in a spec, a plan or a request.
 | ``plantkg.notify.<local>.<remote>`` | the context broker's notifications of an MQTT <-> NGSI bridge | write the topics the bridge brings back |
 
 The first three are the same on every broker (its driver adds them); a bridge's principal is
-derived from the bridge (engine.access) and shows in the plan like a plant user.
+derived from the bridge (engine.derived.access) and shows in the plan like a plant user.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Broker users and ACLs derived from the graph (engine.access, ontology/plantkg-access.ttl).
+"""Broker users and ACLs derived from the graph (engine.derived.access, ontology/plantkg-access.ttl).
 
 Each case is a small plant and what derive must make of it; both reasoners must agree."""
 
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from engine.access import AccessNotSupportedError
+from engine.derived.access import AccessNotSupportedError
 from engine.derive import derive
 from engine.model import BrokerUser
 from engine.reasoning.reason import reason
@@ -154,14 +154,14 @@ def _spec(**kw):
     (_spec(kind="ngsi-v2", allow_anonymous=False, users=(ROBOT_USER, HMI_USER)), "principals (2)", None),
 ])
 def test_plans_and_status_say_who_may_use_a_broker(spec, label: str, warning: str | None) -> None:
-    from engine.access import access_label, open_broker_warnings  # noqa: PLC0415
+    from engine.derived.access import access_label, open_broker_warnings  # noqa: PLC0415
     assert access_label(spec) == label
     warnings = open_broker_warnings([spec])
     assert (warnings == ()) if warning is None else (len(warnings) == 1 and warning in warnings[0])
 
 
 def test_principals_on_a_context_broker_are_taken_and_an_open_one_with_them_refused() -> None:
-    from engine.access import check_access_supported  # noqa: PLC0415
+    from engine.derived.access import check_access_supported  # noqa: PLC0415
     check_access_supported([_spec(kind="ngsi-v2", allow_anonymous=False, users=(ROBOT_USER,))])
     with pytest.raises(AccessNotSupportedError, match="pk:allowAnonymous true, but its clients"):
         check_access_supported([_spec(kind="ngsi-v2", allow_anonymous=True, users=(ROBOT_USER,))])

@@ -1,4 +1,4 @@
-"""engine.bridge_cycles: bridges forwarding a topic round 3+ brokers are refused; pairs and chains
+"""engine.derived.bridge_cycles: bridges forwarding a topic round 3+ brokers are refused; pairs and chains
 of two-way bridges are not.
 
 The plants are data (tests/cases/bridge-cycles/<case>/plant.ttl with expected.json): each is valid
@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from engine.bridge_cycles import BridgeCycle, BridgeCycleError, find_cycle, find_cycles
-from engine.bridge_pairs import DirectedBridge
+from engine.derived.bridge_cycles import BridgeCycle, BridgeCycleError, find_cycle, find_cycles
+from engine.derived.bridge_pairs import DirectedBridge
 from engine.derive import derive
 from engine.reasoning.reason import reason
 from kg.errors import EXIT_UNUSABLE

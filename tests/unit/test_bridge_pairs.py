@@ -1,10 +1,10 @@
-"""engine.bridge_pairs: directed bridge facts -> one BridgeSpec per broker pair (pure)."""
+"""engine.derived.bridge_pairs: directed bridge facts -> one BridgeSpec per broker pair (pure)."""
 
 from __future__ import annotations
 
 import pytest
 
-from engine.bridge_pairs import (
+from engine.derived.bridge_pairs import (
     BridgeNotSupportedError,
     DirectedBridge,
     TopicOptions,

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from engine.derive import DeriveError, NotReasonedError, derive
-from engine.bridge_pairs import BridgeNotSupportedError
+from engine.derived.bridge_pairs import BridgeNotSupportedError
 from engine.model import (
     BridgeDirection,
     BridgeEnd,

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from confluent_kafka.admin import AclOperation, ResourceType
 
-from engine.access import kafka_internal_password
+from engine.derived.access import kafka_internal_password
 from engine.agent.workers import TOKEN_FILE, WorkerManager
 from engine.apply import operations
 from engine.drivers.kafka.access import users_digest, wanted_acls

@@ -1,4 +1,4 @@
-"""Multi-node Kafka clusters in the desired state (engine.kafka_cluster, ontology/plantkg-kafka.ttl):
+"""Multi-node Kafka clusters in the desired state (engine.derived.kafka_cluster, ontology/plantkg-kafka.ttl):
 the quorum concluded by rule K1 with both reasoners, one KRaft id for every node, the cluster's
 topics and bridges on its lead node, and MirrorMaker 2 between two clusters."""
 
@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from engine.derive import derive
-from engine.kafka_cluster import kraft_cluster_id
+from engine.derived.kafka_cluster import kraft_cluster_id
 from engine.model import BridgeMechanism, KafkaVoter, TopicSpec
 from engine.reasoning.reason import reason
 from kg.load import load_plant

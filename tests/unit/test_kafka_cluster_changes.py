@@ -19,7 +19,7 @@ import pytest
 from engine.agent.wire import WireError, broker_spec_from_json
 from engine.apply import lanes, operations
 from engine.drivers.kafka.runtime import KafkaNodeConfig, render_server_properties
-from engine.kafka_cluster import kraft_cluster_id
+from engine.derived.kafka_cluster import kraft_cluster_id
 from engine.model import (
     Action,
     BrokerSpec,

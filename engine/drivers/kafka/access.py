@@ -1,6 +1,6 @@
 """A closed Kafka (issue 13): SASL/SCRAM users and ACLs from ``BrokerSpec.users``.
 
-A Kafka broker one of whose clients has a ``pk:secretRef`` has users (engine.access): it is
+A Kafka broker one of whose clients has a ``pk:secretRef`` has users (engine.derived.access): it is
 rendered closed (engine.drivers.kafka.runtime: SASL_PLAINTEXT on every listener, KRaft's
 StandardAuthorizer, nothing allowed without an ACL), and once it answers the driver makes its
 users and ACLs exactly what the spec says (:func:`sync_access`):
@@ -13,7 +13,7 @@ users and ACLs exactly what the spec says (:func:`sync_access`):
   every other ACL on the broker is deleted (plantkg owns the broker's ACLs).
 
 plantkg's own principal, ``plantkg``, is a super user authenticated with SASL/PLAIN; its password is
-derived from the broker's agent token (:func:`engine.access.kafka_internal_password`): the driver
+derived from the broker's agent token (:func:`engine.derived.access.kafka_internal_password`): the driver
 reads the token file of the agent it runs in, and a bridge worker on another machine gets the
 derived password with its PUT, like a context broker's token.
 """
@@ -42,7 +42,7 @@ from confluent_kafka.admin import (
     UserScramCredentialUpsertion,
 )
 
-from engine.access import kafka_internal_password
+from engine.derived.access import kafka_internal_password
 from engine.drivers.base import AGENT_TOKEN_FILE_ENV, resolve_secret
 from engine.drivers.kafka.runtime import INTERNAL_USER
 from engine.drivers.kafka.topics import result

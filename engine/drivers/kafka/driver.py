@@ -1,5 +1,5 @@
 """The Kafka driver: a KRaft node — alone (broker and controller in one JVM, its own cluster) or
-one node of a multi-node cluster (``BrokerSpec.kafka``; engine.kafka_cluster, docs/kafka.md).
+one node of a multi-node cluster (``BrokerSpec.kafka``; engine.derived.kafka_cluster, docs/kafka.md).
 
 Config, storage format and command line come from :mod:`engine.drivers.kafka.runtime`; topics
 from :mod:`engine.drivers.kafka.topics`. A node alone needs a controller port the ontology does not

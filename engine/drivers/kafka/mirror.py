@@ -1,6 +1,6 @@
 """MirrorMaker 2 for a Kafka -> Kafka bridge: its configuration (pure) and its command line.
 
-A bridge between two Kafka brokers or clusters (mechanism ``kafka-mirror``, engine.bridge_pairs)
+A bridge between two Kafka brokers or clusters (mechanism ``kafka-mirror``, engine.derived.bridge_pairs)
 runs one dedicated MirrorMaker 2 (``org.apache.kafka.connect.mirror.MirrorMaker``, the
 ``connect-mirror`` jars ``make setup`` resolves beside the broker's) on the agent of the target's
 lead node; :mod:`engine.drivers.kafka.mirror_worker` supervises it and reports its lag.
@@ -10,7 +10,7 @@ Choices (docs/kafka.md "MirrorMaker 2"):
 - **Topic names kept**: ``IdentityReplicationPolicy``. The plant names one topic individual on
   both clusters and its subscribers read it under that name; the default policy would write
   ``source.topic`` on the target, a topic the plant never declared. The price: no cycle detection,
-  so a mirror runs one way only (engine.bridge_pairs refuses both ways).
+  so a mirror runs one way only (engine.derived.bridge_pairs refuses both ways).
 - **Only the bridge's topics**: ``source->target.topics`` lists them (``[.]`` for a dot, no
   backslash to survive .properties escaping); the plant (plantkg) creates them on the target
   first, with the plant's settings; ``sync.topic.configs.enabled`` is off so MirrorMaker does not

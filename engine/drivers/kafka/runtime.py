@@ -1,7 +1,7 @@
 """Kafka (KRaft): a node's config, its storage format and its command line.
 
 A node is alone (one JVM that is broker and controller, its own quorum) or one of a multi-node
-cluster (engine.kafka_cluster), with its roles and the quorum's voters.
+cluster (engine.derived.kafka_cluster), with its roles and the quorum's voters.
 
 Reused by the Kafka driver. Verified against Kafka 3.9.1 from Maven Central (see
 third_party/kafka/pom.xml):
@@ -95,7 +95,7 @@ class KafkaNodeConfig:
         object.__setattr__(self, "voters", tuple(sorted(voters)))
         if self.internal_password is not None and not _PASSWORD.fullmatch(self.internal_password):
             raise ConfigValueError("internal_password", "(not shown)",
-                                   "expected 32 to 128 hex digits (engine.access.kafka_internal_password)")
+                                   "expected 32 to 128 hex digits (engine.derived.access.kafka_internal_password)")
         advertised = check_host("advertised_host", self.advertised_host or host)
         if advertised in ("0.0.0.0", "::"):
             raise ConfigValueError(

@@ -327,7 +327,7 @@ def native_bridge(spec: BrokerSpec, bridge: BridgeSpec,
         topics=tuple(mosquitto_runtime.MosquittoBridgeTopic(r.topic, r.direction.value, r.qos)
                      for r in bridge.routes),
         # the bridge flag is Mosquitto's own: another MQTT broker (RabbitMQ's plugin, say) may
-        # refuse it as a corrupt header (engine.bridge_pairs keeps such bridges one-way)
+        # refuse it as a corrupt header (engine.derived.bridge_pairs keeps such bridges one-way)
         try_private=bridge.remote.kind == MosquittoDriver.kind,
         **_remote_login(bridge),
         cafile=cafile if bridge.remote.tls else None,
@@ -335,7 +335,7 @@ def native_bridge(spec: BrokerSpec, bridge: BridgeSpec,
 
 
 def _remote_login(bridge: BridgeSpec) -> dict[str, str]:
-    """The bridge's principal at a Mosquitto remote (derived users there: engine.access)."""
+    """The bridge's principal at a Mosquitto remote (derived users there: engine.derived.access)."""
     login = principal_login(bridge.remote.kind,
                             principals.bridge_principal(bridge.local.id, bridge.remote.id))
     return {} if login is None else {"remote_username": login.username,

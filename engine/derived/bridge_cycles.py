@@ -27,7 +27,7 @@ from collections import defaultdict, deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
-from engine.bridge_pairs import DirectedBridge
+from engine.derived.bridge_pairs import DirectedBridge
 from engine.errors import EngineError
 
 __all__ = ["BridgeCycle", "BridgeCycleError", "check_no_cycles", "find_cycle", "find_cycles"]
