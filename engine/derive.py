@@ -7,7 +7,7 @@ run), only what the ontology concluded:
   ``pk:ip``, port = ``pk:port``; ``allow_anonymous`` = ``pk:allowAnonymous``, false on a
   ``pk:ContextBroker`` or a Mosquitto that does not say (closed by default: engine.derived.access), so
   a plan shows who may connect; users from ``pk:secretRef`` and the bridges' principals;
-  ``tls`` = ``pk:tls`` (a TLS-only listener, Mosquitto);
+  ``tls`` = ``pk:tls`` (a TLS-only listener, Mosquitto or a Kafka broker of its own);
   ``mqtt_port`` = ``pk:mqttPort``, the MQTT listener of a broker type that speaks MQTT beside its
   own protocol, which bridges from MQTT brokers connect to). A broker
   marked ``pk:external`` runs outside plantkg: it is left out of the brokers (and topics) to
@@ -41,7 +41,13 @@ from typing import Iterable
 
 import pyoxigraph as ox
 
-from engine.derived.access import broker_users, check_access_supported, close_brokers, with_bridge_principals
+from engine.derived.access import (
+    broker_users,
+    check_access_supported,
+    check_kafka_tls_supported,
+    close_brokers,
+    with_bridge_principals,
+)
 from engine.errors import ConfigValueError, EngineError
 from engine.derived.bridge_cycles import check_no_cycles
 from engine.derived.kafka_cluster import join_clusters, read_clusters
@@ -350,6 +356,7 @@ def assemble_from(parts: Parts, previous: Assembled | None = None,
     bridges = sorted((spec for _, spec in pairs.values()), key=lambda s: s.address)
     deployed = [b for b in brokers if b.iri not in parts.external]
     check_access_supported(deployed, bridges)
+    check_kafka_tls_supported(deployed, bridges)
     deployed = with_bridge_principals(deployed, bridges)  # each bridge a user where it logs in
     outside = {parts.brokers[iri].id for iri in parts.external}
     ids = {b.iri: b.id for b in brokers}

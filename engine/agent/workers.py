@@ -113,7 +113,7 @@ def worker_config(spec: BridgeSpec, state_dir: Path) -> WorkerConfig:
         mqtt_host=spec.local.host, mqtt_port=spec.local.port,
         kafka_bootstrap=",".join(_bootstrap(spec.remote)),
         routes=tuple(routes), state_dir=state_dir, mqtt_username=_mqtt_login(spec),
-        mqtt_ca_file=_mqtt_ca(spec),
+        mqtt_ca_file=_mqtt_ca(spec), kafka_ca_file=ca.ca_cert_file() if spec.remote.tls else None,
     )
 
 

@@ -90,6 +90,9 @@ class WorkerConfig:
     #: A closed Kafka (issue 13): the file holding plantkg's own password there (SASL/PLAIN as
     #: user "plantkg"; the agent writes it 0600); None: Kafka is open.
     kafka_password_file: Path | None = None
+    #: The plant CA's certificate: Kafka speaks TLS (``pk:tls``), verified against it only,
+    #: address included; None: plain.
+    kafka_ca_file: Path | None = None
 
     def __post_init__(self) -> None:
         check_mqtt_username(self.mqtt_username)
@@ -97,9 +100,9 @@ class WorkerConfig:
             object.__setattr__(self, "mqtt_ca_file", check_path("mqtt_ca_file", self.mqtt_ca_file))
         if not isinstance(self.bridge_id, str) or not _BRIDGE_ID.fullmatch(self.bridge_id):
             raise ConfigValueError("bridge_id", self.bridge_id, "must be 1 to 200 of A-Z a-z 0-9 _ . -")
-        if self.kafka_password_file is not None:
-            object.__setattr__(self, "kafka_password_file",
-                               check_path("kafka_password_file", Path(self.kafka_password_file)))
+        for name in ("kafka_password_file", "kafka_ca_file"):
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, check_path(name, getattr(self, name)))
         object.__setattr__(self, "mqtt_host", check_host("mqtt_host", self.mqtt_host))
         check_port("mqtt_port", self.mqtt_port)
         _check_bootstrap("kafka_bootstrap", self.kafka_bootstrap)
@@ -128,7 +131,17 @@ class WorkerConfig:
         return tuple(r for r in self.routes if r.direction is direction)
 
     def kafka_auth(self) -> dict[str, str]:
-        """librdkafka settings that authenticate the worker's Kafka clients (none: Kafka is open)."""
+        """librdkafka settings that authenticate the worker's Kafka clients (SASL at a closed
+        Kafka) and, at a TLS Kafka, make them speak TLS trusting the plant CA only (none: an open,
+        plain Kafka)."""
+        auth = self._kafka_sasl()
+        if self.kafka_ca_file is not None:
+            auth.update({"security.protocol": "SASL_SSL" if auth else "SSL",
+                         "ssl.ca.location": str(self.kafka_ca_file),
+                         "ssl.endpoint.identification.algorithm": "https"})
+        return auth
+
+    def _kafka_sasl(self) -> dict[str, str]:
         if self.kafka_password_file is None:
             return {}
         try:
@@ -147,6 +160,7 @@ class WorkerConfig:
             "mqtt_username": self.mqtt_username,
             "mqtt_ca_file": None if self.mqtt_ca_file is None else str(self.mqtt_ca_file),
             **({"kafka_password_file": str(self.kafka_password_file)} if self.kafka_password_file else {}),
+            **({"kafka_ca_file": str(self.kafka_ca_file)} if self.kafka_ca_file else {}),
         }, indent=2)
 
     @classmethod

@@ -21,6 +21,8 @@ from __future__ import annotations
 import datetime as dt
 import ipaddress
 import os
+import threading
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,6 +44,8 @@ KEY_FILE = "key.pem"
 CA_LIFETIME_DAYS = 3650
 LIFETIME_DAYS = 90
 RENEW_BEFORE_DAYS = 30
+#: Seconds a process waits for the certificate of a CA another process is creating.
+CREATE_WAIT = 10.0
 
 
 class CaError(EngineError):
@@ -90,34 +94,57 @@ def _key_pem(key: ec.EllipticCurvePrivateKey) -> bytes:
 
 
 def load_or_create_ca(folder: Path) -> Ca:
-    """The CA in ``folder``; a new one if neither file exists (the folder made 0700)."""
+    """The CA in ``folder``; a new one if neither file exists (the folder made 0700). Processes
+    creating it at once (two agents of one machine rendering TLS brokers) agree on one: the first
+    to link its key in place writes the certificate, the others wait for it (bounded)."""
     cert_path, key_path = folder / CA_CERT, folder / CA_KEY
     if not cert_path.exists() and not key_path.exists():
-        folder.mkdir(parents=True, exist_ok=True, mode=0o700)
-        key = ec.generate_private_key(ec.SECP256R1())
-        name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "plantkg plant CA")])
-        now = _now()
-        cert = (x509.CertificateBuilder().subject_name(name).issuer_name(name)
-                .public_key(key.public_key()).serial_number(x509.random_serial_number())
-                .not_valid_before(now - dt.timedelta(minutes=5))
-                .not_valid_after(now + dt.timedelta(days=CA_LIFETIME_DAYS))
-                .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
-                .add_extension(x509.KeyUsage(False, False, False, False, False, True, True, False, False),
-                               critical=True)
-                .add_extension(x509.SubjectKeyIdentifier.from_public_key(key.public_key()), critical=False)
-                .sign(key, hashes.SHA256()))
-        try:  # the key first: a folder with a certificate and no key is not a usable CA
-            _write_private(key_path, _key_pem(key))
-            tmp = cert_path.with_name(f".{CA_CERT}.{os.getpid()}.new")
-            tmp.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
-            os.link(tmp, cert_path)  # another process making one meanwhile: theirs wins
-            tmp.unlink()
-        except FileExistsError:
-            tmp.unlink(missing_ok=True)
-        except OSError as exc:
-            raise CaError(f"cannot create the plant CA in {folder}: {exc.strerror}",
-                          hint="give a CA folder that exists and is writable") from None
+        _create_ca(folder)
+    end = time.monotonic() + CREATE_WAIT
+    while key_path.exists() and not cert_path.exists() and time.monotonic() < end:
+        time.sleep(0.05)  # another process linked its key and is writing the certificate
     return load_ca(folder)
+
+
+def _create_ca(folder: Path) -> None:
+    """Write a new CA's key, then its certificate, each linked into place (never over another's);
+    nothing if another process's key is already there."""
+    cert_path, key_path = folder / CA_CERT, folder / CA_KEY
+    key = ec.generate_private_key(ec.SECP256R1())
+    name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "plantkg plant CA")])
+    now = _now()
+    cert = (x509.CertificateBuilder().subject_name(name).issuer_name(name)
+            .public_key(key.public_key()).serial_number(x509.random_serial_number())
+            .not_valid_before(now - dt.timedelta(minutes=5))
+            .not_valid_after(now + dt.timedelta(days=CA_LIFETIME_DAYS))
+            .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
+            .add_extension(x509.KeyUsage(False, False, False, False, False, True, True, False, False),
+                           critical=True)
+            .add_extension(x509.SubjectKeyIdentifier.from_public_key(key.public_key()), critical=False)
+            .sign(key, hashes.SHA256()))
+    try:  # the key first: a folder with a certificate and no key is not a usable CA
+        folder.mkdir(parents=True, exist_ok=True, mode=0o700)
+        if not _link_new(key_path, _key_pem(key), 0o600):
+            return  # another process's CA: it writes the certificate
+        _link_new(cert_path, cert.public_bytes(serialization.Encoding.PEM), 0o644)
+    except OSError as exc:
+        raise CaError(f"cannot create the plant CA in {folder}: {exc.strerror}",
+                      hint="give a CA folder that exists and is writable") from None
+
+
+def _link_new(path: Path, data: bytes, mode: int) -> bool:
+    """Write ``data`` aside (``mode``), then link it to ``path`` unless ``path`` exists (False)."""
+    aside = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.new")
+    fd = os.open(aside, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, mode)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.link(aside, path)
+    except FileExistsError:
+        return False
+    finally:
+        aside.unlink(missing_ok=True)
+    return True
 
 
 def load_ca(folder: Path) -> Ca:
@@ -173,6 +200,16 @@ def needs_new_cert(cert_pem: bytes | None, ca: Ca, addresses: tuple[str, ...],
     if cert.not_valid_after_utc - (now or _now()) < dt.timedelta(days=RENEW_BEFORE_DAYS):
         return f"expires {cert.not_valid_after_utc:%Y-%m-%d}"
     return None
+
+
+def renewal_reason(cert_pem: bytes | None, addresses: tuple[str, ...]) -> str | None:
+    """Why a broker's server certificate (PEM, None: none) must be issued again by the plant CA
+    of this machine (:func:`needs_new_cert`, or the CA is unusable); None if it is current."""
+    try:
+        authority = load_ca(ca_dir())
+    except CaError as exc:
+        return f"the plant CA is unusable: {exc}"
+    return needs_new_cert(cert_pem, authority, addresses)
 
 
 def issue_server_cert(ca: Ca, addresses: tuple[str, ...], *, name: str,

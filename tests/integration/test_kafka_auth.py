@@ -21,21 +21,19 @@ from __future__ import annotations
 import secrets
 import stat
 import subprocess
-import time
 import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from confluent_kafka import Consumer, KafkaError, KafkaException, Producer
+from confluent_kafka import KafkaException, Producer
 from confluent_kafka.admin import AdminClient
-from paho.mqtt import client as mqtt
-from paho.mqtt.enums import CallbackAPIVersion
 
 from engine import netutil
 from engine.cli import main
 from tests.integration.agents import AgentFleet, start_agents
+from tests.integration.kafka_clients import publish_numbered, read_topic
 
 pytestmark = pytest.mark.integration
 
@@ -110,26 +108,6 @@ def _produce(bootstrap: str, topic: str, auth: dict[str, str], count: int = 1) -
     return errors
 
 
-def _read(bootstrap: str, topic: str, auth: dict[str, str], want: int, deadline: float = 30) -> tuple[int, set[str]]:
-    """(records read, error names) from the beginning of ``topic``."""
-    consumer = Consumer({"bootstrap.servers": bootstrap, "group.id": f"t-{uuid.uuid4().hex[:8]}",
-                         "auto.offset.reset": "earliest", "log_level": 0, **auth})
-    got, errors = 0, set()
-    end = time.monotonic() + deadline
-    try:
-        consumer.subscribe([topic])
-        while got < want and time.monotonic() < end and not errors:
-            for msg in consumer.consume(500, 0.5):
-                if msg.error():
-                    if msg.error().code() != KafkaError._PARTITION_EOF:
-                        errors.add(msg.error().name())
-                else:
-                    got += 1
-    finally:
-        consumer.close()
-    return got, errors
-
-
 def test_the_plan_no_longer_warns_that_the_kafka_is_open(closed: Closed, capsys: pytest.CaptureFixture[str]) -> None:
     code = main(["plan", str(closed.plant), "--agents", str(closed.fleet.agents_file), "--detailed-exitcode"])
     out = capsys.readouterr().out
@@ -146,7 +124,7 @@ def test_anonymous_and_wrong_passwords_get_nothing(closed: Closed) -> None:
         AdminClient({"bootstrap.servers": closed.kafka, "log_level": 0}).list_topics(timeout=5)
     assert _produce(closed.kafka, "cell.pos", {}) != []
     assert _produce(closed.kafka, "cell.pos", _as("robot1", "not-the-password")) != []
-    got, _errors = _read(closed.kafka, "cell.pos", _as("hist", "not-the-password"), 1, deadline=8)
+    got, _errors = read_topic(closed.kafka, "cell.pos", _as("hist", "not-the-password"), 1, deadline=8)
     assert got == 0
 
 
@@ -155,9 +133,9 @@ def test_each_user_does_exactly_what_the_graph_says(closed: Closed) -> None:
     assert _produce(closed.kafka, "cell.pos", robot, 5) == []
     assert _produce(closed.kafka, "cell.cam", robot) == ["TOPIC_AUTHORIZATION_FAILED"]
     assert _produce(closed.kafka, "cell.pos", hist) == ["TOPIC_AUTHORIZATION_FAILED"]
-    got, errors = _read(closed.kafka, "cell.pos", hist, 5)
+    got, errors = read_topic(closed.kafka, "cell.pos", hist, 5)
     assert (got, errors) == (5, set())
-    got, errors = _read(closed.kafka, "cell.pos", robot, 1, deadline=10)
+    got, errors = read_topic(closed.kafka, "cell.pos", robot, 1, deadline=10)
     assert got == 0 and errors & {"TOPIC_AUTHORIZATION_FAILED", "GROUP_AUTHORIZATION_FAILED"}, errors
 
 
@@ -183,17 +161,8 @@ def test_kcat_sees_the_same_rights(closed: Closed, tmp_path: Path) -> None:
 
 
 def test_the_bridge_worker_reaches_the_closed_kafka_as_plantkg(closed: Closed) -> None:
-    client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"cam-{uuid.uuid4().hex[:6]}")
-    client.connect(MQ, closed.mqtt_port)
-    client.loop_start()
-    try:
-        infos = [client.publish("cell.cam", f"{n}".encode(), qos=1) for n in range(BRIDGED)]
-        for info in infos:
-            info.wait_for_publish(30)
-    finally:
-        client.loop_stop()
-        client.disconnect()
-    got, errors = _read(closed.kafka, "cell.cam", _as("hist", closed.passwords["hist"]), BRIDGED, deadline=90)
+    publish_numbered(MQ, closed.mqtt_port, "cell.cam", BRIDGED)
+    got, errors = read_topic(closed.kafka, "cell.cam", _as("hist", closed.passwords["hist"]), BRIDGED, deadline=90)
     assert (got, errors) == (BRIDGED, set())
 
 

@@ -24,6 +24,29 @@ def test_a_new_ca_is_a_ca_with_a_0600_key(tmp_path: Path) -> None:
     assert ca.load_or_create_ca(tmp_path / "ca").cert == authority.cert  # read back, not replaced
 
 
+def test_processes_creating_the_ca_at_once_agree_on_one(tmp_path: Path) -> None:
+    """Two agents rendering TLS brokers (or a Kafka's agent and the agent carrying a worker into
+    it) create the CA at the same moment: each ends with the same CA, its key matching it. A key
+    written over another's used to leave the first creator's certificate with the second's key."""
+    folder, start, got, failed = tmp_path / "ca", threading.Barrier(8), [], []
+
+    def create() -> None:
+        start.wait()
+        try:
+            got.append(ca.load_or_create_ca(folder).cert)
+        except ca.CaError as exc:
+            failed.append(exc)
+
+    threads = [threading.Thread(target=create) for _ in range(8)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(30)
+    assert failed == [] and len(got) == 8 and len(set(got)) == 1
+    assert ca.load_ca(folder).cert == got[0]
+    assert sorted(p.name for p in folder.iterdir()) == sorted([ca.CA_CERT, ca.CA_KEY])  # nothing left aside
+
+
 def test_a_server_certificate_is_issued_kept_and_renewed(tmp_path: Path) -> None:
     authority = ca.load_or_create_ca(tmp_path / "ca")
     folder = tmp_path / "broker"

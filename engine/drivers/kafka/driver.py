@@ -33,7 +33,7 @@ from engine.drivers.base import (
     refuse_bridges,
     spec_essence,
 )
-from engine.drivers.kafka import access
+from engine.drivers.kafka import access, tls
 from engine.drivers.kafka import runtime as kafka_runtime
 from engine.drivers.kafka.topics import Topics, admin_client, check_kafka_topic_name, in_sync
 from engine.errors import ConfigValueError, DriverError, EngineError
@@ -71,6 +71,7 @@ class KafkaDriver:
                 host=spec.host, port=spec.port, controller_port=read_controller_port(broker_dir),
                 data_dir=broker_dir / DATA_DIR,
                 internal_password=access.internal_password(broker_dir) if access.is_closed(spec) else None,
+                tls=tls.node_tls(spec, broker_dir),
             )
         return kafka_runtime.KafkaNodeConfig(
             host=spec.host, port=spec.port,
@@ -78,6 +79,7 @@ class KafkaDriver:
             data_dir=broker_dir / DATA_DIR, node_id=node.node_id, roles=node.roles,
             voters=tuple((v.node_id, v.host, v.port) for v in node.voters),
             replication=node.replication, min_insync=node.min_insync,
+            tls=tls.node_tls(spec, broker_dir),  # refused: TLS is for a broker of its own only
         )
 
     def validate(self, spec: BrokerSpec) -> None:
@@ -88,17 +90,19 @@ class KafkaDriver:
             kafka_runtime.check_cluster_id(spec.kafka.cluster_id)
             return
         kafka_runtime.KafkaNodeConfig(host=spec.host, port=port, controller_port=1 if port != 1 else 2,
-                                      data_dir=Path("/nonexistent/plantkg/broker/data"))
+                                      data_dir=Path("/nonexistent/plantkg/broker/data"),
+                                      tls=tls.node_tls(spec, Path("/nonexistent/plantkg/broker")))
 
     def render_config(self, spec: BrokerSpec, broker_dir: Path,
                       bridges: tuple[BridgeSpec, ...] = ()) -> dict[str, str]:
         """``server.properties``; a node alone needs the controller port that :meth:`prepare`
         stored. A closed broker (users) also gets the digest of its users' passwords, so a
-        changed password restarts it (engine.drivers.kafka.access). Kafka carries no native
-        bridge (its bridges are workers)."""
+        changed password restarts it (engine.drivers.kafka.access); a TLS broker its keystore and
+        the plant CA's certificate (engine.drivers.kafka.tls). Kafka carries no native bridge
+        (its bridges are workers)."""
         refuse_bridges(self.kind, bridges)
         cfg = self.node_config(spec, broker_dir)
-        files = {PROPERTIES_FILE: kafka_runtime.render_server_properties(cfg)}
+        files = {PROPERTIES_FILE: kafka_runtime.render_server_properties(cfg), **tls.tls_files(spec, broker_dir)}
         if cfg.internal_password is not None:
             files[access.DIGEST_FILE] = access.users_digest(spec.users, cfg.internal_password)
         return files
@@ -115,6 +119,8 @@ class KafkaDriver:
         host = check_host("host", spec.host)
         check_port("port", spec.port)
         broker_dir.mkdir(parents=True, exist_ok=True)
+        if not spec.tls:  # no key left behind by a broker that no longer speaks TLS
+            (broker_dir / tls.TLS_KEYSTORE_FILE).unlink(missing_ok=True)
         if spec.kafka is None:
             stored = _stored_controller_port(broker_dir)
             if stored is None or stored == spec.port:
@@ -176,10 +182,17 @@ class KafkaDriver:
         if spec.users:  # a password's new content shows in the rendered digest, not here
             out["users"] = [{"name": u.name, "secret_ref": u.secret_ref, "write": sorted(u.write),
                              "read": sorted(u.read)} for u in sorted(spec.users, key=lambda u: u.name)]
+        if spec.tls:  # only then: a plain broker's essence, and so its config hash, stays as it was
+            out["tls"] = True
         if spec.kafka is not None:
             node = to_dict(spec.kafka)
             out["kafka"] = {k: v for k, v in node.items() if k not in ("lead", "bootstrap")}
         return out
+
+    def tls_renewal(self, spec: BrokerSpec, broker_dir: Path) -> str | None:
+        """Why a TLS broker's certificate must be issued again (None: current, or plain); the
+        agent reports it, the plan turns it into an update, the PUT renders a new one."""
+        return tls.renewal(spec, broker_dir)
 
 
 def read_controller_port(broker_dir: Path) -> int:
@@ -209,7 +222,10 @@ def _admin(spec: BrokerSpec, *, quiet: bool = False, own: bool = False) -> Admin
     node's listener only, for its health)."""
     here = f"{host_in_url(check_host('host', spec.host))}:{check_port('port', spec.port)}"
     bootstrap = spec.kafka.bootstrap if spec.kafka is not None and spec.kafka.bootstrap and not own else (here,)
-    auth = access.client_config(access.internal_password()) if access.is_closed(spec) else {}
+    closed = access.is_closed(spec)
+    auth = access.client_config(access.internal_password()) if closed else {}
+    if spec.tls:
+        auth.update(tls.client_settings(closed))
     return admin_client(bootstrap, quiet=quiet, extra=auth)
 
 

@@ -41,6 +41,20 @@ AUTHORIZER = "org.apache.kafka.metadata.authorizer.StandardAuthorizer"
 
 
 @dataclass(frozen=True)
+class KafkaTls:
+    """A TLS-only node's files, both PEM (Kafka 3.x reads PEM stores): ``keystore``, the node's
+    private key (unencrypted PKCS#8) followed by its certificate; ``truststore``, the plant CA's
+    certificate (the node verifies its own controller listener against it)."""
+
+    keystore: Path
+    truststore: Path
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "keystore", check_path("tls.keystore", self.keystore))
+        object.__setattr__(self, "truststore", check_path("tls.truststore", self.truststore))
+
+
+@dataclass(frozen=True)
 class KafkaNodeConfig:
     """One KRaft node. Alone (``voters`` empty) it is a single-node cluster, broker and controller
     in one JVM, its own quorum. In a cluster it has ``roles`` ("broker", "controller" or both) and
@@ -61,6 +75,7 @@ class KafkaNodeConfig:
     replication: int = 1
     min_insync: int | None = None
     internal_password: str | None = None  # closed: SASL on every listener (docs/security.md)
+    tls: KafkaTls | None = None           # every listener speaks TLS only (a node alone only)
 
     def __post_init__(self) -> None:
         host = check_host("host", self.host)
@@ -96,6 +111,11 @@ class KafkaNodeConfig:
         if self.internal_password is not None and not _PASSWORD.fullmatch(self.internal_password):
             raise ConfigValueError("internal_password", "(not shown)",
                                    "expected 32 to 128 hex digits (engine.derived.access.kafka_internal_password)")
+        if self.tls is not None and not isinstance(self.tls, KafkaTls):
+            raise ConfigValueError("tls", self.tls, "expected a KafkaTls or None")
+        if self.tls is not None and self.voters:
+            raise ConfigValueError("tls", "true", "TLS is built for a Kafka broker of its own only, "
+                                   "not for a cluster's nodes (yet)")
         advertised = check_host("advertised_host", self.advertised_host or host)
         if advertised in ("0.0.0.0", "::"):
             raise ConfigValueError(
@@ -115,7 +135,7 @@ def render_server_properties(cfg: KafkaNodeConfig) -> str:
     broker, controller = "broker" in cfg.roles, "controller" in cfg.roles
     voters = cfg.voters or ((cfg.node_id, str(cfg.advertised_host), cfg.controller_port),)
     closed = cfg.internal_password is not None
-    client = "SASL_PLAINTEXT" if closed else "PLAINTEXT"
+    client = listener_protocol(closed, cfg.tls is not None)
     listeners = ([f"{client}://{host}:{cfg.port}"] if broker else []) \
         + ([f"CONTROLLER://{host}:{cfg.controller_port}"] if controller else [])
     lines = [
@@ -134,7 +154,9 @@ def render_server_properties(cfg: KafkaNodeConfig) -> str:
     if broker:
         lines.append(f"inter.broker.listener.name={client}")
     if closed:
-        lines += _sasl_lines(str(cfg.internal_password))
+        lines += _sasl_lines(str(cfg.internal_password), client)
+    if cfg.tls is not None:
+        lines += _tls_lines(cfg.tls)
     replication = cfg.replication
     lines += [
         f"log.dirs={cfg.data_dir}",
@@ -157,7 +179,28 @@ def render_server_properties(cfg: KafkaNodeConfig) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _sasl_lines(password: str) -> list[str]:
+def listener_protocol(closed: bool, tls: bool) -> str:
+    """The client listener's security protocol (also its listener name): SASL for a closed node,
+    SSL for a TLS one."""
+    return ("SASL_SSL" if closed else "SSL") if tls else ("SASL_PLAINTEXT" if closed else "PLAINTEXT")
+
+
+def _tls_lines(tls: KafkaTls) -> list[str]:
+    """A TLS-only node (issue 13): its certificate and key from a PEM keystore, the plant CA as
+    its truststore (its own client side: the controller listener), TLS 1.2 or newer, no client
+    certificates asked, the peer's address checked against its certificate."""
+    return [
+        "ssl.keystore.type=PEM",
+        f"ssl.keystore.location={tls.keystore}",
+        "ssl.truststore.type=PEM",
+        f"ssl.truststore.location={tls.truststore}",
+        "ssl.enabled.protocols=TLSv1.2,TLSv1.3",
+        "ssl.client.auth=none",
+        "ssl.endpoint.identification.algorithm=https",
+    ]
+
+
+def _sasl_lines(password: str, listener: str = "SASL_PLAINTEXT") -> list[str]:
     """A closed Kafka (issue 13): clients authenticate with SCRAM-SHA-512 (the plant's users,
     created through the AdminClient), plantkg's own principal with PLAIN (a static JAAS user, so
     the nodes and the controller listener need no SCRAM credential before the metadata is up);
@@ -168,8 +211,8 @@ def _sasl_lines(password: str) -> list[str]:
         f"sasl.enabled.mechanisms={SCRAM},PLAIN",
         "sasl.mechanism.inter.broker.protocol=PLAIN",
         "sasl.mechanism.controller.protocol=PLAIN",
-        f"listener.name.sasl_plaintext.plain.sasl.jaas.config={plain}",
-        f"listener.name.sasl_plaintext.{SCRAM.lower()}.sasl.jaas.config="
+        f"listener.name.{listener.lower()}.plain.sasl.jaas.config={plain}",
+        f"listener.name.{listener.lower()}.{SCRAM.lower()}.sasl.jaas.config="
         "org.apache.kafka.common.security.scram.ScramLoginModule required;",
         "listener.name.controller.sasl.enabled.mechanisms=PLAIN",
         f"listener.name.controller.plain.sasl.jaas.config={plain}",

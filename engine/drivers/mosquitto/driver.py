@@ -209,11 +209,7 @@ class MosquittoDriver:
         reports it, the plan turns it into an update, and the PUT renders a new one."""
         if not spec.tls:
             return None
-        try:
-            authority = ca.load_ca(ca.ca_dir())
-        except ca.CaError as exc:
-            return f"the plant CA is unusable: {exc}"
-        return ca.needs_new_cert(_previous_bytes(broker_dir / TLS_CERT_FILE), authority, (spec.host,))
+        return ca.renewal_reason(_previous_bytes(broker_dir / TLS_CERT_FILE), (spec.host,))
 
     def bridge_states(self, spec: BrokerSpec, bridges: tuple[BridgeSpec, ...],
                       timeout: float) -> dict[str, bool]:
