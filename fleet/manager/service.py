@@ -204,9 +204,12 @@ class FleetManager:
             name=old.name if old else None, discovered_at=old.discovered_at if old else now_iso())
         try:
             with self.data.lock():
+                person = self._person_changed()
                 self.data.save(record)
                 for stale in self.data.refused.glob(f"{record.stem}.*") if self.data.refused.is_dir() else ():
                     stale.unlink()
+                if not person:
+                    self._fingerprint = self._dir_fingerprint()
         except Exception as exc:  # the model could not render it: refuse it, keep running
             self.registry.reject(key)
             self._refuse(Refuse(key, f"cannot be written as Turtle: {exc}", desc))
@@ -218,7 +221,6 @@ class FleetManager:
             self.pending_since = at
         self.pending.add(record.stem)
         self.unconfirmed.add(record.stem)
-        self._fingerprint = self._dir_fingerprint()
         self._dirty = True
 
     def _set_connection(self, effect: SetConnection) -> None:
@@ -226,11 +228,19 @@ class FleetManager:
         if record is None:
             return
         with self.data.lock():
+            person = self._person_changed()
             self.records[effect.key] = self.data.update(record, connection_state=effect.state)
+            if not person:
+                self._fingerprint = self._dir_fingerprint()
         word = "available" if effect.state == "ONLINE" else "unavailable"
         log.info("vehicle %s is %s (%s)", record.label, word, effect.state)
-        self._fingerprint = self._dir_fingerprint()
         self._dirty = True
+
+    def _person_changed(self) -> bool:
+        """The data directory changed since the manager last looked (a person's rename, pin or
+        remove). Called under the data lock before the manager's own write: the fingerprint is then
+        left as it was, so the next poll reloads and the person's change is not taken for ours."""
+        return self._fingerprint != self._dir_fingerprint()
 
     def _refuse(self, effect: Refuse) -> None:
         manufacturer = effect.key.manufacturer or str(effect.payload.get("manufacturer") or "_")
