@@ -19,8 +19,6 @@ Rendered files are mode 0600 (:data:`RENDERED_MODE`): they may hold password has
 from __future__ import annotations
 
 import json
-import os
-import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from collections.abc import Callable
@@ -34,6 +32,7 @@ from engine.agent.wire import (
 )
 from engine.errors import EngineError
 from engine.model import BridgeSpec, BrokerSpec, ObservedTopic, to_dict
+from engine.whole_file import write_whole
 
 T = TypeVar("T")
 
@@ -59,24 +58,8 @@ class PidRecord:
 
 
 def write_atomic(path: Path, text: str, mode: int = 0o644) -> None:
-    """Write ``path`` whole or not at all: a file aside (named after this process and thread, so
-    writers never share one), then renamed over it. The folder is made only when missing (a
-    broker start writes several files; each saved syscall counts when 100 start at once)."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
-    flags = os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC
-    try:
-        fd = os.open(tmp, flags, mode)
-    except FileNotFoundError:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(tmp, flags, mode)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            os.fchmod(fh.fileno(), mode)  # exactly ``mode``, whatever the umask
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    """Write ``path`` whole or not at all (``engine.whole_file.write_whole``)."""
+    write_whole(path, text, mode)
 
 
 class BrokerFolder:

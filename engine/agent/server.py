@@ -36,6 +36,7 @@ from engine.drivers.base import AGENT_TOKEN_FILE_ENV
 from engine.drivers.registry import DriverRegistry
 from engine.errors import EngineError
 from engine.security import ca, principal_key
+from engine.whole_file import create_once
 
 log = logging.getLogger(__name__)
 
@@ -91,20 +92,12 @@ def load_or_create_token(path: Path) -> tuple[str, bool]:
     if path.exists():
         return _read_token(path), False
     token = secrets.token_urlsafe(32)
-    aside = path.with_name(f".{path.name}.{os.getpid()}.new")
     try:
-        fd = os.open(aside, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(token + "\n")
-        os.link(aside, path)
-    except FileExistsError:  # another process created it meanwhile
-        return _read_token(path), False
+        created = create_once(path, token + "\n", mode=0o600)
     except OSError as exc:
         raise EngineError(f"cannot create the token file {path}: {exc.strerror}",
                           hint="give --token-file a path in an existing, writable folder") from None
-    finally:
-        aside.unlink(missing_ok=True)
-    return token, True
+    return (token, True) if created else (_read_token(path), False)
 
 
 def _read_token(path: Path) -> str:

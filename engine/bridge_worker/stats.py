@@ -9,9 +9,9 @@ while the worker is alive but not ready; ``updated_at`` tells a stale file (a hu
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import MISSING, asdict, dataclass, fields
 from pathlib import Path
+from engine.whole_file import write_whole
 
 STATS_FILE = "stats.json"
 
@@ -53,10 +53,7 @@ class WorkerStats:
 
 def write_stats(state_dir: Path, stats: WorkerStats) -> None:
     """Replace ``state_dir/stats.json`` atomically."""
-    path = state_dir / STATS_FILE
-    tmp = path.with_name(f".{STATS_FILE}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(asdict(stats)), encoding="utf-8")
-    os.replace(tmp, path)
+    write_whole(state_dir / STATS_FILE, json.dumps(asdict(stats)))
 
 
 def read_stats(state_dir: Path) -> WorkerStats | None:

@@ -38,6 +38,7 @@ from engine.model import (
 )
 from kg import resources, shape_plugins
 from kg.validate import ValidationReport, ValidationResult
+from engine.whole_file import write_whole
 
 FORMAT = 3  # 2: the desired state holds its owner; 3: closed Mosquittos, bridge principals, tls
 
@@ -93,9 +94,7 @@ class DesiredCache:
             "shapes": list(report.shapes), "results": [asdict(r) for r in report.results]}})
         try:
             self.directory.mkdir(parents=True, exist_ok=True)
-            tmp = self.directory / f".{key}.{os.getpid()}.tmp"
-            tmp.write_text(body, encoding="utf-8")
-            tmp.replace(self.directory / f"{key}.json")
+            write_whole(self.directory / f"{key}.json", body)
         except OSError:
             return
 

@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import datetime as dt
 import ipaddress
-import os
-import threading
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -35,6 +33,7 @@ from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from engine.errors import EngineError
 from engine.security.locations import state_path
+from engine.whole_file import create_once, write_whole
 
 CA_ENV = "PLANTKG_CA_DIR"
 CA_CERT = "ca.pem"
@@ -81,11 +80,7 @@ def _now() -> dt.datetime:
 
 def _write_private(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` mode 0600, whole (aside, then renamed)."""
-    aside = path.with_name(f".{path.name}.{os.getpid()}.new")
-    fd = os.open(aside, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "wb") as fh:
-        fh.write(data)
-    os.replace(aside, path)
+    write_whole(path, data, mode=0o600)
 
 
 def _key_pem(key: ec.EllipticCurvePrivateKey) -> bytes:
@@ -134,17 +129,7 @@ def _create_ca(folder: Path) -> None:
 
 def _link_new(path: Path, data: bytes, mode: int) -> bool:
     """Write ``data`` aside (``mode``), then link it to ``path`` unless ``path`` exists (False)."""
-    aside = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.new")
-    fd = os.open(aside, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, mode)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.link(aside, path)
-    except FileExistsError:
-        return False
-    finally:
-        aside.unlink(missing_ok=True)
-    return True
+    return create_once(path, data, mode)
 
 
 def load_ca(folder: Path) -> Ca:

@@ -19,7 +19,6 @@ from __future__ import annotations
 import base64
 import hashlib
 import hmac
-import os
 import secrets
 import stat
 from collections.abc import Mapping
@@ -27,6 +26,7 @@ from pathlib import Path
 
 from engine.errors import EngineError
 from engine.security.locations import state_path
+from engine.whole_file import create_once
 
 KEY_ENV = "PLANTKG_PRINCIPAL_KEY"
 KEY_BYTES = 32
@@ -71,20 +71,12 @@ def load_or_create_key(path: Path) -> bytes:
     read the same key."""
     if path.exists():
         return load_key(path)
-    path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
-    aside = path.with_name(f".{path.name}.{os.getpid()}.new")
     try:
-        fd = os.open(aside, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-        with os.fdopen(fd, "w", encoding="ascii") as fh:
-            fh.write(secrets.token_hex(KEY_BYTES) + "\n")
-        os.link(aside, path)
-    except FileExistsError:  # another process created it meanwhile
-        pass
+        path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
+        create_once(path, secrets.token_hex(KEY_BYTES) + "\n", mode=0o600)
     except OSError as exc:
         raise PrincipalKeyError(f"cannot create the principal key {path}: {exc.strerror}",
                                 hint="give a path in an existing, writable folder") from None
-    finally:
-        aside.unlink(missing_ok=True)
     return load_key(path)
 
 

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from engine.whole_file import fsync_dir
 from fleet.planner.errors import JournalError
 from fleet.planner.model import Task
 
@@ -107,7 +108,7 @@ class Journal:
             self._file.truncate(self.state.good_bytes)
             os.fsync(self._file.fileno())
         self.seq = self.state.seq
-        _fsync_dir(data_dir)
+        fsync_dir(data_dir)
 
     def append(self, kind: str, **fields: Any) -> int:
         self.seq += 1
@@ -123,11 +124,3 @@ class Journal:
     def close(self) -> None:
         self._file.close()
         self._lock.close()
-
-
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)

@@ -24,14 +24,24 @@ def test_a_new_key_is_random_0600_and_read_back_the_same(tmp_path: Path) -> None
 
 
 def test_processes_starting_together_agree_on_one_key(tmp_path: Path) -> None:
-    path = tmp_path / "principal-key"
-    keys: list[bytes] = []
-    threads = [threading.Thread(target=lambda: keys.append(pk.load_or_create_key(path))) for _ in range(8)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
-    assert len(set(keys)) == 1 and not list(tmp_path.glob(".*.new"))
+    # Threads of one process share its pid: each writer's file aside must still be its own (the
+    # aside named after the pid alone once gave two threads two different keys).
+    for round_ in range(10):
+        path = tmp_path / f"principal-key-{round_}"
+        barrier = threading.Barrier(8)
+        keys: list[bytes] = []
+
+        def start(path: Path = path, barrier: threading.Barrier = barrier) -> None:
+            barrier.wait()
+            keys.append(pk.load_or_create_key(path))
+
+        threads = [threading.Thread(target=start) for _ in range(8)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        assert len(keys) == 8 and len(set(keys)) == 1 and keys[0] == pk.load_key(path)
+    assert not list(tmp_path.glob(".*"))
 
 
 def test_passwords_derive_from_key_and_name() -> None:

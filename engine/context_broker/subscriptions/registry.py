@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import secrets
 import threading
 from collections.abc import Mapping
@@ -32,6 +31,7 @@ from engine.errors import EngineError
 from engine.context_broker.subscriptions.model import DeliveryStatus, Status, Subscription
 from engine.context_broker.subscriptions.parse import QParser, merge_patch, parse_subscription
 from engine.context_broker.subscriptions.result import Result
+from engine.whole_file import write_whole
 
 log = logging.getLogger(__name__)
 SUBSCRIPTIONS_FILE = "subscriptions.json"
@@ -60,18 +60,8 @@ def check_id(sub_id: str) -> None:
 
 
 def atomic_write_json(path: Path, data: Any) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "w", encoding="utf-8") as fh:
-        json.dump(data, fh, ensure_ascii=False, indent=1)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
-    dir_fd = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(dir_fd)
-    finally:
-        os.close(dir_fd)
+    """``data`` as JSON in ``path`` (0600), whole and durable (fsynced, with its folder)."""
+    write_whole(path, json.dumps(data, ensure_ascii=False, indent=1), mode=0o600, durable=True)
 
 
 class Registry:
