@@ -50,9 +50,10 @@ from engine.agent.procs import (
     started_at,
     stop_foreign,
 )
+from engine.agent.save_tick import SaveTicker
 from engine.agent.supervision import backoff, start_supervisor
 from engine.agent.wire import BROKER_ID
-from engine.drivers.base import LOGS_DIR, BridgeCarrier, Driver, config_hash, log_file
+from engine.drivers.base import LOGS_DIR, BridgeCarrier, Driver, PeriodicSave, config_hash, log_file
 from engine.drivers.registry import DriverRegistry
 from engine.errors import (
     BrokerUnavailableError,
@@ -127,6 +128,7 @@ class _Broker:
     deleted: bool = False
     owners: Owners | None = None           # owner.json: the broker's, its topics', its bridges'
     held: Held | None = None               # stopped.json: the operator stopped it
+    saves: SaveTicker | None = None        # the save signals sent to it (PeriodicSave drivers)
 
     def record(self) -> Owners:
         if self.owners is None:
@@ -747,9 +749,10 @@ class BrokerManager:
             elif b.status is BrokerStatus.STARTING:
                 if b.driver.health(b.spec, 0.5):
                     self._update(b, status=BrokerStatus.RUNNING, healthy_since=now)
-            elif b.failures and b.healthy_since is not None \
-                    and now - b.healthy_since >= self.stable_after:
-                self._update(b, failures=0)
+            else:
+                if b.failures and b.healthy_since is not None and now - b.healthy_since >= self.stable_after:
+                    self._update(b, failures=0)
+                self._tick_save(b, now)
             return
         if b.next_start is not None and now >= b.next_start:
             try:
@@ -761,6 +764,17 @@ class BrokerManager:
                              next_start=now + delay,
                              last_error=f"restart failed: {exc}; next try in {delay:.1f} s")
                 log.warning("broker %s: restart failed: %s", b.spec.id, exc)
+
+
+    @staticmethod
+    def _tick_save(b: _Broker, now: float) -> None:
+        """Send a running broker its driver's save signal when due (engine.agent.save_tick)."""
+        save = b.driver.save_signal(b.spec) if isinstance(b.driver, PeriodicSave) else None
+        if save is None or b.proc is None or b.status is not BrokerStatus.RUNNING:
+            return
+        if b.saves is None or b.saves.every != save.every:
+            b.saves = SaveTicker(save.every)
+        b.saves.step(b.proc.pid, save.signal, now)
 
 
 def _native_status(broker: BrokerStatus, connected: bool | None) -> BridgeStatus:

@@ -16,8 +16,10 @@ Drivers are found through the entry-point group ``plantkg.drivers`` (see
 from __future__ import annotations
 
 import hashlib
+import signal
 import unicodedata
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -87,6 +89,23 @@ class Driver(Protocol):
 
     def essence(self, spec: BrokerSpec) -> dict[str, Any]:
         """The fields of ``spec`` whose change needs a restart of the broker."""
+
+
+@dataclass(frozen=True)
+class SaveSignal:
+    """A signal that makes a running broker save its state, and how often the agent sends it."""
+
+    signal: signal.Signals
+    every: float
+
+
+@runtime_checkable
+class PeriodicSave(Protocol):
+    """A driver whose broker saves its state when signalled (Mosquitto: SIGUSR1), more often
+    than it can by itself; the agent sends it (:mod:`engine.agent.save_tick`)."""
+
+    def save_signal(self, spec: BrokerSpec) -> SaveSignal | None:
+        """The signal and its period for ``spec``, or None if the agent should not send it."""
 
 
 @runtime_checkable

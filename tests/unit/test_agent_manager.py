@@ -7,15 +7,20 @@ from __future__ import annotations
 import json
 import os
 import signal
+import threading
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
+import paho.mqtt.client as paho
 import pytest
+from paho.mqtt.enums import CallbackAPIVersion
 
 from engine import netutil, process
 from engine.agent.folder import BrokerFolder, PidRecord
 from engine.agent.manager import BrokerManager
 from engine.agent.procs import SpawnedProcess, proc_info, processes_mentioning, processes_of
+from engine.drivers.base import PeriodicSave
 from engine.drivers.registry import DriverRegistry
 from engine.model import BrokerSpec, BrokerStatus
 
@@ -109,6 +114,81 @@ def test_a_new_manager_adopts_running_brokers(managers: Managers) -> None:
     restarted = wait_status(second, "m1", lambda b: b.restarts == 1
                             and b.status is BrokerStatus.RUNNING, "restart of an adopted broker")
     assert restarted.pid != observed.pid
+
+
+def _saves_logged(manager: BrokerManager, broker_id: str) -> int:
+    log = manager.brokers_dir / broker_id / "logs" / "mosquitto.log"
+    return log.read_text(errors="replace").count("Saving in-memory database") if log.exists() else 0
+
+
+def _session(port: int, client_id: str) -> paho.Client:
+    client = paho.Client(CallbackAPIVersion.VERSION2, client_id=client_id, clean_session=False)
+    client.connect("127.0.0.1", port)
+    client.loop_start()
+    return client
+
+
+def test_what_a_mosquitto_queued_survives_a_sigkill_once_its_agent_told_it_to_save(managers: Managers) -> None:
+    # issue 16: with default settings, what Mosquitto queued for an offline persistent session
+    # (a bridge, a worker) lived in memory until its own save by time (every 1-2 s). Its agent
+    # now tells it to save every 0.25 s while clients send it anything.
+    manager = managers.open()
+    spec = mqtt()
+    manager.put(spec)
+    subscribed = threading.Event()
+    offline = paho.Client(CallbackAPIVersion.VERSION2, client_id="offline", clean_session=False)
+    offline.on_connect = lambda c, *_: c.subscribe("t/#", qos=1)
+    offline.on_subscribe = lambda *_: subscribed.set()
+    offline.connect("127.0.0.1", spec.port)
+    offline.loop_start()
+    assert subscribed.wait(10), "the persistent session's SUBACK"
+    offline.disconnect()
+    offline.loop_stop()
+
+    publisher = _session(spec.port, "publisher")
+    infos = [publisher.publish("t/x", str(i), qos=1) for i in range(500)]
+    for info in infos:
+        info.wait_for_publish(20)
+    broker = manager._brokers["m1"]
+
+    def sent() -> int:
+        return broker.saves.sent if broker.saves is not None else 0
+
+    def saved(count: int) -> None:
+        process.wait_until(lambda: sent() >= before + count and _saves_logged(manager, "m1") >= logged + count,
+                           20, 0.02, what=f"{count} saves after the last PUBACK")
+
+    logged, before = _saves_logged(manager, "m1"), sent()
+    saved(1)  # the agent asked for a save, and it began
+    # Mosquitto saves in its one main loop: once a later save began, the first has finished. The
+    # agent asks again only once the broker read something (a probe nobody subscribes to).
+    publisher.publish("probe", "1", qos=1).wait_for_publish(10)
+    saved(2)
+    publisher.disconnect()
+    publisher.loop_stop()
+    pid = manager.get("m1").pid
+    os.kill(pid, signal.SIGKILL)
+    wait_status(manager, "m1", lambda b: b.status is BrokerStatus.RUNNING and b.pid != pid, "restart", 20)
+
+    got: list[str] = []
+    back = paho.Client(CallbackAPIVersion.VERSION2, client_id="offline", clean_session=False)
+    back.on_message = lambda _c, _u, m: got.append(m.payload.decode())
+    back.connect("127.0.0.1", spec.port)
+    back.loop_start()
+    try:
+        process.wait_until(lambda: len(set(got)) >= 500, 20, 0.05, what="500 queued messages")
+    finally:
+        back.disconnect()
+        back.loop_stop()
+    assert set(got) == {str(i) for i in range(500)}
+
+
+def test_the_save_signal_is_mosquittos_unless_the_plant_chose_a_policy() -> None:
+    driver = REGISTRY.get("mosquitto")
+    save = driver.save_signal(mqtt())
+    assert save is not None and save.signal is signal.SIGUSR1 and 0 < save.every < 1
+    assert driver.save_signal(replace(mqtt(), persist_every=100)) is None
+    assert not isinstance(REGISTRY.get("kafka"), PeriodicSave)
 
 
 def observed_program(manager: BrokerManager) -> str:

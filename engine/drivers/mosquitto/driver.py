@@ -31,6 +31,7 @@ from __future__ import annotations
 import getpass
 import os
 import secrets
+import signal
 import time
 from pathlib import Path
 from typing import Any
@@ -45,6 +46,7 @@ from engine.drivers.base import (  # resolve_secret: shared with the Kafka drive
     resolve_secret,
     DATA_DIR,
     MQTT_TOPIC_FIELDS,
+    SaveSignal,
     check_text,
     check_topic_fields,
     log_file,
@@ -132,6 +134,13 @@ class MosquittoDriver:
 
     def _plugin(self) -> Path:
         return self._dynsec_plugin or parts.mosquitto_dynsec_plugin()
+
+    def save_signal(self, spec: BrokerSpec) -> SaveSignal | None:
+        """SIGUSR1 every :data:`~engine.drivers.mosquitto.runtime.SAVE_TICK_SECONDS` s, unless the
+        plant chose a save policy of its own (``pk:persistEvery``)."""
+        if spec.persist_every is not None:
+            return None
+        return SaveSignal(signal.SIGUSR1, mosquitto_runtime.SAVE_TICK_SECONDS)
 
     def command(self, spec: BrokerSpec, broker_dir: Path) -> list[str]:
         binary = self._binary or parts.mosquitto_binary()
