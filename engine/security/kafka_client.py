@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from engine.model import BrokerSpec
-from engine.security import ca, principal_key
+from engine.security import principal_key
 
 #: The Kafka user of plantkg's own clients (a super user of every closed Kafka).
 USER = "plantkg"
@@ -50,6 +50,7 @@ def client_settings(closed: bool, tls: bool = False, ca_file: Path | None = None
     if closed:
         out |= {"sasl.mechanism": "PLAIN", "sasl.username": USER, "sasl.password": password()}
     if tls:
+        from engine.security import ca  # noqa: PLC0415 - only for TLS: a bridge worker need not load cryptography
         out |= {"ssl.ca.location": str(ca_file or ca.ca_cert_file()),
                 "ssl.endpoint.identification.algorithm": "https"}
     if closed or tls:
