@@ -78,10 +78,12 @@ PLANT = """@prefix pk: <https://w3id.org/plantkg/ontology#> .
 :r a pk:Resource ; pk:id "r" ; pk:name "publisher" ; pk:sendsTo :mqtt ; pk:publishes :t .
 """
 
+# Likewise an open Kafka (pk:allowAnonymous true; closed is the default): the readiness probe creates
+# the topic and produces anonymously, as the hand-run baseline does.
 KAFKA_PLANT = """@prefix pk: <https://w3id.org/plantkg/ontology#> .
 @prefix : <https://w3id.org/plantkg/examples/bench#> .
 :kafka a pk:Broker ; pk:id "kafka" ; pk:name "bench-kafka" ; pk:brokerType "kafka" ;
-    pk:ip "{host}" ; pk:port {port} ; pk:hasTopic :t .
+    pk:ip "{host}" ; pk:port {port} ; pk:allowAnonymous true ; pk:hasTopic :t .
 :t a pk:Topic ; pk:id "t" ; pk:name "bench.t" .
 :r a pk:Resource ; pk:id "r" ; pk:name "producer" ; pk:sendsTo :kafka ; pk:publishes :t .
 """

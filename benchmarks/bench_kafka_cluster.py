@@ -69,20 +69,23 @@ PREFIXES = """@prefix pk: <https://w3id.org/plantkg/ontology#> .
 
 def plant(ports: dict[str, int], *, site: bool) -> str:
     """The bench plant: a 3-node combined cluster with TOPIC (RF 3); with ``site``, a one-node
-    site cluster whose subscriber makes rule R1 derive a mirror of TOPIC."""
+    site cluster whose subscriber makes rule R1 derive a mirror of TOPIC. Both clusters say
+    pk:allowAnonymous true: a cluster cannot be closed yet, so the plant opens it explicitly."""
     nodes = "".join(f"""
 b:n{i} a pk:Broker ; pk:id "n{i}" ; pk:name "n{i}" ; pk:brokerType "kafka" ; pk:ip "{host}" ;
     pk:port {ports[f'n{i}']} ; pk:nodeOf b:plant ; pk:nodeId {i} ; pk:kafkaRole "broker" , "controller" ;
     pk:controllerPort {ports[f'c{i}']} .""" for i, host in enumerate(HOSTS, start=1))
     text = PREFIXES + f"""
-b:plant a pk:Broker ; pk:id "plant" ; pk:name "plant" ; pk:brokerType "kafka" ; pk:hasTopic b:t .
+b:plant a pk:Broker ; pk:id "plant" ; pk:name "plant" ; pk:brokerType "kafka" ; pk:allowAnonymous true ;
+    pk:hasTopic b:t .
 {nodes}
 b:t a pk:Topic ; pk:id "t" ; pk:name "{TOPIC}" ; pk:partitions 3 .
 b:producer a pk:Resource ; pk:id "producer" ; pk:name "producer" ; pk:sendsTo b:plant ; pk:publishes b:t .
 """
     if site:
         text += f"""
-b:site a pk:Broker ; pk:id "site" ; pk:name "site" ; pk:brokerType "kafka" ; pk:hasTopic b:t .
+b:site a pk:Broker ; pk:id "site" ; pk:name "site" ; pk:brokerType "kafka" ; pk:allowAnonymous true ;
+    pk:hasTopic b:t .
 b:s1 a pk:Broker ; pk:id "s1" ; pk:name "s1" ; pk:brokerType "kafka" ; pk:ip "{SITE}" ; pk:port {ports['s1']} ;
     pk:nodeOf b:site ; pk:nodeId 1 ; pk:kafkaRole "broker" , "controller" ; pk:controllerPort {ports['sc1']} .
 b:lake a pk:Resource ; pk:id "lake" ; pk:name "lake" ; pk:sendsTo b:site ; pk:subscribes b:t .

@@ -63,14 +63,14 @@ from engine.pipeline import run_pipeline
 HOST = "127.0.0.2"
 READY_S = 60.0
 SPAWN_THREADS = 8
-#: One Mosquitto bridged to one Kafka on the same machine; the topic's name is valid for both. The
-#: Mosquitto is open (closed is the default): the bursts publish anonymously.
+#: One Mosquitto bridged to one Kafka on the same machine; the topic's name is valid for both. Both
+#: are open (pk:allowAnonymous true; closed is the default): the bursts publish and read anonymously.
 BRIDGE_PLANT = """@prefix pk: <https://w3id.org/plantkg/ontology#> .
 @prefix : <https://w3id.org/plantkg/examples/bench-bridge#> .
 :mqtt a pk:Broker ; pk:id "mqtt" ; pk:name "bench-mqtt" ; pk:brokerType "mosquitto" ;
     pk:ip "{host}" ; pk:port {mqtt_port} ; pk:allowAnonymous true ; pk:hasTopic :t ; pk:bridgesTo :kafka .
 :kafka a pk:Broker ; pk:id "kafka" ; pk:name "bench-kafka" ; pk:brokerType "kafka" ;
-    pk:ip "{host}" ; pk:port {kafka_port} ; pk:hasTopic :t .
+    pk:ip "{host}" ; pk:port {kafka_port} ; pk:allowAnonymous true ; pk:hasTopic :t .
 :t a pk:Topic ; pk:id "t" ; pk:name "bench.bridge" ; pk:qos 1 ; pk:partitions 1 .
 """
 

@@ -84,6 +84,10 @@ SELECT ?b ?id ?name ?kind ?ip ?port ?mqtt ?persist ?anonymous ?external ?tls WHE
 }"""
 
 ANONYMOUS_SAID = """SELECT ?b WHERE { ?b a pk:DeployedBroker ; pk:allowAnonymous ?any }"""
+#: The nodes of a Kafka cluster that says ``pk:allowAnonymous true`` (a cluster is open or closed as
+#: a whole; the shapes require it open, and refuse the setting on a node).
+OPEN_CLUSTER_NODES = """
+SELECT ?b WHERE { ?b a pk:DeployedBroker ; pk:nodeOf ?c . ?c pk:allowAnonymous ?flag . FILTER (STR(?flag) IN ("true", "1")) }"""
 
 TOPICS = """
 SELECT ?b ?t ?name WHERE {
@@ -238,7 +242,9 @@ def derive_parts(plant: PlantGraph, only: frozenset[str] | None = None, known: P
         if cluster in users and lead.kafka is not None:
             users |= {b.iri: users[cluster] for b in brokers if b.kafka and b.kafka.cluster == lead.kafka.cluster}
     said = frozenset(row["b"].value for row in select(ANONYMOUS_SAID))
-    brokers = close_brokers(brokers, users, said)
+    open_nodes = frozenset(row["b"].value for row in select(OPEN_CLUSTER_NODES))
+    brokers = [replace(b, allow_anonymous=True) if b.iri in open_nodes else b for b in brokers]
+    brokers = close_brokers(brokers, users, said | open_nodes)
     by_iri = {b.iri: b for b in brokers}
     by_iri |= {cluster: by_iri[lead.iri] for cluster, lead in leads.items()}
     iri_of = {b.id: b.iri for b in brokers}

@@ -9,8 +9,9 @@ A worker bridge lives in ``<state-dir>/bridges/<local>--<remote>/``::
                   engine.bridge_worker.ngsi_config.NgsiWorkerConfig for mechanism mqtt-ngsi, or
                   engine.drivers.kafka.mirror_worker.MirrorWorkerConfig for kafka-mirror)
     remote.token  mqtt-ngsi: the context broker's write token (the token of the agent that runs
-                  it); mqtt-kafka to a closed Kafka: plantkg's password there, derived from that
-                  Kafka's agent token given with the PUT (engine.derived.access.kafka_internal_password);
+                  it); mqtt-kafka to a closed Kafka: plantkg's password there, derived from the
+                  principal key (engine.security.kafka_client) when the PUT says the Kafka is
+                  closed (it comes with that Kafka's agent token, whose value is not used);
                   mode 0600; absent for an open remote
     pid.json      pid, start time, argv, restarts, config hash (as for brokers)
     stats.json    what the worker reports: readiness, counters, forwarding rate, last error
@@ -42,7 +43,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from engine import process
-from engine.derived.access import kafka_internal_password
+from engine.security import kafka_client
 from engine.agent.folder import SPEC_FILE, BrokerFolder, PidRecord, write_atomic
 from engine.agent.owners import Owners, claim
 from engine.agent.procs import (
@@ -291,7 +292,7 @@ class WorkerManager:
         with self._lock:
             w = self._workers.setdefault(key, _Worker(spec, folder))
         if remote_token is not None and spec.mechanism is BridgeMechanism.WORKER:
-            remote_token = kafka_internal_password(remote_token)  # never the other agent's token
+            remote_token = kafka_client.password()  # the principal key's, never the other agent's token
         with w.op:
             owner = claim(w.record().owner, owner, spec.address)
             files = {WORKER_FILE: text}

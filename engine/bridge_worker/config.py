@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from engine.errors import ConfigValueError
+from engine.security import kafka_client
 from engine.values import check_host, check_path, check_port
 
 
@@ -150,7 +151,7 @@ class WorkerConfig:
             raise ConfigValueError("kafka_password_file", str(self.kafka_password_file),
                                    f"cannot be read ({exc.strerror})") from None
         return {"security.protocol": "SASL_PLAINTEXT", "sasl.mechanism": "PLAIN",
-                "sasl.username": "plantkg", "sasl.password": password}
+                "sasl.username": kafka_client.USER, "sasl.password": password}
 
     def to_json(self) -> str:
         return json.dumps({

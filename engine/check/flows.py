@@ -13,6 +13,7 @@ from collections import deque
 from dataclasses import dataclass
 
 from engine.model import BridgeDirection, BridgeSpec, DesiredState
+from engine.security import kafka_client
 
 #: Broker kinds whose topics ``check`` can watch (MQTT subscribe, Kafka consumer). A context broker
 #: ("ngsi-v2") keeps entities, not a message stream, and a plugin's kind is unknown here: their stops
@@ -50,6 +51,7 @@ class Stop:
     hops: int                   # bridges from the publishing broker (0: the source)
     via: tuple[Link, ...] = ()  # every bridge of the flow that delivers the topic here
     tls: bool = False           # the broker's listener speaks TLS (pk:tls)
+    closed: bool = False        # a Kafka that admits only its users: taps and probes log in as plantkg
 
     @property
     def watchable(self) -> bool:
@@ -112,7 +114,8 @@ def flow_of(desired: DesiredState, publication: Publication) -> Flow | None:
         via = () if broker_id == source.id else tuple(sorted(
             {link for src, dst, link in links if dst == broker_id and src in hops},
             key=lambda link: (link.source, link.bridge)))
-        stops.append(Stop(spec.id, spec.kind, spec.host, spec.port, count, via, tls=spec.tls))
+        stops.append(Stop(spec.id, spec.kind, spec.host, spec.port, count, via, tls=spec.tls,
+                          closed=kafka_client.is_closed(spec)))
     return Flow(publication.resource_id, publication.resource, publication.topic, tuple(stops))
 
 

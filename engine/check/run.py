@@ -45,7 +45,7 @@ def _endpoints(flows: tuple[Flow, ...]) -> dict[Endpoint, tuple[str, ...]]:
             continue
         for stop in flow.stops:
             if stop.watchable:
-                endpoint = Endpoint(stop.broker, stop.kind, stop.host, stop.port, stop.tls)
+                endpoint = Endpoint(stop.broker, stop.kind, stop.host, stop.port, stop.tls, stop.closed)
                 wanted.setdefault(endpoint, set()).add(flow.topic)
     return {e: tuple(sorted(t)) for e, t in sorted(wanted.items(), key=lambda item: item[0].broker)}
 
@@ -68,7 +68,7 @@ def run_check(flows: tuple[Flow, ...], *, deadline: float, probe: bool,
                 if flow.source.watchable:
                     probes[flow] = uuid.uuid4().hex
                     src = flow.source
-                    publish_probe(Endpoint(src.broker, src.kind, src.host, src.port, src.tls), flow.topic, probes[flow],
+                    publish_probe(Endpoint(src.broker, src.kind, src.host, src.port, src.tls, src.closed), flow.topic, probes[flow],
                                   probe_payload(probes[flow], flow.resource_id, flow.topic),
                                   max(end - time.monotonic(), 0.1))
 

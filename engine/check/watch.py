@@ -32,7 +32,7 @@ from paho.mqtt.properties import Properties
 from paho.mqtt.subscribeoptions import SubscribeOptions
 
 from engine.errors import EngineError
-from engine.security import principals
+from engine.security import kafka_client, principals
 from engine.security.mqtt_client import secure
 from engine.values import host_in_url
 
@@ -52,7 +52,12 @@ class Endpoint:
     kind: str
     host: str
     port: int
-    tls: bool = False   # an MQTT listener that speaks TLS (verified against the plant CA)
+    tls: bool = False   # a listener that speaks TLS (verified against the plant CA)
+    closed: bool = False  # a Kafka that admits only its users: log in as plantkg (engine.security.kafka_client)
+
+    def kafka_settings(self) -> dict[str, object]:
+        """librdkafka settings that log a tap or a probe in at this Kafka (none: open and plain)."""
+        return kafka_client.client_settings(self.closed, self.tls)
 
     @property
     def address(self) -> str:
@@ -183,7 +188,7 @@ class KafkaTap(Tap):
         super().__init__(endpoint, topics)
         self._consumer = Consumer({"bootstrap.servers": endpoint.address,
                                    "group.id": f"plantkg-check-{uuid.uuid4().hex}",
-                                   "enable.auto.commit": False, "log_level": 0})
+                                   "enable.auto.commit": False, "log_level": 0, **endpoint.kafka_settings()})
         self._stop, self._sleep = threading.Event(), threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"check-tap-{endpoint.broker}", daemon=True)
 
@@ -256,7 +261,8 @@ def publish_probe(endpoint: Endpoint, topic: str, probe_id: str, payload: bytes,
 def _publish_kafka(endpoint: Endpoint, topic: str, probe_id: str, payload: bytes, timeout: float) -> None:
     outcome: list[object] = []
     producer = Producer({"bootstrap.servers": endpoint.address, "acks": "all",
-                         "log_level": 0, "message.timeout.ms": max(int(timeout * 1000), 1000)})
+                         "log_level": 0, "message.timeout.ms": max(int(timeout * 1000), 1000),
+                         **endpoint.kafka_settings()})
     producer.produce(topic, payload, headers=[(PROBE_MARK, probe_id.encode())],
                      on_delivery=lambda err, _msg: outcome.append(err))
     producer.flush(timeout)

@@ -23,7 +23,7 @@ import paho.mqtt.client as mqtt
 from confluent_kafka import Consumer, Producer
 
 from engine.model import BrokerSpec
-from engine.security import principals
+from engine.security import kafka_client, principals
 from engine.security.mqtt_client import MqttLogin, apply_login, apply_tls, secure
 from engine.security.secrets import read_secret
 
@@ -49,6 +49,20 @@ class Feed:
         if self.secret_ref is None or self.user is None:
             return None
         return MqttLogin(self.user, read_secret(f"{self.user}.secretRef", self.secret_ref))
+
+
+def kafka_login(feed: Feed) -> dict[str, object]:
+    """librdkafka settings of a resource publishing to a Kafka: at a closed Kafka it logs in as
+    itself (SCRAM-SHA-512, its pk:id and the secret its reference points to), like the plant's
+    real client would; TLS where the Kafka speaks it; nothing for an open, plain Kafka (a resource
+    without a pk:secretRef at a closed Kafka connects without a login, and the broker refuses it)."""
+    out = kafka_client.client_settings(False, feed.broker.tls)
+    login = feed.login()
+    if login is not None and kafka_client.is_closed(feed.broker):
+        out |= {"security.protocol": "sasl_ssl" if feed.broker.tls else "sasl_plaintext",
+                "sasl.mechanism": "SCRAM-SHA-512", "sasl.username": login.username,
+                "sasl.password": login.password}
+    return out
 
 
 def payload(feed: Feed, n: int, t: float) -> bytes:
@@ -93,7 +107,7 @@ class Source(threading.Thread):
         b = self.feed.broker
         if b.kind == "kafka":
             producer = Producer({"bootstrap.servers": f"{b.host}:{b.port}", "acks": "all", "log_level": 3,
-                                 "enable.idempotence": True})
+                                 "enable.idempotence": True, **kafka_login(self.feed)})
             publish: Callable[[bytes], None] = lambda data: producer.produce(self.feed.topic, data)
             close: Callable[[], object] = lambda: producer.flush(10)
         else:
@@ -150,7 +164,8 @@ class Tap(threading.Thread):
         b = self.broker
         if b.kind == "kafka":
             consumer = Consumer({"bootstrap.servers": f"{b.host}:{b.port}", "group.id": f"plantkg-demo-{time.time_ns()}",
-                                 "auto.offset.reset": "earliest", "log_level": 3})
+                                 "auto.offset.reset": "earliest", "log_level": 3,
+                                 **kafka_client.client_settings(kafka_client.is_closed(b), b.tls)})
             consumer.subscribe(self.topics, on_assign=lambda *_: self.ready.set())
             try:
                 while not self.stop_event.is_set():

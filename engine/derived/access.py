@@ -7,8 +7,9 @@ by rule A1 of ``ontology/plantkg-access.ttl``) and subscribe to (``pk:mayRead``,
 of its topics the broker carries. Nothing here decides who may do what: the rules did.
 
 - :func:`broker_users` reads them (SPARQL over the asserted and inferred facts);
-- :func:`close_brokers` applies them to the derived specs: a Mosquitto admits only its users
-  (closed by default) unless the plant says ``pk:allowAnonymous true``;
+- :func:`close_brokers` applies them to the derived specs: a Mosquitto or a Kafka broker of its
+  own admits only its users and plantkg's principals (closed by default) unless the plant says
+  ``pk:allowAnonymous true``;
 - :func:`with_bridge_principals` adds plantkg's own principal of each bridge to the broker it
   logs in to (engine.security.principals): a Mosquitto bridge on its remote, a worker on its MQTT
   broker, with exactly the topics it forwards there; and, for an MQTT <-> NGSI bridge that brings
@@ -17,7 +18,7 @@ of its topics the broker carries. Nothing here decides who may do what: the rule
   yet: users on a broker whose driver renders none (Mosquitto's and Kafka's do; not a Kafka
   cluster's nodes), a resource whose ``pk:id`` is one of plantkg's principal names, and a
   MirrorMaker 2 at a closed Kafka (a bridge worker into a closed Kafka authenticates as plantkg's
-  own principal, :func:`kafka_internal_password`; bridges at a closed Mosquitto as their bridge
+  own principal, engine.security.kafka_client; bridges at a closed Mosquitto as their bridge
   principal);
 - :func:`open_broker_warnings` and :func:`access_label` say, in a plan and in ``status``, which
   brokers anyone on the network may use.
@@ -41,9 +42,11 @@ from engine.security import mqtt_client, principals
 USER_KINDS = frozenset({"mosquitto", "kafka"})
 #: The broker kinds that take users as principals with tokens (the context broker), not passwords.
 TOKEN_KINDS = frozenset({"ngsi-v2"})
-#: The broker kinds closed by default (a Kafka is closed when its clients have users) and whose
-#: brokers plantkg's own MQTT principals log in to.
-CLOSED_BY_DEFAULT = mqtt_client.USER_KINDS
+#: The broker kinds whose brokers plantkg's own MQTT principals log in to (closed by default).
+MQTT_USER_KINDS = mqtt_client.USER_KINDS
+#: The broker kinds closed by default: unless the plant says ``pk:allowAnonymous true``, only
+#: their users and plantkg's own principals get in (a Kafka cluster's nodes: not yet, below).
+CLOSED_BY_DEFAULT = MQTT_USER_KINDS | {"kafka"}
 
 USERS = """
 SELECT ?b ?r ?rid ?ref ?t ?mode WHERE {
@@ -82,15 +85,16 @@ def broker_users(select: Callable[[str], Iterable[ox.QuerySolution]],
 
 def close_brokers(brokers: Iterable[BrokerSpec], users: Mapping[str, tuple[BrokerUser, ...]],
                   anonymous_said: frozenset[str]) -> list[BrokerSpec]:
-    """The specs with their users. A Mosquitto with no ``pk:allowAnonymous`` of its own
-    (``anonymous_said``: IRIs that state one) is closed (``allow_anonymous`` False): closed by
-    default, whether or not its clients have a ``pk:secretRef``. A Kafka is closed when its
-    clients have users (it has no ``pk:allowAnonymous``: the shapes refuse one)."""
+    """The specs with their users. A Mosquitto or a Kafka broker of its own with no
+    ``pk:allowAnonymous`` of its own (``anonymous_said``: IRIs that state one) is closed
+    (``allow_anonymous`` False): closed by default, whether or not its clients have a
+    ``pk:secretRef``. A Kafka cluster's nodes are left as the plant says (the shapes require
+    ``pk:allowAnonymous true`` on a cluster until closed clusters are built)."""
     out = []
     for spec in brokers:
         mine = users.get(spec.iri, ())
         said = spec.iri in anonymous_said
-        if spec.kind in CLOSED_BY_DEFAULT and not said:
+        if spec.kind in CLOSED_BY_DEFAULT and not said and spec.kafka is None:
             spec = replace(spec, allow_anonymous=False)
         if mine:
             spec = replace(spec, users=mine, allow_anonymous=spec.allow_anonymous if said else False)
@@ -107,12 +111,12 @@ def with_bridge_principals(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
     has no users file, the bridge's login is not checked there, and a users file would cost its
     anonymous persistent sessions the messages that arrive between a restart and their
     reconnection (docs/security.md). Only a Mosquitto takes these principals: a worker logs in to
-    a closed Kafka as plantkg's own principal (:func:`kafka_internal_password`). Users stay sorted
+    a closed Kafka as plantkg's own principal (engine.security.kafka_client). Users stay sorted
     by name."""
     extra: dict[str, list[BrokerUser]] = defaultdict(list)
     for bridge in bridges:
         at = bridge.remote if bridge.mechanism is BridgeMechanism.MOSQUITTO else bridge.local
-        if at.kind not in CLOSED_BY_DEFAULT:
+        if at.kind not in MQTT_USER_KINDS:
             continue
         # seen from the broker it logs in to: a Mosquitto bridge sends OUT routes to the remote;
         # a worker reads OUT routes from its (local) MQTT broker
@@ -144,17 +148,11 @@ def is_closed(spec: BrokerSpec) -> bool:
     return spec.kind in USER_KINDS and spec.allow_anonymous is False
 
 
-def kafka_internal_password(agent_token: str) -> str:
-    """plantkg's own password on a closed Kafka (engine.drivers.kafka.access): derived from the
-    token of the broker's agent, so the engine (which knows every agent's token) can give it to a
-    bridge worker on another machine, and the password reveals nothing of the token."""
-    return hmac.new(agent_token.encode("utf-8"), b"plantkg kafka internal principal", hashlib.sha256).hexdigest()
-
-
 def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[BridgeSpec] = ()) -> None:
     """Refuse users on a broker whose driver renders none or on a Kafka cluster's nodes, plant
     users named like plantkg's own principals (``plantkg.``...), principals on a context broker
-    open to anonymous writes, and a MirrorMaker 2 at a closed Kafka."""
+    open to anonymous writes, users on a Kafka open to anonymous clients (a Kafka is either SASL
+    or open: it cannot admit both), and a MirrorMaker 2 at a closed Kafka."""
     bridges = tuple(bridges)
     by_id = {b.id: b for b in brokers}
     for spec in by_id.values():
@@ -163,6 +161,13 @@ def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
                 f"broker {spec.id!r} (context broker): the plant says pk:allowAnonymous true, but its "
                 f"clients {', '.join(u.name for u in spec.users)} have a pk:secretRef (principals "
                 "close it)", hint="remove pk:allowAnonymous, or the clients' pk:secretRef")
+        if spec.users and spec.kind == "kafka" and spec.kafka is None and spec.allow_anonymous:
+            raise AccessNotSupportedError(
+                f"broker {spec.id!r} (kafka): the plant says pk:allowAnonymous true, but its clients "
+                f"{', '.join(u.name for u in spec.users)} have a pk:secretRef: a Kafka's listener "
+                "either authenticates every client (SASL) or none, so it cannot be open and have users",
+                hint="remove pk:allowAnonymous (the Kafka is then closed, and only its users get in), "
+                     "or the clients' pk:secretRef")
         if spec.users and spec.kind not in USER_KINDS | TOKEN_KINDS:
             names = ", ".join(u.name for u in spec.users)
             raise AccessNotSupportedError(
@@ -190,11 +195,11 @@ def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
                   and by_id[end.id].kind == "kafka" and bridge.mechanism is not BridgeMechanism.WORKER]
         if closed:
             raise AccessNotSupportedError(
-                f"{bridge.address}: Kafka broker {closed[0]!r} is closed to anonymous clients (its "
-                "clients have a pk:secretRef), and a MirrorMaker 2 at a closed Kafka needs plantkg's "
-                "own credentials there, which plantkg does not give it yet",
-                hint=f"remove pk:secretRef from the clients of {closed[0]!r} while it is mirrored, or "
-                     "route the topics through an MQTT broker")
+                f"{bridge.address}: Kafka broker {closed[0]!r} is closed to anonymous clients (closed "
+                "by default), and a MirrorMaker 2 at a closed Kafka needs plantkg's own credentials "
+                "there, which plantkg does not give it yet",
+                hint=f"say pk:allowAnonymous true on {closed[0]!r} while it is mirrored (it is then open "
+                     "to anyone who reaches it, and plan warns), or route the topics through an MQTT broker")
 
 
 def access_label(spec: BrokerSpec) -> str:
@@ -221,12 +226,13 @@ def open_broker_warnings(brokers: Iterable[BrokerSpec]) -> tuple[str, ...]:
     out = []
     for spec in sorted(brokers, key=lambda b: b.id):
         if spec.kind in USER_KINDS and spec.allow_anonymous is not False:
-            if spec.kind in CLOSED_BY_DEFAULT:
+            if spec.kafka is not None:
+                why = f"a node of Kafka cluster {spec.kafka.cluster}: a cluster is not closed yet"
+                fix = "nothing closes a Kafka cluster yet"
+            else:
                 why = ("the plant says pk:allowAnonymous true" if spec.allow_anonymous
                        else "its spec does not close it")
                 fix = "remove pk:allowAnonymous (closed by default) and give its clients a pk:secretRef"
-            else:
-                why, fix = "none of its clients has a pk:secretRef", "give its clients a pk:secretRef to close it"
             out.append(f"broker.{spec.id} admits anonymous clients ({why}): anyone who reaches "
                        f"{spec.host}:{spec.port} may publish and read every topic; {fix}")
         elif spec.kind == "ngsi-v2" and spec.allow_anonymous:

@@ -27,6 +27,7 @@ from typing import Any
 from engine.check.flows import WATCHABLE_KINDS
 from engine.check.watch import Endpoint, KafkaTap, MqttTap, Tap
 from engine.model import BrokerStatus, DesiredState, ObservedState
+from engine.security import kafka_client
 
 log = logging.getLogger(__name__)
 
@@ -101,7 +102,8 @@ def rate_targets(desired: DesiredState | None, observed: ObservedState | None,
     for broker_id, topics in by_broker.items():
         spec, have = desired.broker(broker_id), observed.broker(broker_id)
         assert spec is not None and have is not None
-        targets.append(RateTarget(Endpoint(spec.id, spec.kind, spec.host, spec.port, spec.tls),
+        targets.append(RateTarget(Endpoint(spec.id, spec.kind, spec.host, spec.port, spec.tls,
+                                           kafka_client.is_closed(spec)),
                                   tuple(sorted(set(topics))), have.pid))
     return tuple(sorted(targets, key=lambda t: t.endpoint.broker))
 

@@ -32,7 +32,7 @@ from paho.mqtt.enums import CallbackAPIVersion
 from engine import netutil, process
 from engine.cli import main
 from engine.model import BridgeStatus
-from engine.security import principal_key, principals
+from engine.security import kafka_client, principal_key, principals
 from kg.namespaces import PK
 from tests.integration.agents import AgentFleet, plant_copy, set_port, start_agents
 
@@ -65,6 +65,9 @@ class Cell:
 #: which the agents inherit).
 ROS_ENV = "PLANTKG_ROS_MACHINE_PASSWORD"
 ROS_PASSWORD = os.environ[ROS_ENV]  # tests/conftest.py made it
+#: The cell's Kafka is closed (closed by default): the test's Kafka clients log in as plantkg's own
+#: principal, whose password the test run's principal key gives (engine.security.kafka_client).
+AS_PLANTKG = kafka_client.client_settings(closed=True)
 
 
 def as_ros_machine(client: mqtt.Client) -> mqtt.Client:
@@ -130,7 +133,7 @@ def mqtt_roundtrip(host: str, port: int, topic: str,
 
 
 def kafka_partitions(bootstrap: str, topic: str) -> int:
-    admin = AdminClient({"bootstrap.servers": bootstrap})
+    admin = AdminClient({**AS_PLANTKG, "bootstrap.servers": bootstrap})
     meta = process.wait_until(lambda: admin.list_topics(topic, timeout=5).topics.get(topic),
                               30.0, 0.2, what=f"metadata of {topic}", ignore=(KafkaException,))
     return len(meta.partitions)
@@ -140,12 +143,12 @@ def kafka_roundtrip(bootstrap: str, topic: str) -> None:
     """Produce one message and consume it back from partition 0 (confluent-kafka)."""
     value = uuid.uuid4().hex.encode()
     delivered: list = []
-    producer = Producer({"bootstrap.servers": bootstrap, "acks": "all"})
+    producer = Producer({**AS_PLANTKG, "bootstrap.servers": bootstrap, "acks": "all"})
     producer.produce(topic, key=b"k", value=value, partition=0,
                      on_delivery=lambda err, msg: delivered.append((err, msg)))
     assert producer.flush(30) == 0 and delivered and delivered[0][0] is None, delivered
     offset = delivered[0][1].offset()
-    consumer = Consumer({"bootstrap.servers": bootstrap, "group.id": f"it-{uuid.uuid4().hex[:8]}",
+    consumer = Consumer({**AS_PLANTKG, "bootstrap.servers": bootstrap, "group.id": f"it-{uuid.uuid4().hex[:8]}",
                          "enable.auto.commit": False})
     try:
         consumer.assign([TopicPartition(topic, 0, offset)])
@@ -169,7 +172,7 @@ def assert_bridged(mqtt_host: str, mqtt_port: int, bootstrap: str, topic: str) -
     pub = as_ros_machine(mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"it-pub-{uuid.uuid4().hex[:8]}"))
     pub.connect(mqtt_host, mqtt_port)
     pub.loop_start()
-    consumer = Consumer({"bootstrap.servers": bootstrap, "group.id": f"it-{uuid.uuid4().hex[:8]}",
+    consumer = Consumer({**AS_PLANTKG, "bootstrap.servers": bootstrap, "group.id": f"it-{uuid.uuid4().hex[:8]}",
                          "auto.offset.reset": "earliest", "enable.auto.commit": False})
     consumer.subscribe([topic])
     try:
@@ -229,7 +232,7 @@ def test_a_killed_bridge_worker_is_restarted_by_its_agent_and_loses_nothing(cell
     (bridge,) = agent.list_bridges()
     assert bridge.status is BridgeStatus.RUNNING and bridge.pid
     run_id, count = uuid.uuid4().hex[:8], 3000
-    consumer = Consumer({"bootstrap.servers": f"{KAFKA_HOST}:{cell.ports['kafka']}",
+    consumer = Consumer({**AS_PLANTKG, "bootstrap.servers": f"{KAFKA_HOST}:{cell.ports['kafka']}",
                          "group.id": f"it-{run_id}", "auto.offset.reset": "earliest"})
     consumer.subscribe([POSITION])
     pub = as_ros_machine(mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"it-pub-{run_id}"))

@@ -1,7 +1,7 @@
 """A Kafka broker of its own with ``pk:tls true`` (issue 13), applied from a plant file on real agents.
 
-The plant: an open cell Mosquitto (pk:allowAnonymous true) on 127.0.0.2 and a Kafka on 127.0.0.3
-whose listeners speak TLS only, with a certificate for 127.0.0.3 issued by its agent from the plant
+The plant: an open cell Mosquitto (pk:allowAnonymous true) on 127.0.0.2 and a Kafka on 127.0.0.3,
+open too (pk:allowAnonymous true: clients with the plant CA need no login), whose listeners speak TLS only, with a certificate for 127.0.0.3 issued by its agent from the plant
 CA. The camera publishes ``cell.cam`` on Mosquitto, read on Kafka (rule R1: a bridge worker carries
 it, speaking TLS to Kafka); ``cell.pos`` is a Kafka topic. Checked with confluent-kafka and with
 Debian's kcat as an independent client:
@@ -10,7 +10,7 @@ Debian's kcat as an independent client:
 - kcat with the plant CA writes and reads;
 - 1,000 messages published on Mosquitto arrive through the bridge worker, none missing;
 - the broker's key file is 0600, ``status`` shows TLS, a second plan has no changes;
-- closed (a user with a pk:secretRef), the listener is SASL_SSL: the CA alone gets nothing, the
+- closed (no pk:allowAnonymous, a user with a pk:secretRef), the listener is SASL_SSL: the CA alone gets nothing, the
   user reads what the worker carried.
 """
 
@@ -49,13 +49,13 @@ class Secure:
     mqtt_port: int
 
 
-def _plant(mq_port: int, kf_port: int) -> str:
+def _plant(mq_port: int, kf_port: int, kafka_open: str = "pk:allowAnonymous true ;") -> str:
     return f"""@prefix pk: <https://w3id.org/plantkg/ontology#> .
 @prefix ex: <http://example.org/kafka-tls#> .
 ex:mq a pk:Broker ; pk:id "mq" ; pk:name "cell-mqtt" ; pk:brokerType "mosquitto" ; pk:ip "{MQ}" ;
     pk:port {mq_port} ; pk:allowAnonymous true ; pk:hasTopic ex:cam .
 ex:kf a pk:Broker ; pk:id "kf" ; pk:name "plant-kafka" ; pk:brokerType "kafka" ; pk:ip "{KF}" ;
-    pk:port {kf_port} ; pk:tls true ; pk:hasTopic ex:pos , ex:cam .
+    pk:port {kf_port} ; pk:tls true ; {kafka_open} pk:hasTopic ex:pos , ex:cam .
 ex:pos a pk:Topic ; pk:id "pos" ; pk:name "cell.pos" ; pk:partitions 1 .
 ex:cam a pk:Topic ; pk:id "cam" ; pk:name "cell.cam" ; pk:qos 1 ; pk:partitions 1 .
 ex:camera a pk:Resource ; pk:id "camera" ; pk:name "Camera" ; pk:sendsTo ex:mq ; pk:publishes ex:cam .
@@ -139,7 +139,7 @@ def test_a_closed_tls_kafka_takes_its_users_over_sasl_ssl(tmp_path: Path) -> Non
     try:
         mq_port, kf_port = netutil.free_port(MQ), netutil.free_port(KF)
         plant = tmp_path / "plant.ttl"
-        plant.write_text(_plant(mq_port, kf_port).replace(
+        plant.write_text(_plant(mq_port, kf_port, kafka_open="").replace(
             "pk:subscribes ex:pos , ex:cam .", f'pk:subscribes ex:pos , ex:cam ; pk:secretRef "file:{secret}" .'),
             encoding="utf-8")
         assert main(["apply", str(plant), "--agents", str(fleet.agents_file), "--yes"]) == 0

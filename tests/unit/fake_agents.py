@@ -178,8 +178,10 @@ class FakeClient:
         with self.fleet.lock:
             return [b for b in self.fleet.bridges.values() if b.spec.local.host == self.host]
 
-    def put_bridge(self, spec: BridgeSpec, owner: str | None = None) -> ObservedBridge:
-        """As the agent: the local broker must run here; the remote may be anywhere, or down."""
+    def put_bridge(self, spec: BridgeSpec, owner: str | None = None,
+                   remote_token: str | None = None) -> ObservedBridge:
+        """As the agent: the local broker must run here; the remote may be anywhere, or down.
+        ``remote_token`` (an mqtt-ngsi bridge, or a worker into a closed Kafka) is taken and not kept."""
         self._enter("put_bridge", spec.address)
         with self.fleet.lock:
             local = self._mine(spec.local.id)

@@ -147,7 +147,9 @@ def _spec(**kw):
     (_spec(allow_anonymous=False, users=(ROBOT_USER, HMI_USER)), "users (2)", None),
     (_spec(allow_anonymous=False, users=(ROBOT_USER,), tls=True), "users (1), TLS", None),
     (_spec(allow_anonymous=True, tls=True), "open, TLS", "the plant says pk:allowAnonymous true"),
-    (_spec(kind="kafka", port=9092), "open", "none of its clients has a pk:secretRef"),
+    (_spec(kind="kafka", port=9092), "open", "its spec does not close it"),
+    (_spec(kind="kafka", port=9092, allow_anonymous=False), "users (0)", None),
+    (_spec(kind="kafka", port=9092, allow_anonymous=True), "open", "the plant says pk:allowAnonymous true"),
     (_spec(kind="kafka", port=9092, allow_anonymous=False, users=(HMI_USER,)), "users (1)", None),
     (_spec(kind="ngsi-v2", allow_anonymous=False), "token for writes", None),
     (_spec(kind="ngsi-v2", allow_anonymous=True), "open", "takes writes without its agent's token"),
@@ -158,6 +160,23 @@ def test_plans_and_status_say_who_may_use_a_broker(spec, label: str, warning: st
     assert access_label(spec) == label
     warnings = open_broker_warnings([spec])
     assert (warnings == ()) if warning is None else (len(warnings) == 1 and warning in warnings[0])
+
+
+def test_a_kafka_cluster_node_warns_that_clusters_cannot_be_closed_yet() -> None:
+    from engine.derived.access import open_broker_warnings  # noqa: PLC0415
+    from engine.model import KafkaNode  # noqa: PLC0415
+    node = _spec(kind="kafka", port=9092, allow_anonymous=True,
+                 kafka=KafkaNode("plant", "A" * 22, 1, ("broker", "controller"), ()))
+    [warning] = open_broker_warnings([node])
+    assert "a node of Kafka cluster plant: a cluster is not closed yet" in warning
+
+
+def test_a_kafka_open_to_anonymous_clients_with_users_is_refused() -> None:
+    from engine.derived.access import check_access_supported  # noqa: PLC0415
+    check_access_supported([_spec(kind="kafka", port=9092, allow_anonymous=False, users=(ROBOT_USER,))])
+    with pytest.raises(AccessNotSupportedError, match="authenticates every client \\(SASL\\) or none") as exc:
+        check_access_supported([_spec(kind="kafka", port=9092, allow_anonymous=True, users=(ROBOT_USER,))])
+    assert "remove pk:allowAnonymous" in str(exc.value.hint)
 
 
 def test_principals_on_a_context_broker_are_taken_and_an_open_one_with_them_refused() -> None:

@@ -33,3 +33,16 @@ def test_a_resource_logs_in_with_the_secret_its_reference_names(monkeypatch: pyt
     assert login is not None and (login.username, login.password) == ("ros-machine", env["PLANTKG_TEST_DEMO_PW"])
     assert env["PLANTKG_TEST_DEMO_PW"] not in repr(login)
     assert feed(None).login() is None
+
+
+def test_a_kafka_resource_logs_in_with_scram_only_where_the_kafka_is_closed(monkeypatch: pytest.MonkeyPatch) -> None:
+    from dataclasses import replace  # noqa: PLC0415
+
+    from engine.demo.simulate import kafka_login  # noqa: PLC0415
+    monkeypatch.setenv("PLANTKG_TEST_DEMO_KAFKA_PW", "s3cret-of-the-pi")
+    kafka = replace(BROKER, kind="kafka", port=9092, allow_anonymous=False)
+    pi = Feed("Pi", "energy", "energy", kafka, user="raspberry-pi", secret_ref="env:PLANTKG_TEST_DEMO_KAFKA_PW")
+    assert kafka_login(pi) == {"security.protocol": "sasl_plaintext", "sasl.mechanism": "SCRAM-SHA-512",
+                               "sasl.username": "raspberry-pi", "sasl.password": "s3cret-of-the-pi"}
+    assert kafka_login(replace(pi, broker=replace(kafka, allow_anonymous=True))) == {}  # open: anonymous
+    assert kafka_login(replace(pi, secret_ref=None, user=None)) == {}  # no secret: refused by the broker

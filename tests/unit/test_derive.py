@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 
 from engine.derive import DeriveError, NotReasonedError, derive
+from engine.derived.access import AccessNotSupportedError
 from engine.derived.bridge_pairs import BridgeNotSupportedError
 from engine.model import (
     BridgeDirection,
@@ -63,7 +64,13 @@ def test_robot_cell() -> None:
     reason(plant)
     state = derive(plant)
     assert state.brokers == (
-        BrokerSpec("kafka", RC + "kafka", "kafka-aggregation", "kafka", "127.0.0.3", 9092),
+        # closed by default: the Raspberry Pi and the historian (their pk:secretRef), SASL users
+        BrokerSpec("kafka", RC + "kafka", "kafka-aggregation", "kafka", "127.0.0.3", 9092,
+                   allow_anonymous=False, users=(
+                       BrokerUser("historian", "env:PLANTKG_HISTORIAN_PASSWORD",
+                                  read=("robot.abb-irb120.energy", "robot.abb-irb120.position")),
+                       BrokerUser("raspberry-pi", "env:PLANTKG_RASPBERRY_PI_PASSWORD",
+                                  write=("robot.abb-irb120.energy",)))),
         # closed by default: the ROS machine (its pk:secretRef) and the bridge worker's principal
         BrokerSpec("mosquitto", RC + "mosquitto", "mosquitto-cell", "mosquitto", "127.0.0.2", 1883,
                    allow_anonymous=False, users=(
@@ -128,10 +135,25 @@ def test_a_bridge_to_a_broker_of_no_bridgeable_class_is_refused_by_name(tmp_path
 
 
 def test_a_derived_bridge_between_two_kafka_brokers_is_a_mirror_on_the_target(tmp_path: Path) -> None:
-    body = PLANT.replace('"mosquitto" ; pk:ip "127.0.0.2"', '"kafka" ; pk:ip "127.0.0.2"')
+    # both open (pk:allowAnonymous true): MirrorMaker 2 has no credentials at a closed Kafka yet
+    body = (PLANT.replace('"mosquitto" ; pk:ip "127.0.0.2"', '"kafka" ; pk:ip "127.0.0.2"')
+            + ":mq pk:allowAnonymous true .\n:kf pk:allowAnonymous true .\n")
     [bridge] = derive(reasoned(tmp_path, body)).bridges
     assert (bridge.local.id, bridge.remote.id, bridge.mechanism) == ("kf", "mq", BridgeMechanism.MIRROR)
     assert bridge.routes == (BridgeRoute("cell.robot.position", BridgeDirection.IN, 1),)
+
+
+def test_a_mirror_at_a_kafka_closed_by_default_is_refused(tmp_path: Path) -> None:
+    body = PLANT.replace('"mosquitto" ; pk:ip "127.0.0.2"', '"kafka" ; pk:ip "127.0.0.2"') + ":mq pk:allowAnonymous true .\n"
+    with pytest.raises(AccessNotSupportedError, match="Kafka broker 'kf' is closed to anonymous clients") as exc:
+        derive(reasoned(tmp_path, body))
+    assert "say pk:allowAnonymous true on 'kf'" in str(exc.value)
+
+
+def test_a_kafka_closed_by_default_and_opened_by_the_plant(tmp_path: Path) -> None:
+    assert derive(reasoned(tmp_path, PLANT)).broker("kf").allow_anonymous is False  # type: ignore[union-attr]
+    opened = derive(reasoned(tmp_path, PLANT + ":kf pk:allowAnonymous true .\n")).broker("kf")
+    assert opened is not None and opened.allow_anonymous is True and opened.users == ()
 
 
 def test_save_policy_is_read_when_set(tmp_path: Path) -> None:

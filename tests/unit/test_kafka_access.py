@@ -10,7 +10,6 @@ from pathlib import Path
 import pytest
 from confluent_kafka.admin import AclOperation, ResourceType
 
-from engine.derived.access import kafka_internal_password
 from engine.agent.workers import TOKEN_FILE, WorkerManager
 from engine.apply import operations
 from engine.drivers.kafka.access import users_digest, wanted_acls
@@ -28,6 +27,8 @@ from engine.model import (
     ObservedState,
 )
 from engine.plan import plan
+from engine.security import kafka_client
+from engine.security.kafka_client import internal_password as kafka_internal_password
 
 PASSWORD = kafka_internal_password("agent-token-of-the-kafka-machine")
 
@@ -83,7 +84,7 @@ def test_a_worker_into_a_closed_kafka_logs_in_with_a_derived_password(tmp_path: 
     manager.put(spec, token)
     folder = tmp_path / "bridges" / "mq--kf"
     secret = (folder / TOKEN_FILE).read_text(encoding="utf-8")
-    assert secret == PASSWORD and token not in secret
+    assert secret == kafka_client.password() and token not in secret  # the principal key's, not the token's
     assert json.loads((folder / "worker.json").read_text())["kafka_password_file"] == str(folder / TOKEN_FILE)
     assert (folder / TOKEN_FILE).stat().st_mode & 0o777 == 0o600
 
@@ -92,9 +93,10 @@ def test_apply_sends_the_kafka_agents_token_only_to_a_worker_into_a_closed_kafka
     mq = BrokerSpec("mq", "urn:mq", "mq", "mosquitto", "127.0.0.2", 1883)
     bridge = BridgeSpec(BridgeEnd("mq", "mosquitto", "127.0.0.2", 1883), BridgeEnd("kf", "kafka", "127.0.0.3", 9092),
                         BridgeMechanism.WORKER, (BridgeRoute("t", BridgeDirection.OUT),))
-    for users, expected in (((), None), ((BrokerUser("h", "env:H", read=("t",)),), "127.0.0.3")):
-        kf = BrokerSpec("kf", "urn:kf", "kf", "kafka", "127.0.0.3", 9092, users=users,
-                        allow_anonymous=False if users else None)
+    hist = (BrokerUser("h", "env:H", read=("t",)),)
+    for anonymous, users, expected in ((None, (), None), (True, (), None), (False, (), "127.0.0.3"),
+                                       (False, hist, "127.0.0.3")):
+        kf = BrokerSpec("kf", "urn:kf", "kf", "kafka", "127.0.0.3", 9092, users=users, allow_anonymous=anonymous)
         desired = DesiredState((kf, mq), (), (bridge,))
         [put] = [c for op in operations(plan(desired, ObservedState()), desired) for c in op.calls
                  if c.verb == "put_bridge"]

@@ -12,7 +12,9 @@ from pathlib import Path
 import pytest
 from cryptography import x509
 
-from engine.derived.access import AccessNotSupportedError, check_kafka_tls_supported, kafka_internal_password
+from engine.derived.access import AccessNotSupportedError, check_kafka_tls_supported
+from engine.security import kafka_client
+from engine.security.kafka_client import internal_password as kafka_internal_password
 from engine.agent.workers import worker_config
 from engine.bridge_worker.config import WorkerConfig
 from engine.drivers.kafka import tls
@@ -113,10 +115,10 @@ def test_the_plan_shows_tls_on_a_kafka() -> None:
 
 
 def test_plantkgs_clients_trust_the_plant_ca_only() -> None:
-    assert tls.client_settings(False, Path("/x/ca.pem")) == {
+    assert kafka_client.client_settings(False, True, Path("/x/ca.pem")) == {
         "security.protocol": "ssl", "ssl.ca.location": "/x/ca.pem",
         "ssl.endpoint.identification.algorithm": "https"}
-    assert tls.client_settings(True, Path("/x/ca.pem"))["security.protocol"] == "sasl_ssl"
+    assert kafka_client.client_settings(True, True, Path("/x/ca.pem"))["security.protocol"] == "sasl_ssl"
 
 
 def _bridge(kafka_tls: bool, mechanism: BridgeMechanism = BridgeMechanism.WORKER) -> BridgeSpec:

@@ -85,6 +85,27 @@ def test_a_bridge_whose_broker_starts_anew_is_created_again() -> None:
     assert changes["bridge.mosquitto.kafka"] is Action.CREATE
 
 
+def test_a_worker_whose_kafka_closes_or_opens_is_put_again() -> None:
+    desired, observed, _ = load_case("no-change")
+    kafka = desired.brokers[0]
+    assert kafka.id == "kafka" and kafka.allow_anonymous is None  # the case's Kafka: open
+    closed = replace(desired, brokers=(replace(kafka, allow_anonymous=False), desired.brokers[1]))
+    for want, have in ((closed, observed), (desired, _observed_as(observed, closed))):
+        result = plan(want, have)
+        changes = {c.address: c for c in result.changes}
+        assert changes["broker.kafka"].action is Action.REPLACE
+        bridge = changes["bridge.mosquitto.kafka"]
+        assert bridge.action is Action.UPDATE and "opens or closes" in bridge.reason
+        assert bridge.before == bridge.after  # the bridge itself did not change
+    assert all(c.action is Action.NOOP for c in plan(closed, _observed_as(observed, closed)).changes)
+
+
+def _observed_as(observed: ObservedState, desired: DesiredState) -> ObservedState:
+    """``observed`` with each broker running the spec ``desired`` gives it."""
+    return replace(observed, brokers=tuple(replace(b, spec=desired.broker(b.spec.id) or b.spec)
+                                           for b in observed.brokers))
+
+
 def test_a_bridge_on_an_unreachable_host_is_not_planned() -> None:
     desired, observed, _ = load_case("no-change")
     observed = replace(observed, unreachable=("127.0.0.2",),

@@ -1,7 +1,7 @@
 """A closed Kafka (issue 13): SASL/SCRAM users and ACLs from ``BrokerSpec.users``.
 
-A Kafka broker one of whose clients has a ``pk:secretRef`` has users (engine.derived.access): it is
-rendered closed (engine.drivers.kafka.runtime: SASL_PLAINTEXT on every listener, KRaft's
+A Kafka broker of its own is closed unless the plant says ``pk:allowAnonymous true``
+(engine.derived.access), with or without users: it is rendered closed (engine.drivers.kafka.runtime: SASL_PLAINTEXT on every listener, KRaft's
 StandardAuthorizer, nothing allowed without an ACL), and once it answers the driver makes its
 users and ACLs exactly what the spec says (:func:`sync_access`):
 
@@ -13,19 +13,16 @@ users and ACLs exactly what the spec says (:func:`sync_access`):
   every other ACL on the broker is deleted (plantkg owns the broker's ACLs).
 
 plantkg's own principal, ``plantkg``, is a super user authenticated with SASL/PLAIN; its password is
-derived from the broker's agent token (:func:`engine.derived.access.kafka_internal_password`): the driver
-reads the token file of the agent it runs in, and a bridge worker on another machine gets the
-derived password with its PUT, like a context broker's token.
+derived from the plant's principal key (engine.security.kafka_client), so the driver, the bridge
+workers, ``plantkg check``, the dashboard and the demo compute the same one wherever they run.
 """
 
 from __future__ import annotations
 
 import hashlib
 import hmac
-import os
 import secrets
 from collections.abc import Iterable
-from pathlib import Path
 from typing import Any
 
 from confluent_kafka.admin import (
@@ -42,12 +39,10 @@ from confluent_kafka.admin import (
     UserScramCredentialUpsertion,
 )
 
-from engine.derived.access import kafka_internal_password
-from engine.drivers.base import AGENT_TOKEN_FILE_ENV, resolve_secret
-from engine.drivers.kafka.runtime import INTERNAL_USER
+from engine.drivers.base import resolve_secret
 from engine.drivers.kafka.topics import result
-from engine.errors import ConfigValueError
 from engine.model import BrokerSpec, BrokerUser
+from engine.security import kafka_client
 
 #: A digest of the users' passwords, rendered beside server.properties: a changed password
 #: changes the rendering, so the agent restarts the broker and the credentials are set again.
@@ -58,37 +53,14 @@ _ALL_ACLS = AclBindingFilter(ResourceType.ANY, None, ResourcePatternType.ANY, No
 
 
 def is_closed(spec: BrokerSpec) -> bool:
-    """A Kafka with users admits nobody else (Kafka has no anonymous clients beside SASL ones)."""
-    return bool(spec.users)
+    """A Kafka that admits only its users and plantkg (engine.derived.access: closed unless the
+    plant says ``pk:allowAnonymous true``; Kafka has no anonymous clients beside SASL ones)."""
+    return kafka_client.is_closed(spec)
 
 
-def token_file(broker_dir: Path | None = None) -> Path:
-    """The agent's token file: ``$PLANTKG_AGENT_TOKEN_FILE`` (set by ``plantkg agent``), else
-    ``<state dir>/token`` beside the broker folders."""
-    configured = os.environ.get(AGENT_TOKEN_FILE_ENV)
-    if configured:
-        return Path(configured)
-    if broker_dir is None:
-        raise ConfigValueError(AGENT_TOKEN_FILE_ENV, None, "unset: a closed Kafka needs its agent's "
-                               "token to derive plantkg's own password; run it under `plantkg agent`")
-    return broker_dir.parent.parent / "token"
-
-
-def internal_password(broker_dir: Path | None = None) -> str:
-    """plantkg's own password on this machine's closed Kafka brokers."""
-    path = token_file(broker_dir)
-    try:
-        token = path.read_text(encoding="utf-8").strip()
-    except OSError as exc:
-        raise ConfigValueError("token_file", str(path), f"cannot be read ({exc.strerror}): a closed Kafka "
-                               "derives plantkg's own password from its agent's token") from None
-    return kafka_internal_password(token)
-
-
-def client_config(password: str) -> dict[str, Any]:
-    """librdkafka settings of a plantkg client of a closed Kafka."""
-    return {"security.protocol": "SASL_PLAINTEXT", "sasl.mechanism": "PLAIN",
-            "sasl.username": INTERNAL_USER, "sasl.password": password}
+def internal_password() -> str:
+    """plantkg's own password on this machine's closed Kafka brokers (the principal key's)."""
+    return kafka_client.password()
 
 
 def users_digest(users: Iterable[BrokerUser], key: str) -> str:

@@ -38,6 +38,7 @@ from engine.drivers.kafka import runtime as kafka_runtime
 from engine.drivers.kafka.topics import Topics, admin_client, check_kafka_topic_name, in_sync
 from engine.errors import ConfigValueError, DriverError, EngineError
 from engine.model import BridgeSpec, BrokerSpec, ObservedTopic, TopicSpec, to_dict
+from engine.security import kafka_client
 from engine.values import check_host, check_port, host_in_url
 
 PROPERTIES_FILE = "server.properties"
@@ -70,7 +71,7 @@ class KafkaDriver:
             return kafka_runtime.KafkaNodeConfig(
                 host=spec.host, port=spec.port, controller_port=read_controller_port(broker_dir),
                 data_dir=broker_dir / DATA_DIR,
-                internal_password=access.internal_password(broker_dir) if access.is_closed(spec) else None,
+                internal_password=access.internal_password() if access.is_closed(spec) else None,
                 tls=tls.node_tls(spec, broker_dir),
             )
         return kafka_runtime.KafkaNodeConfig(
@@ -96,7 +97,7 @@ class KafkaDriver:
     def render_config(self, spec: BrokerSpec, broker_dir: Path,
                       bridges: tuple[BridgeSpec, ...] = ()) -> dict[str, str]:
         """``server.properties``; a node alone needs the controller port that :meth:`prepare`
-        stored. A closed broker (users) also gets the digest of its users' passwords, so a
+        stored. A closed broker also gets the digest of its users' passwords, so a
         changed password restarts it (engine.drivers.kafka.access); a TLS broker its keystore and
         the plant CA's certificate (engine.drivers.kafka.tls). Kafka carries no native bridge
         (its bridges are workers)."""
@@ -179,6 +180,8 @@ class KafkaDriver:
         """Kind, address and port; for a cluster node also what its config renders of the
         cluster (not the lead flag or the broker list, which restart nothing)."""
         out = spec_essence(spec)
+        if access.is_closed(spec):  # SASL listeners: a change either way restarts the broker
+            out["closed"] = True
         if spec.users:  # a password's new content shows in the rendered digest, not here
             out["users"] = [{"name": u.name, "secret_ref": u.secret_ref, "write": sorted(u.write),
                              "read": sorted(u.read)} for u in sorted(spec.users, key=lambda u: u.name)]
@@ -222,11 +225,7 @@ def _admin(spec: BrokerSpec, *, quiet: bool = False, own: bool = False) -> Admin
     node's listener only, for its health)."""
     here = f"{host_in_url(check_host('host', spec.host))}:{check_port('port', spec.port)}"
     bootstrap = spec.kafka.bootstrap if spec.kafka is not None and spec.kafka.bootstrap and not own else (here,)
-    closed = access.is_closed(spec)
-    auth = access.client_config(access.internal_password()) if closed else {}
-    if spec.tls:
-        auth.update(tls.client_settings(closed))
-    return admin_client(bootstrap, quiet=quiet, extra=auth)
+    return admin_client(bootstrap, quiet=quiet, extra=kafka_client.client_settings(access.is_closed(spec), spec.tls))
 
 
 def _accepts(host: str, port: int, timeout: float) -> bool:

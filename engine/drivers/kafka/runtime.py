@@ -26,6 +26,7 @@ from pathlib import Path
 
 from engine.errors import ConfigValueError, EngineError, ProcessError
 from engine.parts import KafkaParts
+from engine.security import kafka_client
 from engine.values import check_host, check_path, check_port, host_in_url
 
 CLUSTER_ID_FILE = "cluster.id"
@@ -35,7 +36,7 @@ _HEAP = re.compile(r"[1-9][0-9]{0,5}[mMgG]")
 _PASSWORD = re.compile(r"[0-9a-f]{32,128}")
 #: The principal plantkg's own clients (the driver's AdminClient, the bridge workers, the nodes
 #: between themselves) use on a closed Kafka: a super user, authenticated with SASL/PLAIN.
-INTERNAL_USER = "plantkg"
+INTERNAL_USER = kafka_client.USER
 SCRAM = "SCRAM-SHA-512"
 AUTHORIZER = "org.apache.kafka.metadata.authorizer.StandardAuthorizer"
 
@@ -110,7 +111,7 @@ class KafkaNodeConfig:
         object.__setattr__(self, "voters", tuple(sorted(voters)))
         if self.internal_password is not None and not _PASSWORD.fullmatch(self.internal_password):
             raise ConfigValueError("internal_password", "(not shown)",
-                                   "expected 32 to 128 hex digits (engine.derived.access.kafka_internal_password)")
+                                   "expected 32 to 128 hex digits (engine.security.kafka_client.password)")
         if self.tls is not None and not isinstance(self.tls, KafkaTls):
             raise ConfigValueError("tls", self.tls, "expected a KafkaTls or None")
         if self.tls is not None and self.voters:

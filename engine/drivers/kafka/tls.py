@@ -19,9 +19,8 @@ health check) speak TLS and verify the broker against the plant CA only, address
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
-from engine.drivers.kafka.runtime import KafkaTls, listener_protocol
+from engine.drivers.kafka.runtime import KafkaTls
 from engine.model import BrokerSpec
 from engine.security import ca
 
@@ -63,15 +62,6 @@ def renewal(spec: BrokerSpec, broker_dir: Path) -> str | None:
         return None
     cert, _key = split_keystore(_read(broker_dir / TLS_KEYSTORE_FILE))
     return ca.renewal_reason(cert, (spec.host,))
-
-
-def client_settings(closed: bool, ca_file: Path | None = None) -> dict[str, Any]:
-    """librdkafka settings of a plantkg client of a TLS broker: TLS (with SASL when ``closed``),
-    trusting the plant CA only (``ca_file``, default the CA folder's ``ca.pem``), the broker's
-    address checked against its certificate."""
-    return {"security.protocol": listener_protocol(closed, True).lower(),
-            "ssl.ca.location": str(ca_file or ca.ca_cert_file()),
-            "ssl.endpoint.identification.algorithm": "https"}
 
 
 def _read(path: Path) -> str | None:

@@ -1006,9 +1006,8 @@ ex:kafka1 pk:bridgesTo ex:kafka2 ."""),
     Case("context-broker-allowAnonymous-not-boolean", "allowAnonymous \"yes\"",
          add=CB + '\nex:cb1 pk:allowAnonymous "yes" .',
          expected=[R("ex:cb1", "allowAnonymous", "yes", "Broker-allowAnonymous", "Datatype")]),
-    Case("context-broker-allowAnonymous-on-kafka", "allowAnonymous on a Kafka broker (means nothing there yet)",
-         add="ex:kafka1 pk:allowAnonymous true .",
-         expected=[R("ex:kafka1", "allowAnonymous", "true", "Broker-allowAnonymousContextOnly", "SPARQL")]),
+    Case("kafka-allowAnonymous-valid", "none: allowAnonymous true on a Kafka broker of its own (it opens it)",
+         add="ex:kafka1 pk:allowAnonymous true ."),
     Case("broker-tls-valid", "a Mosquitto and a Kafka broker of its own with TLS, a context broker with tls false (no result)",
          edits=[('pk:ip "127.0.0.4" ;', 'pk:ip "127.0.0.4" ;\n    pk:tls true ;')],
          add="ex:mqtt1 pk:tls true .\n" + CB + "\nex:cb1 pk:tls false ."),
@@ -1219,6 +1218,7 @@ CLUSTER = """ex:kc a pk:Broker ;
     pk:id "kc" ;
     pk:name "plant-cluster" ;
     pk:brokerType "kafka" ;
+    pk:allowAnonymous true ;
     pk:minInsyncReplicas 2 ;
     pk:hasTopic ex:kpi .
 ex:kn1 a pk:Broker ;
@@ -1310,7 +1310,8 @@ CASES += [
          add=cluster(extra="""ex:kc2 a pk:Broker ;
     pk:id "kc2" ;
     pk:name "empty-cluster" ;
-    pk:brokerType "kafka" .
+    pk:brokerType "kafka" ;
+    pk:allowAnonymous true .
 ex:kc2n a pk:Broker ;
     pk:id "kc2n" ;
     pk:name "kafka-controller" ;
@@ -1348,6 +1349,15 @@ ex:kc2n a pk:Broker ;
          expected=[R("ex:kn1", "hasTopic", "ex:kpi", "KafkaNode-notAClient", "SPARQL"),
                    # carried by the node as a broker of its own, the topic has too few replicas
                    R("ex:kpi", "replicationFactor", "3", "Topic-kafkaReplication", "SPARQL")]),
+    Case("kafka-cluster-not-opened", "a Kafka cluster without allowAnonymous (its nodes cannot be closed yet)",
+         add=cluster(("    pk:allowAnonymous true ;\n", "")),
+         expected=[R("ex:kc", "allowAnonymous", "ex:kc", "KafkaCluster-openExplicitly", "SPARQL")]),
+    Case("kafka-cluster-allowAnonymous-false", "a Kafka cluster that says allowAnonymous false (cannot be closed yet)",
+         add=cluster(("pk:allowAnonymous true ;", "pk:allowAnonymous false ;")),
+         expected=[R("ex:kc", "allowAnonymous", "false", "KafkaCluster-openExplicitly", "SPARQL")]),
+    Case("kafka-node-allowAnonymous", "allowAnonymous on a node of a Kafka cluster (said on the cluster)",
+         add=cluster(extra="ex:kn1 pk:allowAnonymous true ."),
+         expected=[R("ex:kn1", "allowAnonymous", "ex:kc", "Broker-allowAnonymousContextOnly", "SPARQL")]),
     Case("kafka-cluster-tls", "tls true on a Kafka cluster (built for a broker of its own only)",
          add=cluster(extra="ex:kc pk:tls true ."),
          expected=[R("ex:kc", "tls", "ex:kc", "KafkaCluster-noTls", "SPARQL")]),
@@ -1365,6 +1375,7 @@ ex:kc2n a pk:Broker ;
     pk:nodeId 4 ;
     pk:kafkaRole "broker" ."""),
          expected=[R("ex:kn1", "nodeOf", "ex:kn4", "KafkaNode-notNested", "SPARQL"),
+                   R("ex:kn1", "allowAnonymous", "ex:kn1", "KafkaCluster-openExplicitly", "SPARQL"),
                    R("ex:kn1", None, "0", "KafkaCluster-quorumOdd", "SPARQL"),
                    R("ex:kn1", "ip", "127.0.0.2", "KafkaCluster-noEndpoint", "SPARQL"),
                    R("ex:kn1", "port", "9092", "KafkaCluster-noEndpoint", "SPARQL")]),
