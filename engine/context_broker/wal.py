@@ -22,6 +22,8 @@ import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
+from engine.whole_file import fsync_dir
+
 log = logging.getLogger(__name__)
 HEADER = struct.Struct("<IIQ")
 MAX_RECORD = 1 << 30
@@ -85,7 +87,7 @@ class WriteAheadLog:
         flags = os.O_WRONLY | os.O_CREAT | os.O_APPEND | (os.O_TRUNC if self._truncate else 0)
         fd = os.open(self.path, flags, 0o600)
         if self.fsync:
-            _sync_dir(self.path.parent)
+            fsync_dir(self.path.parent)
         return fd
 
     def append(self, payload: bytes) -> int:
@@ -121,14 +123,6 @@ class WriteAheadLog:
         if remove:
             self.discard_old()
             self.path.unlink(missing_ok=True)
-
-
-def _sync_dir(folder: Path) -> None:
-    fd = os.open(folder, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 __all__ = ["Record", "WriteAheadLog", "encode", "read_records"]
