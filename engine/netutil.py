@@ -8,20 +8,48 @@ the ports it returns are distinct.
 from __future__ import annotations
 
 import ipaddress
+import random
 import socket
+from pathlib import Path
 
 
 def _family(host: str) -> socket.AddressFamily:
     return socket.AF_INET6 if ipaddress.ip_address(host).version == 6 else socket.AF_INET
 
 
-def free_ports(count: int, host: str = "127.0.0.1") -> list[int]:
-    """``count`` distinct TCP ports that are free on ``host`` (an IP address) right now."""
-    sockets: list[socket.socket] = []
+#: Where picked ports come from when the kernel's ephemeral range is known: below it. A port the
+#: kernel hands out itself (bind to port 0) is in that range, so any outgoing connection of any
+#: process may take it between the pick and the broker's bind (a RabbitMQ listener lost its port
+#: that way once in CI); the kernel never hands out a port below the range on its own.
+PICK_LOW = 10_000
+_PICK_TRIES = 200
+
+
+def _ephemeral_low() -> int | None:
     try:
-        for _ in range(count):
+        return int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def free_ports(count: int, host: str = "127.0.0.1") -> list[int]:
+    """``count`` distinct TCP ports that are free on ``host`` (an IP address) right now, picked at
+    random below the kernel's ephemeral range where there is room (else by the kernel)."""
+    sockets: list[socket.socket] = []
+    low = _ephemeral_low()
+    try:
+        tries = 0
+        while len(sockets) < count:
             sock = socket.socket(_family(host), socket.SOCK_STREAM)
             sockets.append(sock)
+            if low is not None and low - PICK_LOW > 1000 and tries < _PICK_TRIES:
+                tries += 1
+                try:
+                    sock.bind((host, random.randrange(PICK_LOW, low)))
+                    continue
+                except OSError:  # in use: try another
+                    sockets.pop().close()
+                    continue
             sock.bind((host, 0))
         return [s.getsockname()[1] for s in sockets]
     finally:
