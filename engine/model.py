@@ -173,6 +173,7 @@ class BridgeEnd:
     port: int
     bootstrap: tuple[str, ...] = ()  # a Kafka cluster: host:port of each of its broker nodes
     tls: bool = False       # the broker's listener speaks TLS: connect with it, verify with the plant CA
+    closed: bool = False    # a Kafka that authenticates every client: a worker logs in as plantkg's principal
 
 
 @dataclass(frozen=True)

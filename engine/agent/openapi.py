@@ -176,7 +176,12 @@ _SCHEMAS: dict[str, Any] = {
         "properties": {"id": {"type": "string"}, "kind": {"type": "string"},
                        "host": {"type": "string"}, "port": {"type": "integer"},
                        "bootstrap": {"type": "array", "items": {"type": "string"},
-                                     "description": "a Kafka cluster: host:port of each broker node"}},
+                                     "description": "a Kafka cluster: host:port of each broker node"},
+                       "tls": {"type": "boolean",
+                               "description": "the broker speaks TLS: connect with it, verify with the plant CA"},
+                       "closed": {"type": "boolean",
+                                  "description": "a Kafka that authenticates every client: the worker "
+                                                 "logs in as plantkg's principal"}},
     },
     "BridgeSpec": {
         "type": "object", "additionalProperties": False,

@@ -295,8 +295,11 @@ def _bridge_end(data: Any, where: str, strict: bool) -> BridgeEnd:
     _checked(where, check_host, "host", host)
     port = _checked(where, check_port, "port", _typed(data, "port", (int,), where))
     tls = _typed(data, "tls", (bool,), where, optional=True) or False
+    closed = _typed(data, "closed", (bool,), where, optional=True) or False
+    if closed and kind != "kafka":
+        raise WireError(_join(where, "closed"), f"only a Kafka end is closed (a login of plantkg's), not a {kind} one")
     bootstrap = _typed(data, "bootstrap", (list,), where) if "bootstrap" in data else []
-    return BridgeEnd(id=end_id, kind=kind, host=host, port=port, tls=tls,
+    return BridgeEnd(id=end_id, kind=kind, host=host, port=port, tls=tls, closed=closed,
                      bootstrap=_bootstrap(bootstrap, _join(where, "bootstrap")))
 
 

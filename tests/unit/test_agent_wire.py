@@ -74,6 +74,25 @@ def test_ngsi_fields_round_trip() -> None:
     assert bridge_spec_from_json(to_dict(bridge)) == bridge
 
 
+def test_a_closed_end_round_trips_and_only_a_kafka_is_closed() -> None:
+    from engine.agent.wire import bridge_spec_from_json
+    from engine.model import BridgeDirection, BridgeEnd, BridgeMechanism, BridgeRoute, BridgeSpec
+
+    bridge = BridgeSpec(BridgeEnd("mqtt", "mosquitto", "127.0.0.2", 1883),
+                        BridgeEnd("kf", "kafka", "127.0.0.3", 9092, closed=True),
+                        BridgeMechanism.WORKER, (BridgeRoute("t", BridgeDirection.OUT),))
+    assert bridge_spec_from_json(to_dict(bridge)) == bridge
+    body = to_dict(bridge)
+    body["local"]["closed"] = True
+    with pytest.raises(WireError) as info:
+        bridge_spec_from_json(body)
+    assert info.value.field == "local.closed" and "Kafka" in str(info.value)
+    body["local"]["closed"] = "yes"
+    with pytest.raises(WireError) as info:
+        bridge_spec_from_json(body)
+    assert info.value.field == "local.closed"
+
+
 @pytest.mark.parametrize(("changes", "field"), [
     ({"entity_id": "has space"}, "entity_id"),
     ({"entity_id": "a/b"}, "entity_id"),
