@@ -399,7 +399,7 @@ def test_an_edit_too_large_to_follow_is_done_from_scratch_and_still_matches(tmp_
     following the edit (a vehicle of 240 triples joining a small plant). Whether the change is
     read from the statements, found by comparing the whole file, or a whole file added, the
     answer is a full run's; a small edit after it is followed again."""
-    from engine.incremental.replan import LARGE_EDIT
+    from engine.incremental.replan import FEW_TRIPLES, LARGE_EDIT
 
     path = synthetic.write_file(N, tmp_path)
     session = ReplanSession([path])
@@ -408,7 +408,7 @@ def test_an_edit_too_large_to_follow_is_done_from_scratch_and_still_matches(tmp_
     big = text
     while big.count(":extra") < 8:
         big = add_resource(big, rng) or big
-    assert 8 * 9 * LARGE_EDIT > session.plant.triple_count  # the edit is large for this plant
+    assert 8 * 9 * LARGE_EDIT > session.plant.triple_count and 8 * 9 > FEW_TRIPLES  # large for this plant
     path.write_text(big)
     _same_as_full(session, path)
     assert "load" in session.last["full"] and session.last["large_edit"] is not None
