@@ -40,7 +40,7 @@ from kg import resources, shape_plugins
 from kg.validate import ValidationReport, ValidationResult
 from engine.whole_file import write_whole
 
-FORMAT = 3  # 2: the desired state holds its owner; 3: closed Mosquittos, bridge principals, tls
+FORMAT = 4  # 2: the desired state holds its owner; 3: closed Mosquittos, bridge principals, tls; 4: closed Kafka bridge ends
 
 
 def default_dir() -> Path:
