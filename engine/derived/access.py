@@ -20,6 +20,8 @@ of its topics the broker carries. Nothing here decides who may do what: the rule
   MirrorMaker 2 at a closed Kafka (a bridge worker into a closed Kafka authenticates as plantkg's
   own principal, engine.security.kafka_client; bridges at a closed Mosquitto as their bridge
   principal);
+- :func:`with_closed_kafkas` tells each context broker the plant's closed Kafka brokers, where its
+  ``kafka://`` notifications log in as plantkg's own principal;
 - :func:`open_broker_warnings` and :func:`access_label` say, in a plan and in ``status``, which
   brokers anyone on the network may use.
 """
@@ -36,7 +38,8 @@ import pyoxigraph as ox
 
 from engine.errors import EngineError
 from engine.model import BridgeDirection, BridgeMechanism, BridgeSpec, BrokerSpec, BrokerUser
-from engine.security import mqtt_client, principals
+from engine.security import kafka_client, mqtt_client, principals
+from engine.values import host_in_url
 
 #: The broker kinds whose driver renders users and ACLs.
 USER_KINDS = frozenset({"mosquitto", "kafka"})
@@ -141,6 +144,17 @@ def with_bridge_principals(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
             spec = replace(spec, users=tuple(sorted((*spec.users, *extra[spec.id]), key=lambda u: u.name)))
         out.append(spec)
     return out
+
+
+def with_closed_kafkas(brokers: Iterable[BrokerSpec]) -> list[BrokerSpec]:
+    """The specs with each context broker told the plant's closed Kafka brokers of their own
+    (``closed_kafkas``, ``host:port`` sorted): its ``kafka://`` notifications log in there as
+    plantkg's own Kafka principal (engine.security.kafka_client), and only there, so plantkg's
+    password never goes to a Kafka a subscription names that is not the plant's."""
+    brokers = list(brokers)
+    closed = tuple(sorted(f"{host_in_url(b.host)}:{b.port}" for b in brokers
+                          if kafka_client.is_closed(b) and b.kafka is None))
+    return [replace(b, closed_kafkas=closed) if b.kind in TOKEN_KINDS else b for b in brokers]
 
 
 def is_closed(spec: BrokerSpec) -> bool:

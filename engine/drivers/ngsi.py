@@ -5,6 +5,8 @@ broker: one listener on the spec's address and port, its entities in ``<broker d
 log in ``<broker dir>/logs/ngsi-v2.log``. Writes need ``Authorization: Bearer <token>`` with the
 token of the broker's own agent (so the engine, which reads every agent's token file from
 agents.toml, can write to it), unless the plant says ``pk:allowAnonymous true`` (``--open``).
+Its ``kafka://`` notifications log in as plantkg's own Kafka principal at the plant's closed Kafka
+brokers the engine names in ``closed_kafkas`` (``--closed-kafka HOST:PORT``), and nowhere else.
 
 A context broker holds entities, not topics: a topic it carries is one entity (``entity_id``,
 ``entity_type``, filled by derive), which needs no creation. So topics are implicit, as on MQTT:
@@ -41,7 +43,7 @@ from engine.drivers.base import (
 from engine.security.ngsi_principals import render_principals
 from engine.errors import ConfigValueError
 from engine.model import BridgeSpec, BrokerSpec, ObservedTopic, TopicSpec
-from engine.values import check_host, check_ngsi_id, check_path, check_port
+from engine.values import check_address, check_host, check_ngsi_id, check_path, check_port
 
 #: The module the agent runs (``python -m``), and the agent's token file name in its state dir.
 SERVER_MODULE = "engine.context_broker"
@@ -82,6 +84,8 @@ class NgsiDriver:
         if spec.persist_every is not None:
             raise ConfigValueError("persist_every", spec.persist_every,
                                    "does not apply to a context broker (it saves every write)")
+        for i, address in enumerate(spec.closed_kafkas):
+            check_address(f"closed_kafkas[{i}]", address)
 
     def render_config(self, spec: BrokerSpec, broker_dir: Path,
                       bridges: tuple[BridgeSpec, ...] = ()) -> dict[str, str]:
@@ -110,6 +114,8 @@ class NgsiDriver:
         check_path("broker_dir", broker_dir)
         argv = [self.python, "-m", SERVER_MODULE, "--host", spec.host, "--port", str(spec.port),
                 "--data-dir", str(broker_dir / DATA_DIR), "--log-file", str(log_file(broker_dir, self.kind))]
+        for address in spec.closed_kafkas:  # its kafka:// notifications log in there as plantkg
+            argv += ["--closed-kafka", address]
         if spec.allow_anonymous:
             return [*argv, "--open"]
         token = check_path("token_file", self.token_file(broker_dir))
@@ -164,8 +170,11 @@ class NgsiDriver:
         return []
 
     def essence(self, spec: BrokerSpec) -> dict[str, Any]:
-        """Listener, whether writes need the token (both on the command line), and the principals."""
+        """Listener, whether writes need the token, the closed Kafkas (all on the command line),
+        and the principals."""
         out = {**spec_essence(spec), "allow_anonymous": bool(spec.allow_anonymous)}
+        if spec.closed_kafkas:
+            out["closed_kafkas"] = list(spec.closed_kafkas)
         if spec.users:  # principals: who they are and their entities (their tokens are not in it)
             out["users"] = [{"name": u.name, "secret_ref": u.secret_ref, "write": sorted(u.write),
                              "read": sorted(u.read)} for u in sorted(spec.users, key=lambda u: u.name)]

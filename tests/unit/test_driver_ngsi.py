@@ -13,6 +13,7 @@ import socket
 import sys
 import threading
 from collections.abc import Iterator
+from dataclasses import replace
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
@@ -108,6 +109,10 @@ def test_bridges_are_not_native() -> None:
     ({"host": "127.0.0.1\n--open"}, "host"),
     ({"allow_anonymous": "yes"}, "allow_anonymous"),
     ({"persist_every": 1}, "persist_every"),
+    ({"closed_kafkas": ("127.0.0.4",)}, "closed_kafkas[0]"),
+    ({"closed_kafkas": ("127.0.0.4:9092", "kafka.local:9092")}, "closed_kafkas[1]"),
+    ({"closed_kafkas": ("127.0.0.4:9092\n--open",)}, "closed_kafkas[0]"),
+    ({"closed_kafkas": ("::1:9092",)}, "closed_kafkas[0]"),
 ])
 def test_bad_broker_values_are_refused(changes: dict, field: str) -> None:
     with pytest.raises(ConfigValueError) as info:
@@ -159,6 +164,18 @@ def test_the_longest_entity_id_is_accepted() -> None:
     NgsiDriver().ensure_topic(cb_spec(), topic(entity_id="e" * 256))
 
 
+def test_the_plants_closed_kafkas_are_on_the_command_line(broker_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The context broker's kafka:// notifications log in there (and nowhere else) as plantkg."""
+    monkeypatch.delenv(TOKEN_FILE_ENV, raising=False)
+    spec = cb_spec(closed_kafkas=("127.0.0.4:9092", "[::1]:9093"))
+    argv = NgsiDriver().command(spec, broker_dir)
+    at = argv.index("--closed-kafka")
+    assert argv[at:at + 4] == ["--closed-kafka", "127.0.0.4:9092", "--closed-kafka", "[::1]:9093"]
+    assert argv.count("--closed-kafka") == 2
+    assert "--closed-kafka" in NgsiDriver().command(replace(spec, allow_anonymous=True), broker_dir)
+    assert "--closed-kafka" not in NgsiDriver().command(cb_spec(), broker_dir)
+
+
 # --- essence --------------------------------------------------------------------------------
 
 def test_essence_is_the_listener_and_the_write_policy() -> None:
@@ -169,6 +186,8 @@ def test_essence_is_the_listener_and_the_write_policy() -> None:
     assert driver.essence(cb_spec(allow_anonymous=None)) == driver.essence(spec)  # unset: token needed
     assert driver.essence(cb_spec(allow_anonymous=True)) != driver.essence(spec)
     assert driver.essence(cb_spec(port=11027)) != driver.essence(spec)
+    closed = cb_spec(closed_kafkas=("127.0.0.4:9092",))  # on the command line: a change restarts it
+    assert driver.essence(closed) == {**driver.essence(spec), "closed_kafkas": ["127.0.0.4:9092"]}
 
 
 # --- health ---------------------------------------------------------------------------------
