@@ -219,7 +219,7 @@ def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
 def access_label(spec: BrokerSpec) -> str:
     """Who may use the broker, in a word or two (``status``): ``users (N)`` for a closed
     Mosquitto or Kafka (N: the plant's users and the bridges' principals; plantkg's fixed principals not
-    counted), ``token`` for a context broker whose writes need its agent's token, ``open``
+    counted), ``token`` for a closed context broker without principals (its agent's token only), ``open``
     (anyone who reaches it) otherwise; ``, TLS`` when its listener speaks TLS only."""
     if spec.kind in USER_KINDS:
         tls = ", TLS" if spec.tls else ""
@@ -229,7 +229,7 @@ def access_label(spec: BrokerSpec) -> str:
     if spec.kind == "ngsi-v2":
         if spec.users:
             return f"principals ({len(spec.users)})"
-        return "open" if spec.allow_anonymous else "token for writes"
+        return "open" if spec.allow_anonymous else "token"
     return "open"
 
 
@@ -250,9 +250,11 @@ def open_broker_warnings(brokers: Iterable[BrokerSpec]) -> tuple[str, ...]:
             out.append(f"broker.{spec.id} admits anonymous clients ({why}): anyone who reaches "
                        f"{spec.host}:{spec.port} may publish and read every topic; {fix}")
         elif spec.kind == "ngsi-v2" and spec.allow_anonymous:
-            out.append(f"broker.{spec.id} (context broker) takes writes without its agent's token "
-                       "(the plant says pk:allowAnonymous true): anyone who reaches "
-                       f"{spec.host}:{spec.port} may change every entity")
+            out.append(f"broker.{spec.id} (context broker) admits anonymous clients (the plant says "
+                       "pk:allowAnonymous true): anyone who reaches "
+                       f"{spec.host}:{spec.port} may read and change every entity; remove "
+                       "pk:allowAnonymous (closed by default) and give its clients its agent's token "
+                       "or a pk:secretRef")
     return tuple(out)
 
 

@@ -2,9 +2,11 @@
 
 plantkg's own context broker (:mod:`engine.context_broker`) is a process the agent runs like any
 broker: one listener on the spec's address and port, its entities in ``<broker dir>/data/``, its
-log in ``<broker dir>/logs/ngsi-v2.log``. Writes need ``Authorization: Bearer <token>`` with the
-token of the broker's own agent (so the engine, which reads every agent's token file from
-agents.toml, can write to it), unless the plant says ``pk:allowAnonymous true`` (``--open``).
+log in ``<broker dir>/logs/ngsi-v2.log``. It is closed by default: every request but ``GET
+/version`` needs ``Authorization: Bearer <token>``, reads included, with the token of the broker's
+own agent (so the engine, which reads every agent's token file from agents.toml, can use it) or a
+principal's (``principals.json``, rendered always: empty when no client has a ``pk:secretRef``),
+unless the plant says ``pk:allowAnonymous true`` (``--open``: reads and writes without a token).
 Its ``kafka://`` notifications log in as plantkg's own Kafka principal at the plant's closed Kafka
 brokers the engine names in ``closed_kafkas`` (``--closed-kafka HOST:PORT``), and nowhere else.
 
@@ -89,13 +91,14 @@ class NgsiDriver:
 
     def render_config(self, spec: BrokerSpec, broker_dir: Path,
                       bridges: tuple[BridgeSpec, ...] = ()) -> dict[str, str]:
-        """The principals file of a broker with users (each user's token read here, on the broker's
-        machine, and written as its SHA-256 digest only; 0600 like every rendered file); else no
-        file. Bridges run as workers beside MQTT."""
+        """The principals file of a closed broker (each user's token read here, on the broker's
+        machine, and written as its SHA-256 digest only; 0600 like every rendered file; no users:
+        an empty list, so only the agent's token gets in); none for an open one. Bridges run as
+        workers beside MQTT."""
         self.validate(spec)
         check_path("broker_dir", broker_dir)
         refuse_bridges(self.kind, bridges)
-        if not spec.users:
+        if spec.allow_anonymous:
             return {}
         tokens = {u.name: (resolve_secret(u), u.write, u.read) for u in spec.users}
         return {PRINCIPALS_FILE: render_principals(tokens)}
@@ -123,13 +126,12 @@ class NgsiDriver:
             raise ConfigValueError("token_file", str(token),
                                    "the agent's token file is missing, and the context broker needs "
                                    f"it for writes (set {TOKEN_FILE_ENV}, or pk:allowAnonymous true)")
-        argv = [*argv, "--token-file", str(token)]
-        return [*argv, "--principals", str(broker_dir / PRINCIPALS_FILE)] if spec.users else argv
+        return [*argv, "--token-file", str(token), "--principals", str(broker_dir / PRINCIPALS_FILE)]
 
     def prepare(self, spec: BrokerSpec, broker_dir: Path) -> None:
         """The data folder the entities are stored in."""
         (broker_dir / DATA_DIR).mkdir(parents=True, exist_ok=True)
-        if not spec.users:
+        if spec.allow_anonymous:
             (broker_dir / PRINCIPALS_FILE).unlink(missing_ok=True)
 
     def health(self, spec: BrokerSpec, timeout: float) -> bool:

@@ -151,8 +151,8 @@ def _spec(**kw):
     (_spec(kind="kafka", port=9092, allow_anonymous=False), "users (0)", None),
     (_spec(kind="kafka", port=9092, allow_anonymous=True), "open", "the plant says pk:allowAnonymous true"),
     (_spec(kind="kafka", port=9092, allow_anonymous=False, users=(HMI_USER,)), "users (1)", None),
-    (_spec(kind="ngsi-v2", allow_anonymous=False), "token for writes", None),
-    (_spec(kind="ngsi-v2", allow_anonymous=True), "open", "takes writes without its agent's token"),
+    (_spec(kind="ngsi-v2", allow_anonymous=False), "token", None),
+    (_spec(kind="ngsi-v2", allow_anonymous=True), "open", "may read and change every entity"),
     (_spec(kind="ngsi-v2", allow_anonymous=False, users=(ROBOT_USER, HMI_USER)), "principals (2)", None),
 ])
 def test_plans_and_status_say_who_may_use_a_broker(spec, label: str, warning: str | None) -> None:

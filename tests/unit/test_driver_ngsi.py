@@ -61,7 +61,8 @@ def test_command_uses_the_agents_token_file(broker_dir: Path, monkeypatch: pytes
     argv = NgsiDriver().command(cb_spec(), broker_dir)
     assert argv == [sys.executable, "-m", "engine.context_broker", "--host", "127.0.0.3", "--port", "11026",
                     "--data-dir", str(broker_dir / "data"), "--log-file", str(broker_dir / "logs" / "ngsi-v2.log"),
-                    "--token-file", str(broker_dir.parent.parent / "token")]
+                    "--token-file", str(broker_dir.parent.parent / "token"),
+                    "--principals", str(broker_dir / "principals.json")]  # closed by default: reads need a token
 
 
 def test_an_agent_with_another_token_file_passes_it_in_the_environment(
@@ -70,7 +71,7 @@ def test_an_agent_with_another_token_file_passes_it_in_the_environment(
     other.parent.mkdir()
     other.write_text("y" * 32)
     monkeypatch.setenv(TOKEN_FILE_ENV, str(other))
-    assert NgsiDriver().command(cb_spec(), broker_dir)[-2:] == ["--token-file", str(other)]
+    assert NgsiDriver().command(cb_spec(), broker_dir)[-4:-2] == ["--token-file", str(other)]
 
 
 def test_allow_anonymous_opens_writes_and_needs_no_token(tmp_path: Path) -> None:
@@ -86,12 +87,16 @@ def test_a_missing_token_file_is_refused_naming_what_to_do(tmp_path: Path, monke
     assert info.value.field == "token_file" and "pk:allowAnonymous" in str(info.value)
 
 
-def test_prepare_makes_the_data_folder_and_nothing_is_rendered(broker_dir: Path) -> None:
+def test_prepare_makes_the_data_folder_and_a_closed_broker_gets_an_empty_principals_file(broker_dir: Path) -> None:
     driver = NgsiDriver()
     driver.prepare(cb_spec(), broker_dir)
     driver.prepare(cb_spec(), broker_dir)  # idempotent
     assert (broker_dir / "data").is_dir()
-    assert driver.render_config(cb_spec(), broker_dir) == {}
+    assert json.loads(driver.render_config(cb_spec(), broker_dir)["principals.json"]) == {"principals": []}
+    assert driver.render_config(cb_spec(allow_anonymous=True), broker_dir) == {}  # open: nothing rendered
+    (broker_dir / "principals.json").write_text("{}")
+    driver.prepare(cb_spec(allow_anonymous=True), broker_dir)
+    assert not (broker_dir / "principals.json").exists()  # an opened broker loses its file
 
 
 def test_bridges_are_not_native() -> None:
