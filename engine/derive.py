@@ -47,6 +47,7 @@ from engine.derived.access import (
     check_kafka_tls_supported,
     close_brokers,
     with_bridge_principals,
+    with_closed_kafkas,
 )
 from engine.errors import ConfigValueError, EngineError
 from engine.derived.bridge_cycles import check_no_cycles
@@ -364,6 +365,7 @@ def assemble_from(parts: Parts, previous: Assembled | None = None,
     check_access_supported(deployed, bridges)
     check_kafka_tls_supported(deployed, bridges)
     deployed = with_bridge_principals(deployed, bridges)  # each bridge a user where it logs in
+    deployed = with_closed_kafkas(deployed)  # where a context broker's kafka:// notifications log in
     outside = {parts.brokers[iri].id for iri in parts.external}
     ids = {b.iri: b.id for b in brokers}
     if previous is None:

@@ -78,7 +78,7 @@ from engine.model import (
 #: Broker fields whose change needs a new broker process (the agent restarts it): Terraform's
 #: "forces replacement". Every other BrokerSpec field is changed in place.
 REPLACE_FIELDS: tuple[str, ...] = ("kind", "host", "port", "persist_every", "allow_anonymous", "mqtt_port",
-                                   "users", "tls", "kafka")
+                                   "users", "tls", "kafka", "closed_kafkas")
 #: Fields of a cluster node's ``kafka`` that are not rendered into its config: a change of only
 #: these (the cluster gained a broker, the lead moved) is made in place.
 KAFKA_IN_PLACE: tuple[str, ...] = ("lead", "bootstrap")
@@ -114,16 +114,20 @@ _DELETE_ORDER = {"bridge": 0, "topic": 1, "broker": 2}
 
 def broker_essence(spec: BrokerSpec) -> dict[str, Any]:
     """The fields of a broker the plan compares (all of BrokerSpec), as JSON-able values; no
-    ``users`` key for a broker without users, no ``tls`` key for a plain one, and no ``kafka``
-    key for a broker that is not a cluster's node, so plans of other brokers read as before. A
+    ``users`` key for a broker without users, no ``tls`` key for a plain one, no ``kafka``
+    key for a broker that is not a cluster's node and no ``closed_kafkas`` key for a broker told
+    none, so plans of other brokers read as before. A
     user shows its secret reference, never a secret (the plan has none)."""
-    out = {f.name: getattr(spec, f.name) for f in fields(spec) if f.name not in ("users", "tls", "kafka")}
+    out = {f.name: getattr(spec, f.name) for f in fields(spec)
+           if f.name not in ("users", "tls", "kafka", "closed_kafkas")}
     if spec.users:
         out["users"] = to_dict(spec.users)
     if spec.tls:
         out["tls"] = True
     if spec.kafka is not None:  # a node of a cluster
         out["kafka"] = to_dict(spec.kafka)
+    if spec.closed_kafkas:  # a context broker whose kafka:// notifications log in there
+        out["closed_kafkas"] = list(spec.closed_kafkas)
     return out
 
 

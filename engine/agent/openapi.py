@@ -84,6 +84,9 @@ _SCHEMAS: dict[str, Any] = {
                                      "allow_anonymous is true"},
             "kafka": {"oneOf": [{"type": "null"}, {"$ref": "#/components/schemas/KafkaNode"}],
                       "description": "kafka: the broker is one node of a multi-node cluster"},
+            "closed_kafkas": {"type": "array", "items": {"type": "string"},
+                              "description": "ngsi-v2: the plant's closed Kafka brokers ('host:port'), "
+                                             "where its kafka:// notifications log in as plantkg"},
         },
     },
     "KafkaNode": {

@@ -20,6 +20,8 @@ of its topics the broker carries. Nothing here decides who may do what: the rule
   MirrorMaker 2 at a closed Kafka (a bridge worker into a closed Kafka authenticates as plantkg's
   own principal, engine.security.kafka_client; bridges at a closed Mosquitto as their bridge
   principal);
+- :func:`with_closed_kafkas` tells each context broker the plant's closed Kafka brokers, where its
+  ``kafka://`` notifications log in as plantkg's own principal;
 - :func:`open_broker_warnings` and :func:`access_label` say, in a plan and in ``status``, which
   brokers anyone on the network may use.
 """
@@ -36,7 +38,8 @@ import pyoxigraph as ox
 
 from engine.errors import EngineError
 from engine.model import BridgeDirection, BridgeMechanism, BridgeSpec, BrokerSpec, BrokerUser
-from engine.security import mqtt_client, principals
+from engine.security import kafka_client, mqtt_client, principals
+from engine.values import host_in_url
 
 #: The broker kinds whose driver renders users and ACLs.
 USER_KINDS = frozenset({"mosquitto", "kafka"})
@@ -143,6 +146,17 @@ def with_bridge_principals(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
     return out
 
 
+def with_closed_kafkas(brokers: Iterable[BrokerSpec]) -> list[BrokerSpec]:
+    """The specs with each context broker told the plant's closed Kafka brokers of their own
+    (``closed_kafkas``, ``host:port`` sorted): its ``kafka://`` notifications log in there as
+    plantkg's own Kafka principal (engine.security.kafka_client), and only there, so plantkg's
+    password never goes to a Kafka a subscription names that is not the plant's."""
+    brokers = list(brokers)
+    closed = tuple(sorted(f"{host_in_url(b.host)}:{b.port}" for b in brokers
+                          if kafka_client.is_closed(b) and b.kafka is None))
+    return [replace(b, closed_kafkas=closed) if b.kind in TOKEN_KINDS else b for b in brokers]
+
+
 def is_closed(spec: BrokerSpec) -> bool:
     """A Mosquitto or a Kafka that admits only its users."""
     return spec.kind in USER_KINDS and spec.allow_anonymous is False
@@ -205,7 +219,7 @@ def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
 def access_label(spec: BrokerSpec) -> str:
     """Who may use the broker, in a word or two (``status``): ``users (N)`` for a closed
     Mosquitto or Kafka (N: the plant's users and the bridges' principals; plantkg's fixed principals not
-    counted), ``token`` for a context broker whose writes need its agent's token, ``open``
+    counted), ``token`` for a closed context broker without principals (its agent's token only), ``open``
     (anyone who reaches it) otherwise; ``, TLS`` when its listener speaks TLS only."""
     if spec.kind in USER_KINDS:
         tls = ", TLS" if spec.tls else ""
@@ -215,7 +229,7 @@ def access_label(spec: BrokerSpec) -> str:
     if spec.kind == "ngsi-v2":
         if spec.users:
             return f"principals ({len(spec.users)})"
-        return "open" if spec.allow_anonymous else "token for writes"
+        return "open" if spec.allow_anonymous else "token"
     return "open"
 
 
@@ -236,9 +250,11 @@ def open_broker_warnings(brokers: Iterable[BrokerSpec]) -> tuple[str, ...]:
             out.append(f"broker.{spec.id} admits anonymous clients ({why}): anyone who reaches "
                        f"{spec.host}:{spec.port} may publish and read every topic; {fix}")
         elif spec.kind == "ngsi-v2" and spec.allow_anonymous:
-            out.append(f"broker.{spec.id} (context broker) takes writes without its agent's token "
-                       "(the plant says pk:allowAnonymous true): anyone who reaches "
-                       f"{spec.host}:{spec.port} may change every entity")
+            out.append(f"broker.{spec.id} (context broker) admits anonymous clients (the plant says "
+                       "pk:allowAnonymous true): anyone who reaches "
+                       f"{spec.host}:{spec.port} may read and change every entity; remove "
+                       "pk:allowAnonymous (closed by default) and give its clients its agent's token "
+                       "or a pk:secretRef")
     return tuple(out)
 
 

@@ -151,8 +151,8 @@ def _spec(**kw):
     (_spec(kind="kafka", port=9092, allow_anonymous=False), "users (0)", None),
     (_spec(kind="kafka", port=9092, allow_anonymous=True), "open", "the plant says pk:allowAnonymous true"),
     (_spec(kind="kafka", port=9092, allow_anonymous=False, users=(HMI_USER,)), "users (1)", None),
-    (_spec(kind="ngsi-v2", allow_anonymous=False), "token for writes", None),
-    (_spec(kind="ngsi-v2", allow_anonymous=True), "open", "takes writes without its agent's token"),
+    (_spec(kind="ngsi-v2", allow_anonymous=False), "token", None),
+    (_spec(kind="ngsi-v2", allow_anonymous=True), "open", "may read and change every entity"),
     (_spec(kind="ngsi-v2", allow_anonymous=False, users=(ROBOT_USER, HMI_USER)), "principals (2)", None),
 ])
 def test_plans_and_status_say_who_may_use_a_broker(spec, label: str, warning: str | None) -> None:
@@ -184,3 +184,36 @@ def test_principals_on_a_context_broker_are_taken_and_an_open_one_with_them_refu
     check_access_supported([_spec(kind="ngsi-v2", allow_anonymous=False, users=(ROBOT_USER,))])
     with pytest.raises(AccessNotSupportedError, match="pk:allowAnonymous true, but its clients"):
         check_access_supported([_spec(kind="ngsi-v2", allow_anonymous=True, users=(ROBOT_USER,))])
+
+
+KAFKA_AND_CB = """ex:k a pk:Broker ; pk:id "k1" ; pk:name "plant-kafka" ; pk:brokerType "kafka" ; pk:ip "127.0.0.4" ;
+    pk:port 9092 ; pk:hasTopic ex:pose .
+ex:cb a pk:Broker ; pk:id "cb1" ; pk:name "context" ; pk:brokerType "ngsi-v2" ; pk:ip "127.0.0.5" ;
+    pk:port 1026 ; pk:hasTopic ex:state .
+ex:state a pk:Topic ; pk:id "state" ; pk:name "cell/state" .
+ex:agv a pk:Resource ; pk:id "agv" ; pk:name "AGV" ; pk:sendsTo ex:cb ; pk:publishes ex:state .
+"""
+
+
+@pytest.mark.parametrize(("kafka_extra", "told"), [
+    ("", ("127.0.0.4:9092",)),                                   # closed by default
+    ("ex:k pk:allowAnonymous true .", ()),                        # open: its notifications go anonymous
+])
+def test_a_context_broker_is_told_the_plants_closed_kafkas(tmp_path: Path, kafka_extra: str, told: tuple) -> None:
+    """Its kafka:// notifications log in as plantkg there, and nowhere else (engine.derived.access)."""
+    desired = derived(tmp_path, KAFKA_AND_CB + kafka_extra)
+    specs = {b.id: b for b in desired.brokers}
+    assert specs["cb1"].closed_kafkas == told
+    assert specs["k1"].closed_kafkas == () and specs["m1"].closed_kafkas == ()  # only context brokers
+
+
+def test_closed_kafkas_name_ipv6_addresses_in_brackets_and_skip_cluster_nodes() -> None:
+    from engine.derived.access import with_closed_kafkas  # noqa: PLC0415
+    from engine.model import KafkaNode  # noqa: PLC0415
+    node = _spec(id="n1", kind="kafka", host="127.0.0.7", port=9092, allow_anonymous=True,
+                 kafka=KafkaNode("plant", "A" * 22, 1, ("broker", "controller"), ()))
+    specs = with_closed_kafkas([_spec(id="k6", kind="kafka", host="::1", port=9092, allow_anonymous=False),
+                                _spec(id="k4", kind="kafka", host="127.0.0.4", port=9094, allow_anonymous=False),
+                                _spec(id="open", kind="kafka", host="127.0.0.6", port=9092, allow_anonymous=True),
+                                node, _spec(id="cb", kind="ngsi-v2", allow_anonymous=False)])
+    assert specs[-1].closed_kafkas == ("127.0.0.4:9094", "[::1]:9092")

@@ -149,3 +149,14 @@ def test_two_users_of_one_name_are_refused() -> None:
     user = {"name": "robot1", "secret_ref": "env:X"}
     with pytest.raises(WireError, match="two users with the same name"):
         broker_spec_from_json({**USER_BASE, "users": [user, user]})
+
+
+def test_a_context_brokers_closed_kafkas_round_trip_and_bad_ones_are_refused() -> None:
+    spec = broker_spec_from_json({**to_dict(NGSI), "closed_kafkas": ["127.0.0.4:9092", "[::1]:9093"]})
+    assert spec.closed_kafkas == ("127.0.0.4:9092", "[::1]:9093")
+    assert broker_spec_from_json(to_dict(spec)) == spec
+    for bad, field in ((["kafka.local:9092"], "closed_kafkas[0].host"), (["127.0.0.4:x"], "closed_kafkas[0]"),
+                       ("127.0.0.4:9092", "closed_kafkas")):
+        with pytest.raises(WireError) as info:
+            broker_spec_from_json({**to_dict(NGSI), "closed_kafkas": bad})
+        assert info.value.field == field, (bad, info.value)
