@@ -237,8 +237,11 @@ def derive_parts(plant: PlantGraph, only: frozenset[str] | None = None, known: P
     topics = [_with_entity(plant, t) if CONTEXT_BROKER in classes[iri_of_id[t.broker_id]] else t
               for t in topics]
     # a context broker's principals get their topics' entities (the broker knows no topic names)
-    users = broker_users(select, {(iri_of_id[t.broker_id], t.iri): t.name if t.entity_id is None else t.entity_id
-                                  for t in topics})
+    carried = {(iri_of_id[t.broker_id], t.iri): t.name if t.entity_id is None else t.entity_id for t in topics}
+    # a cluster's clients send to the cluster, whose topics are planned on its lead node
+    carried |= {(cluster, topic): name for cluster, lead in leads.items()
+                for (broker, topic), name in list(carried.items()) if broker == lead.iri}
+    users = broker_users(select, carried)
     for cluster, lead in leads.items():  # a cluster's clients are its nodes' users (refused below)
         if cluster in users and lead.kafka is not None:
             users |= {b.iri: users[cluster] for b in brokers if b.kafka and b.kafka.cluster == lead.kafka.cluster}

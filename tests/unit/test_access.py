@@ -79,15 +79,37 @@ def test_a_kafka_with_users_is_closed_and_its_bridge_worker_allowed(tmp_path: Pa
     assert [(b.local.id, b.remote.id) for b in state.bridges] == [("m1", "k1")]
 
 
-def test_users_on_a_kafka_cluster_are_refused(tmp_path: Path) -> None:
-    cluster = ('ex:c a pk:Broker ; pk:id "c" ; pk:name "c" ; pk:brokerType "kafka" ; pk:hasTopic ex:pose .\n'
-               'ex:n1 a pk:Broker ; pk:id "n1" ; pk:name "n1" ; pk:brokerType "kafka" ; pk:ip "127.0.0.2" ; '
-               'pk:port 9092 ; pk:nodeOf ex:c ; pk:nodeId 1 ; pk:kafkaRole "broker" , "controller" ; '
-               'pk:controllerPort 9093 .\n'
-               'ex:hist a pk:Resource ; pk:id "hist" ; pk:name "Historian" ; pk:sendsTo ex:c ; '
-               'pk:subscribes ex:pose ; pk:secretRef "env:HIST" .\n')
-    with pytest.raises(AccessNotSupportedError, match="'n1' is a node of Kafka cluster 'c'"):
-        derived(tmp_path, cluster)
+CLUSTER = ('ex:c a pk:Broker ; pk:id "c" ; pk:name "c" ; pk:brokerType "kafka" ; pk:hasTopic ex:pose .\n'
+           + "".join(f'ex:n{i} a pk:Broker ; pk:id "n{i}" ; pk:name "n{i}" ; pk:brokerType "kafka" ; '
+                     f'pk:ip "127.0.0.{i + 1}" ; pk:port 9092 ; pk:nodeOf ex:c ; pk:nodeId {i} ; '
+                     'pk:kafkaRole "broker" , "controller" ; pk:controllerPort 9093 .\n' for i in (1, 2, 3)))
+HIST = ('ex:hist a pk:Resource ; pk:id "hist" ; pk:name "Historian" ; pk:sendsTo ex:c ; '
+        'pk:subscribes ex:pose ; pk:secretRef "env:HIST" .\n')
+
+# name: (extra Turtle, users of every node, allow_anonymous of every node)
+CLUSTER_CASES = {
+    "a-cluster-is-closed-by-default": ("", (), False),
+    "a-cluster-client-with-a-secret-is-a-user-of-every-node": (
+        HIST, (BrokerUser("hist", "env:HIST", read=("cell/pose",)),), False),
+    "the-plant-closes-the-cluster": ("ex:c pk:allowAnonymous false .", (), False),
+    "the-plant-opens-the-cluster": ("ex:c pk:allowAnonymous true .", (), True),
+}
+
+
+@pytest.mark.parametrize("engine", ["fast", "owlready2"])
+@pytest.mark.parametrize("name", sorted(CLUSTER_CASES))
+def test_a_kafka_clusters_nodes_are_closed_together_with_the_clusters_users(
+        tmp_path: Path, name: str, engine: str) -> None:
+    extra, users, anonymous = CLUSTER_CASES[name]
+    state = derived(tmp_path, CLUSTER + extra, engine)
+    nodes = [b for b in state.brokers if b.kafka is not None]
+    assert sorted(b.id for b in nodes) == ["n1", "n2", "n3"]
+    assert {(b.users, b.allow_anonymous) for b in nodes} == {(users, anonymous)}
+
+
+def test_a_kafka_cluster_open_to_anonymous_clients_with_users_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(AccessNotSupportedError, match="'n1' \\(kafka\\): the plant says pk:allowAnonymous true"):
+        derived(tmp_path, CLUSTER + HIST + "ex:c pk:allowAnonymous true .")
 
 
 @pytest.mark.parametrize("engine", ["fast", "owlready2"])
@@ -162,13 +184,17 @@ def test_plans_and_status_say_who_may_use_a_broker(spec, label: str, warning: st
     assert (warnings == ()) if warning is None else (len(warnings) == 1 and warning in warnings[0])
 
 
-def test_a_kafka_cluster_node_warns_that_clusters_cannot_be_closed_yet() -> None:
+def test_an_open_kafka_cluster_node_warns_and_says_how_to_close_it() -> None:
     from engine.derived.access import open_broker_warnings  # noqa: PLC0415
     from engine.model import KafkaNode  # noqa: PLC0415
     node = _spec(kind="kafka", port=9092, allow_anonymous=True,
                  kafka=KafkaNode("plant", "A" * 22, 1, ("broker", "controller"), ()))
     [warning] = open_broker_warnings([node])
-    assert "a node of Kafka cluster plant: a cluster is not closed yet" in warning
+    assert "a node of Kafka cluster plant, which says pk:allowAnonymous true" in warning
+    assert "remove pk:allowAnonymous from cluster plant (closed by default)" in warning
+    closed = _spec(kind="kafka", port=9092, allow_anonymous=False,
+                   kafka=KafkaNode("plant", "A" * 22, 1, ("broker", "controller"), ()))
+    assert open_broker_warnings([closed]) == ()
 
 
 def test_a_kafka_open_to_anonymous_clients_with_users_is_refused() -> None:

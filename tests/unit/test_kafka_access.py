@@ -106,3 +106,39 @@ def test_a_bridge_end_is_closed_exactly_when_its_kafka_is_and_no_token_travels()
         [put] = [c for op in operations(plan(desired, ObservedState()), desired) for c in op.calls
                  if c.verb == "put_bridge"]
         assert put.remote_token_of is None  # the worker's agent derives plantkg's password itself
+
+
+def _cluster_node(node_id: int, lead: bool, *, closed: bool, users: tuple[BrokerUser, ...] = ()) -> BrokerSpec:
+    from engine.model import KafkaNode, KafkaVoter  # noqa: PLC0415
+    voters = tuple(KafkaVoter(i, f"127.0.0.{i + 1}", 9093) for i in (1, 2, 3))
+    return BrokerSpec(f"n{node_id}", f"http://example.org/n{node_id}", f"n{node_id}", "kafka",
+                      f"127.0.0.{node_id + 1}", 9092, allow_anonymous=False if closed else True, users=users,
+                      kafka=KafkaNode("c", "A" * 22, node_id, ("broker", "controller"), voters,
+                                      controller_port=9093, replication=3, lead=lead))
+
+
+def test_a_closed_cluster_node_renders_sasl_on_its_client_inter_broker_and_controller_listeners(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every node of a closed cluster: SASL listeners, plantkg (PLAIN, a static JAAS user) between
+    the nodes and to the quorum, the StandardAuthorizer; only the lead node reads the users'
+    passwords (the digest) and has them in its essence, since it alone sets them for the cluster."""
+    from engine.drivers.kafka.driver import KafkaDriver  # noqa: PLC0415
+    monkeypatch.setenv("PLANTKG_PRINCIPAL_KEY", str(tmp_path / "key"))
+    monkeypatch.setenv("PW_H", "historian-password")
+    users = (BrokerUser("hist", "env:PW_H", read=("cell.cam",)),)
+    driver = KafkaDriver()
+    lead, other = _cluster_node(1, True, closed=True, users=users), _cluster_node(2, False, closed=True, users=users)
+    for spec in (lead, other):
+        lines = driver.render_config(spec, tmp_path / spec.id)["server.properties"].splitlines()
+        assert "listener.security.protocol.map=CONTROLLER:SASL_PLAINTEXT,SASL_PLAINTEXT:SASL_PLAINTEXT" in lines
+        assert "inter.broker.listener.name=SASL_PLAINTEXT" in lines
+        assert "sasl.mechanism.inter.broker.protocol=PLAIN" in lines
+        assert "sasl.mechanism.controller.protocol=PLAIN" in lines
+        assert "super.users=User:plantkg" in lines
+        assert "controller.quorum.voters=1@127.0.0.2:9093,2@127.0.0.3:9093,3@127.0.0.4:9093" in lines
+    assert "scram.digest" in driver.render_config(lead, tmp_path / "n1")
+    assert "scram.digest" not in driver.render_config(other, tmp_path / "n2")
+    assert "users" in driver.essence(lead) and "users" not in driver.essence(other)
+    assert driver.essence(lead)["closed"] is driver.essence(other)["closed"] is True
+    opened = driver.render_config(_cluster_node(2, False, closed=False), tmp_path / "open")
+    assert "SASL" not in opened["server.properties"] and "closed" not in driver.essence(_cluster_node(2, False, closed=False))
