@@ -320,6 +320,12 @@ def to_markdown(data: dict[str, Any]) -> str:
     lines += ["", "Per repeat (throughput vs baseline): "
               + "; ".join(f"{arm}: " + ", ".join(_fmt(x) for x in ratios[arm]["throughput_per_repeat"])
                           for arm in BASELINE) + ".", ""]
+    cpu = [med[arm]["client_cpu_us_per_msg"] for arm in ARMS]
+    cores = med["open"]["client_cpu_us_per_msg"] * med["open"]["msg_per_s"] / 1e6
+    lines += [f"Client side: the load generator (publisher + subscriber processes) used {min(cpu):.0f}–{max(cpu):.0f} µs "
+              f"of CPU per delivered message (medians per arm), i.e. {cores:.2f} of a core at the open arm's rate, "
+              f"on the same {data['machine'].get('cpus', '?')} cores as the brokers: the ratios include that share.",
+              ""]
     for g in data["goals"]:
         lines.append(f"Goal: {g['goal']}: {g['measured']}, target {g['target']}: "
                      f"{'met' if g['met'] else '**not met**'}.")
