@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import os
 import shutil
+import struct
 import subprocess
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -87,3 +89,31 @@ def test_closed_tls_refuses_it_without_the_ca_or_login_and_admits_it_with_both(r
         raise
     got = receiver.result(150.0)
     assert (sent.acked, got.received, got.missing, got.duplicates) == (500, 500, 0, 0)
+
+
+def _produce(bootstrap: str, topic: str, count: int) -> None:
+    """``count`` records in the load generator's payload format (index, send time in ns)."""
+    from confluent_kafka import Producer
+
+    producer = Producer({"bootstrap.servers": bootstrap})
+    for i in range(count):
+        producer.produce(topic, struct.pack(">Qq", i, time.time_ns()))
+    assert producer.flush(60) == 0
+
+
+def test_kafka_consume_from_the_beginning_and_from_the_end(kafka_broker) -> None:
+    from confluent_kafka.admin import AdminClient, NewTopic
+
+    bootstrap, topic = kafka_broker.bootstrap_servers, "lg-kafka"
+    admin = AdminClient({"bootstrap.servers": bootstrap})
+    admin.create_topics([NewTopic(topic, 2, 1)])[topic].result(60)
+    _produce(bootstrap, topic, 2000)
+    target = loadgen.Target(bootstrap)
+    old = loadgen.start("kafka-consume", target, topic, 2000, 120.0).result(150.0)
+    assert (old.exit_code, old.received, old.missing, old.duplicates) == (0, 2000, 0, 0)
+    assert old.p99_ms >= old.p50_ms > 0
+    # from the end: the 2000 already there are not read; 500 produced after it is ready are
+    tail = loadgen.start("kafka-consume", target, topic, 500, 120.0, ("--from", "end"))
+    _produce(bootstrap, topic, 500)
+    new = tail.result(150.0)
+    assert (new.exit_code, new.received, new.missing, new.duplicates) == (0, 500, 0, 0)
