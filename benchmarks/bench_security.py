@@ -38,6 +38,7 @@ Results: ``benchmarks/results/security.{json,md}``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import secrets
 import statistics
@@ -45,7 +46,8 @@ import tempfile
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
+from unittest import mock
 
 import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
@@ -104,6 +106,17 @@ class Broker:
         if self.child is not None:
             process.stop(self.child)
             self.child = None
+
+
+@contextlib.contextmanager
+def own_secrets(folder: Path) -> Iterator[None]:
+    """Point plantkg at a principal key and a plant CA in `folder` for the block, never the user's.
+
+    The environment is restored as it was when the block ends, however it ends.
+    """
+    with mock.patch.dict(os.environ, {principal_key.KEY_ENV: str(folder / "principal-key"),
+                                      ca.CA_ENV: str(folder / "ca")}):
+        yield
 
 
 def brokers(folder: Path) -> tuple[dict[str, Broker], Credentials, Credentials]:
@@ -351,11 +364,9 @@ def main(argv: list[str] | None = None) -> int:
     loadgen.binary()  # refuse before starting brokers when the load generator is not built
     info = machine()
     runs: dict[str, list[dict[str, Any]]] = {arm: [] for arm in ARMS}
-    with tempfile.TemporaryDirectory(prefix="plantkg-bench-security-") as tmp:
-        # the run's own principal key and plant CA, never the user's
-        saved = {k: os.environ.get(k) for k in (principal_key.KEY_ENV, ca.CA_ENV)}
-        os.environ[principal_key.KEY_ENV] = str(Path(tmp) / "principal-key")
-        os.environ[ca.CA_ENV] = str(Path(tmp) / "ca")
+    with contextlib.ExitStack() as stack:
+        tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="plantkg-bench-security-"))
+        stack.enter_context(own_secrets(Path(tmp)))
         driver = MosquittoDriver()
         found, pub, sub = brokers(Path(tmp))
         started: list[Broker] = []
@@ -384,11 +395,6 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             for b in started:
                 b.stop()
-            for key, value in saved.items():
-                if value is None:
-                    os.environ.pop(key, None)
-                else:
-                    os.environ[key] = value
     med = {arm: medians(runs[arm]) for arm in ARMS}
     ratios = {arm: {"throughput": _ratio(med[arm]["msg_per_s"], med[base]["msg_per_s"]),
                     "p99": _ratio(med[arm]["p99_ms"], med[base]["p99_ms"]),

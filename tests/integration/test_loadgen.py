@@ -17,7 +17,7 @@ import pytest
 from benchmarks import bench_security as sec
 from benchmarks import loadgen
 from engine.drivers.mosquitto.driver import MosquittoDriver
-from engine.security import ca, principal_key
+from engine.security import ca
 
 pytestmark = pytest.mark.integration
 
@@ -37,23 +37,16 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[dict[str, se
                                                                     sec.Credentials, Path]]:
     loadgen.binary()
     tmp = tmp_path_factory.mktemp("loadgen")
-    saved = {k: os.environ.get(k) for k in (principal_key.KEY_ENV, ca.CA_ENV)}
-    os.environ[principal_key.KEY_ENV] = str(tmp / "principal-key")
-    os.environ[ca.CA_ENV] = str(tmp / "ca")
-    found, pub, sub = sec.brokers(tmp)
-    started = []
-    try:
-        for name in ("open", "closed-tls"):
-            started.append(found[name].start(MosquittoDriver()))
-        yield found, pub, sub, ca.ca_cert_file()
-    finally:
-        for b in started:
-            b.stop()
-        for key, value in saved.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
+    with sec.own_secrets(tmp):
+        found, pub, sub = sec.brokers(tmp)
+        started = []
+        try:
+            for name in ("open", "closed-tls"):
+                started.append(found[name].start(MosquittoDriver()))
+            yield found, pub, sub, ca.ca_cert_file()
+        finally:
+            for b in started:
+                b.stop()
 
 
 def test_twenty_thousand_messages_arrive_once_each(rig) -> None:

@@ -126,11 +126,9 @@ func runKafkaConsume(args []string) int {
 	defer client.Close()
 	emit(map[string]any{"event": "ready", "mode": mode})
 
-	t := newTally(o.count)
-	var first, last time.Time
-	var malformed uint64
+	r := newReceipt(o.count)
 	var fetchErr error
-	for !t.complete() && ctx.Err() == nil {
+	for !r.tally.complete() && ctx.Err() == nil {
 		fetches := client.PollFetches(ctx)
 		now := time.Now()
 		fetches.EachError(func(topic string, p int32, err error) {
@@ -138,45 +136,20 @@ func runKafkaConsume(args []string) int {
 				fetchErr = fmt.Errorf("fetch %s[%d]: %w", topic, p, err)
 			}
 		})
-		fetches.EachRecord(func(r *kgo.Record) {
-			index, sent, err := decodePayload(r.Value)
-			if err != nil {
-				malformed++
-				return
-			}
-			if first.IsZero() {
-				first = now
-			}
-			if t.add(index, now.Sub(sent)) {
-				last = now
-			}
-		})
+		fetches.EachRecord(func(rec *kgo.Record) { r.take(rec.Value, now) })
 		if fetchErr != nil {
 			break
 		}
 	}
-	fields := latencySummary(t.latencies)
-	fields["count"] = o.count
-	fields["received"] = t.distinct
-	fields["missing"] = o.count - t.distinct
-	fields["duplicates"] = t.duplicates
-	fields["foreign"] = t.foreign
-	fields["malformed"] = malformed
-	fields["timed_out"] = !t.complete() && fetchErr == nil
+	fields, elapsed := r.fields(!r.tally.complete() && fetchErr == nil)
 	if fetchErr != nil {
 		fields["error"] = fetchErr.Error()
 	}
-	elapsed := time.Duration(0)
-	if !first.IsZero() {
-		elapsed = last.Sub(first)
-		fields["first_unix_ns"] = first.UnixNano()
-		fields["last_unix_ns"] = last.UnixNano()
-	}
-	report(mode, fields, t.distinct, elapsed)
+	report(mode, fields, r.tally.distinct, elapsed)
 	if fetchErr != nil {
 		return 2
 	}
-	if !t.complete() {
+	if !r.tally.complete() {
 		return 1
 	}
 	return 0

@@ -170,28 +170,15 @@ func runMQTTSub(args []string) int {
 	}
 	defer client.Disconnect(250)
 
-	t := newTally(o.count)
+	r := newReceipt(o.count)
 	var mu sync.Mutex
-	var first, last time.Time
-	var malformed uint64
 	done := make(chan struct{})
 	handler := func(_ mqtt.Client, msg mqtt.Message) {
 		now := time.Now()
-		index, sent, err := decodePayload(msg.Payload())
 		mu.Lock()
 		defer mu.Unlock()
-		if err != nil {
-			malformed++
-			return
-		}
-		if first.IsZero() {
-			first = now
-		}
-		if t.add(index, now.Sub(sent)) {
-			last = now
-			if t.complete() {
-				close(done)
-			}
+		if r.take(msg.Payload(), now) && r.tally.complete() {
+			close(done)
 		}
 	}
 	token := client.Subscribe(o.topic, 1, handler)
@@ -210,25 +197,12 @@ func runMQTTSub(args []string) int {
 	timedOut := waitDone(done, o.deadline, idle, func() time.Time {
 		mu.Lock()
 		defer mu.Unlock()
-		return last
+		return r.last
 	})
 	mu.Lock()
 	defer mu.Unlock()
-	fields := latencySummary(t.latencies)
-	fields["count"] = o.count
-	fields["received"] = t.distinct
-	fields["missing"] = o.count - t.distinct
-	fields["duplicates"] = t.duplicates
-	fields["foreign"] = t.foreign
-	fields["malformed"] = malformed
-	fields["timed_out"] = timedOut
-	elapsed := time.Duration(0)
-	if !first.IsZero() {
-		elapsed = last.Sub(first)
-		fields["first_unix_ns"] = first.UnixNano()
-		fields["last_unix_ns"] = last.UnixNano()
-	}
-	report(mode, fields, t.distinct, elapsed)
+	fields, elapsed := r.fields(timedOut)
+	report(mode, fields, r.tally.distinct, elapsed)
 	if timedOut {
 		return 1
 	}

@@ -68,6 +68,55 @@ func (t *tally) add(index uint64, latency time.Duration) bool {
 
 func (t *tally) complete() bool { return t.distinct == t.n }
 
+// receipt is what a receiver (MQTT subscriber or Kafka consumer) knows of the deliveries so far:
+// the tally, payloads it could not read, and when the first and the last new index arrived.
+// Both receivers report through it, so their JSON lines carry the same fields.
+type receipt struct {
+	tally       *tally
+	malformed   uint64
+	first, last time.Time
+}
+
+func newReceipt(n uint64) *receipt { return &receipt{tally: newTally(n)} }
+
+// take records one payload received at now; it reports whether it was a new index.
+func (r *receipt) take(payload []byte, now time.Time) bool {
+	index, sent, err := decodePayload(payload)
+	if err != nil {
+		r.malformed++
+		return false
+	}
+	if r.first.IsZero() {
+		r.first = now
+	}
+	if !r.tally.add(index, now.Sub(sent)) {
+		return false
+	}
+	r.last = now
+	return true
+}
+
+// fields is the report of the receipt: counts, latencies and the first/last arrival times;
+// elapsed runs from the first to the last new index (zero when nothing arrived).
+func (r *receipt) fields(timedOut bool) (map[string]any, time.Duration) {
+	t := r.tally
+	fields := latencySummary(t.latencies)
+	fields["count"] = t.n
+	fields["received"] = t.distinct
+	fields["missing"] = t.n - t.distinct
+	fields["duplicates"] = t.duplicates
+	fields["foreign"] = t.foreign
+	fields["malformed"] = r.malformed
+	fields["timed_out"] = timedOut
+	elapsed := time.Duration(0)
+	if !r.first.IsZero() {
+		elapsed = r.last.Sub(r.first)
+		fields["first_unix_ns"] = r.first.UnixNano()
+		fields["last_unix_ns"] = r.last.UnixNano()
+	}
+	return fields, elapsed
+}
+
 // percentile is the nearest-rank percentile (q in [0, 100]) of the durations, in milliseconds.
 func percentile(durations []time.Duration, q float64) (float64, error) {
 	if len(durations) == 0 {

@@ -65,3 +65,45 @@ func TestLatencySummaryEmptyIsNull(t *testing.T) {
 		t.Fatalf("empty summary p99 = %v, want nil", s["latency_p99_ms"])
 	}
 }
+
+func TestReceiptReportsWhatArrivedAndWhen(t *testing.T) {
+	r := newReceipt(3)
+	base := time.Unix(1700000000, 0)
+	arrivals := []struct {
+		payload []byte
+		at      time.Duration
+		isNew   bool
+	}{
+		{encodePayload(0, base, 16), 2 * time.Millisecond, true},
+		{[]byte("bad"), 3 * time.Millisecond, false},
+		{encodePayload(0, base, 16), 4 * time.Millisecond, false},
+		{encodePayload(2, base, 16), 9 * time.Millisecond, true},
+		{encodePayload(9, base, 16), 12 * time.Millisecond, false},
+	}
+	for _, a := range arrivals {
+		if got := r.take(a.payload, base.Add(a.at)); got != a.isNew {
+			t.Fatalf("take at %v reported new=%v, want %v", a.at, got, a.isNew)
+		}
+	}
+	fields, elapsed := r.fields(true)
+	if elapsed != 7*time.Millisecond {
+		t.Fatalf("elapsed %v, want 7ms (first to last new index)", elapsed)
+	}
+	want := map[string]any{"count": uint64(3), "received": uint64(2), "missing": uint64(1),
+		"duplicates": uint64(1), "foreign": uint64(1), "malformed": uint64(1), "timed_out": true}
+	for k, v := range want {
+		if fields[k] != v {
+			t.Fatalf("%s = %v, want %v", k, fields[k], v)
+		}
+	}
+	if fields["first_unix_ns"] != base.Add(2*time.Millisecond).UnixNano() {
+		t.Fatalf("first_unix_ns = %v", fields["first_unix_ns"])
+	}
+}
+
+func TestEmptyReceiptHasNoTimes(t *testing.T) {
+	fields, elapsed := newReceipt(2).fields(false)
+	if elapsed != 0 || fields["first_unix_ns"] != nil || fields["missing"] != uint64(2) {
+		t.Fatalf("elapsed=%v fields=%v", elapsed, fields)
+	}
+}
