@@ -13,12 +13,18 @@ the broker's ip.
 from __future__ import annotations
 
 import re
+from collections import defaultdict
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+
+import pytest
 
 from engine import netutil
 from engine.agent.client import AgentClient
 from engine.agent.local import LocalAgent, LocalAgents, start_local_agents
+from engine.cli import main
 from engine.errors import DispatchError
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -79,6 +85,56 @@ def start_agents(hosts: list[str], tmp_path: Path, *, tls: bool = False) -> Agen
     """One agent per host on a free port of that host; the agents file lists them. ``tls``: the
     agents serve HTTPS (certificates of the test run's plant CA)."""
     return AgentFleet(start_local_agents(hosts, tmp_path, tls=tls))
+
+
+@dataclass(frozen=True)
+class Deployment:
+    """A plant file written for a test's agents, and the host and free port of each of its names."""
+
+    fleet: AgentFleet
+    plant: Path
+    hosts: dict[str, str]
+    ports: dict[str, int]
+
+    def address(self, name: str) -> str:
+        """``host:port`` of ``name`` (a broker's bootstrap address)."""
+        return f"{self.hosts[name]}:{self.ports[name]}"
+
+    def cli(self, command: str, *args: str) -> int:
+        """``plantkg COMMAND PLANT --agents AGENTS ARGS...`` in this process; its exit code."""
+        return main([command, str(self.plant), "--agents", str(self.fleet.agents_file), *args])
+
+
+@contextmanager
+def deployment(tmp_path: Path, ports: Mapping[str, str], render: Callable[[dict[str, int]], str], *,
+               apply: bool = True, tls: bool = False,
+               agent_env: Mapping[str, str] | None = None) -> Iterator[Deployment]:
+    """Agents for the hosts of ``ports`` ({name: host}), a distinct free port per name on its
+    host, ``render(ports)`` written as the plant and (``apply``) applied; on leaving, the plant is
+    destroyed (both must exit 0) and the agents stopped, which checks that no broker is left.
+
+    ``tls``: the agents serve HTTPS. ``agent_env``: variables the agents inherit (a plant's
+    ``env:`` secret references), set only while they start.
+    """
+    with pytest.MonkeyPatch.context() as env:
+        for name, value in (agent_env or {}).items():
+            env.setenv(name, value)
+        fleet = start_agents(sorted(set(ports.values())), tmp_path, tls=tls)
+    try:
+        by_host: dict[str, list[str]] = defaultdict(list)
+        for name, host in ports.items():
+            by_host[host].append(name)
+        picked = {name: port for host, names in by_host.items()
+                  for name, port in zip(names, netutil.free_ports(len(names), host))}
+        plant = tmp_path / "plant.ttl"
+        plant.write_text(render(picked), encoding="utf-8")
+        made = Deployment(fleet, plant, dict(ports), picked)
+        if apply:
+            assert made.cli("apply", "--yes") == 0
+        yield made
+        assert made.cli("destroy", "--yes") == 0
+    finally:
+        fleet.stop()
 
 
 def plant_copy(example: str, tmp_path: Path, ports: dict[int, list[tuple[str, int]]] | None = None,

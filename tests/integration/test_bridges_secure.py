@@ -43,7 +43,7 @@ from engine.cli import main
 from engine.errors import PermanentDispatchError
 from engine.model import BridgeStatus
 from engine.security import ca
-from tests.integration.agents import AgentFleet, start_agents
+from tests.integration.agents import Deployment, deployment
 from tests.integration.test_bridges import check_complete
 
 pytestmark = pytest.mark.integration
@@ -70,34 +70,25 @@ PLANT = """\
 """
 
 
-@dataclass
+@dataclass(frozen=True)
 class Secure:
-    fleet: AgentFleet
-    plant: Path
-    ports: dict[str, int]
+    deployed: Deployment
     passwords: dict[str, str]
 
 
 @pytest.fixture(scope="module")
 def secure(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Secure]:
-    tmp = tmp_path_factory.mktemp("secure-bridge")
     passwords = {"robot1": secrets.token_urlsafe(16), "hmi": secrets.token_urlsafe(16)}
-    with pytest.MonkeyPatch.context() as env:
-        env.setenv(ROBOT_ENV, passwords["robot1"])  # the agents inherit them
-        env.setenv(HMI_ENV, passwords["hmi"])
-        fleet = start_agents([SRC_HOST, DST_HOST], tmp / "agents", tls=True)
-    ports = {"src": netutil.free_port(SRC_HOST), "dst": netutil.free_port(DST_HOST)}
-    plant = tmp / "plant.ttl"
-    plant.write_text(PLANT.format(src_host=SRC_HOST, dst_host=DST_HOST, src_port=ports["src"],
-                                  dst_port=ports["dst"], pose=POSE, cmd=CMD, robot_env=ROBOT_ENV,
-                                  hmi_env=HMI_ENV, persist_every=PERSIST_EVERY))
-    try:
-        assert all(a.url.startswith("https://") for a in fleet.agents.values())
-        assert main(["apply", str(plant), "--agents", str(fleet.agents_file), "--yes"]) == 0
-        yield Secure(fleet, plant, ports, passwords)
-        assert main(["destroy", str(plant), "--agents", str(fleet.agents_file), "--yes"]) == 0
-    finally:
-        fleet.stop()
+
+    def plant(ports: dict[str, int]) -> str:
+        return PLANT.format(src_host=SRC_HOST, dst_host=DST_HOST, src_port=ports["src"], dst_port=ports["dst"],
+                            pose=POSE, cmd=CMD, robot_env=ROBOT_ENV, hmi_env=HMI_ENV,
+                            persist_every=PERSIST_EVERY)
+
+    with deployment(tmp_path_factory.mktemp("secure-bridge"), {"src": SRC_HOST, "dst": DST_HOST}, plant, tls=True,
+                    agent_env={ROBOT_ENV: passwords["robot1"], HMI_ENV: passwords["hmi"]}) as made:
+        assert all(a.url.startswith("https://") for a in made.fleet.agents.values())
+        yield Secure(made, passwords)
 
 
 def client(host: str, port: int, user: str | None, password: str | None, *, tls: str = "plant-ca",
@@ -134,14 +125,14 @@ def hmi_and_robot(secure: Secure) -> tuple[mqtt.Client, list[int], mqtt.Client]:
     integers it receives, and the robot's publisher on src (1000 in flight)."""
     got: list[int] = []
     subscribed = threading.Event()
-    sink, answers = client(DST_HOST, secure.ports["dst"], "hmi", secure.passwords["hmi"], clean_session=False)
+    sink, answers = client(DST_HOST, secure.deployed.ports["dst"], "hmi", secure.passwords["hmi"], clean_session=False)
     assert answers == ["Success"]
     sink.reconnect_delay_set(0.1, 1)
     sink.on_subscribe = lambda *_: subscribed.set()
     sink.on_message = lambda _c, _u, msg: got.append(int(msg.payload))
     sink.subscribe(POSE, qos=1)
     assert subscribed.wait(10)
-    pub, answers = client(SRC_HOST, secure.ports["src"], "robot1", secure.passwords["robot1"], inflight=1000)
+    pub, answers = client(SRC_HOST, secure.deployed.ports["src"], "robot1", secure.passwords["robot1"], inflight=1000)
     assert answers == ["Success"]
     return sink, got, pub
 
@@ -152,7 +143,7 @@ def close(c: mqtt.Client) -> None:
 
 
 def test_10k_messages_cross_the_bridge_with_tls_and_passwords(secure: Secure) -> None:
-    src = secure.fleet.client(SRC_HOST)
+    src = secure.deployed.fleet.client(SRC_HOST)
     process.wait_until(lambda: [b.status for b in src.list_bridges()] == [BridgeStatus.RUNNING], 30, 0.1,
                        what="the bridge to report running (its state read over TLS as plantkg.agent)")
     sink, got, pub = hmi_and_robot(secure)
@@ -176,7 +167,7 @@ def test_a_closed_target_killed_mid_stream_loses_at_most_its_unsaved_changes(sec
     what the bridge delivers before the HMI has reconnected is kept for it (Mosquitto's ACL file
     denied it: docs/security.md)."""
     allowed = PERSIST_EVERY  # dst saves after every PERSIST_EVERY changes (the default saves by time)
-    dst = secure.fleet.client(DST_HOST)
+    dst = secure.deployed.fleet.client(DST_HOST)
     before = dst.get_broker("dst")
     assert before is not None and before.pid
     sink, got, pub = hmi_and_robot(secure)
@@ -207,7 +198,7 @@ def test_a_closed_target_killed_mid_stream_loses_at_most_its_unsaved_changes(sec
 
 @pytest.mark.parametrize("host", [SRC_HOST, DST_HOST])
 def test_every_broker_refuses_anonymous_plain_and_untrusting_clients(secure: Secure, host: str) -> None:
-    port = secure.ports["src" if host == SRC_HOST else "dst"]
+    port = secure.deployed.ports["src" if host == SRC_HOST else "dst"]
     anonymous, answers = client(host, port, None, None)
     assert answers == ["Not authorized"], answers
     close(anonymous)
@@ -231,7 +222,7 @@ def test_mosquitto_clients_over_tls_do_exactly_what_the_rights_allow(secure: Sec
     def cli(*args: str) -> subprocess.CompletedProcess[str]:
         return subprocess.run(list(args), capture_output=True, text=True, timeout=30)
 
-    common = ["-h", SRC_HOST, "-p", str(secure.ports["src"]), "--cafile", str(ca.ca_cert_file()),
+    common = ["-h", SRC_HOST, "-p", str(secure.deployed.ports["src"]), "--cafile", str(ca.ca_cert_file()),
               "-V", "mqttv311"]
     robot = ["-u", "robot1", "-P", secure.passwords["robot1"]]
     published = cli("mosquitto_pub", *common, *robot, "-q", "1", "-r", "-t", POSE, "-m", "from-cli")
@@ -240,13 +231,13 @@ def test_mosquitto_clients_over_tls_do_exactly_what_the_rights_allow(secure: Sec
     assert denied.returncode != 0 and "from-cli" not in denied.stdout, (denied.stdout, denied.stderr)
     anonymous = cli("mosquitto_pub", *common, "-t", POSE, "-m", "anon")
     assert anonymous.returncode != 0 and "not authori" in anonymous.stderr.lower(), anonymous.stderr
-    no_ca = cli("mosquitto_pub", "-h", SRC_HOST, "-p", str(secure.ports["src"]), *robot, "-t", POSE,
+    no_ca = cli("mosquitto_pub", "-h", SRC_HOST, "-p", str(secure.deployed.ports["src"]), *robot, "-t", POSE,
                 "-m", "plain")
     assert no_ca.returncode != 0
 
 
 def test_the_agent_api_refuses_a_client_without_the_plant_ca(secure: Secure, tmp_path: Path) -> None:
-    agent = secure.fleet.agents[SRC_HOST]
+    agent = secure.deployed.fleet.agents[SRC_HOST]
     assert AgentClient(agent.url, agent.token).health()["status"] == "ok"  # the plant CA: trusted
     other = ca.load_or_create_ca(tmp_path / "other-ca")                    # another CA: refused
     with pytest.raises(PermanentDispatchError, match="TLS certificate is not trusted"):
@@ -263,11 +254,11 @@ def test_the_agent_api_refuses_a_client_without_the_plant_ca(secure: Secure, tmp
 def test_status_says_each_broker_is_closed_and_speaks_tls(secure: Secure,
                                                         capsys: pytest.CaptureFixture[str]) -> None:
     capsys.readouterr()
-    assert main(["status", str(secure.plant), "--agents", str(secure.fleet.agents_file), "--format", "json"]) == 0
+    assert main(["status", str(secure.deployed.plant), "--agents", str(secure.deployed.fleet.agents_file), "--format", "json"]) == 0
     brokers = {b["id"]: b for b in json.loads(capsys.readouterr().out)["brokers"]}
     assert {k: (b["anonymous"], b["tls"]) for k, b in brokers.items()} == {"src": (False, True), "dst": (False, True)}
     assert brokers["dst"]["users"] == 2  # the HMI and the bridge's principal
-    assert main(["status", str(secure.plant), "--agents", str(secure.fleet.agents_file)]) == 0
+    assert main(["status", str(secure.deployed.plant), "--agents", str(secure.deployed.fleet.agents_file)]) == 0
     table = capsys.readouterr().out
     assert "users (1), TLS" in table and "users (2), TLS" in table
 
@@ -275,33 +266,33 @@ def test_status_says_each_broker_is_closed_and_speaks_tls(secure: Secure,
 def test_apply_renews_a_certificate_that_is_due(secure: Secure, capsys: pytest.CaptureFixture[str]) -> None:
     """The agent reports a broker certificate due for renewal (here: for another address), the
     plan shows it without any key, and apply has the agent issue a new one and restart the broker."""
-    folder = secure.fleet.agents[SRC_HOST].state_dir / "brokers" / "src"
+    folder = secure.deployed.fleet.agents[SRC_HOST].state_dir / "brokers" / "src"
     cert, key = ca.issue_server_cert(ca.load_ca(ca.ca_dir()), ("127.0.0.9",), name="stale")
     (folder / "tls-cert.pem").write_bytes(cert)
     (folder / "tls-key.pem").write_bytes(key)
-    before = secure.fleet.brokers()["src"]
+    before = secure.deployed.fleet.brokers()["src"]
     assert before.tls_renew == "for other addresses"  # type: ignore[attr-defined]
-    agents = ["--agents", str(secure.fleet.agents_file)]
+    agents = ["--agents", str(secure.deployed.fleet.agents_file)]
     capsys.readouterr()
-    assert main(["plan", str(secure.plant), *agents]) == 0
+    assert main(["plan", str(secure.deployed.plant), *agents]) == 0
     out = capsys.readouterr().out
     assert "~ broker.src will be updated" in out and "its TLS certificate is due (for other addresses)" in out
     assert "BEGIN" not in out and "PRIVATE" not in out
-    assert main(["apply", str(secure.plant), *agents, "--yes"]) == 0
-    after = secure.fleet.brokers()["src"]
+    assert main(["apply", str(secure.deployed.plant), *agents, "--yes"]) == 0
+    after = secure.deployed.fleet.brokers()["src"]
     assert after.pid != before.pid and after.tls_renew is None  # type: ignore[attr-defined]
     assert ca.needs_new_cert((folder / "tls-cert.pem").read_bytes(), ca.load_ca(ca.ca_dir()), (SRC_HOST,)) is None
     capsys.readouterr()
-    assert main(["plan", str(secure.plant), *agents]) == 0
+    assert main(["plan", str(secure.deployed.plant), *agents]) == 0
     assert "No changes" in capsys.readouterr().out
 
 
 def test_keys_are_0600_and_no_file_holds_a_plant_secret(secure: Secure) -> None:
     for host, broker in ((SRC_HOST, "src"), (DST_HOST, "dst")):
-        folder = secure.fleet.agents[host].state_dir / "brokers" / broker
+        folder = secure.deployed.fleet.agents[host].state_dir / "brokers" / broker
         for name in ("tls-key.pem", "tls-cert.pem", "dynamic-security.json", "mosquitto.conf"):
             assert stat.S_IMODE((folder / name).stat().st_mode) == 0o600, (broker, name)
-    for agent in secure.fleet.agents.values():
+    for agent in secure.deployed.fleet.agents.values():
         assert stat.S_IMODE((agent.state_dir / "tls" / "key.pem").stat().st_mode) == 0o600
         for path in agent.state_dir.rglob("*"):
             if path.is_file():

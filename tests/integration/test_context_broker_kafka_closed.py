@@ -17,7 +17,6 @@ import json
 import time
 import uuid
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -27,10 +26,8 @@ from confluent_kafka import Consumer, KafkaError, KafkaException
 from confluent_kafka.admin import AdminClient
 
 from benchmarks.context_broker_rig import ContextBroker
-from engine import netutil
-from engine.cli import main
 from engine.security import kafka_client
-from tests.integration.agents import AgentFleet, start_agents
+from tests.integration.agents import Deployment, deployment
 
 pytestmark = pytest.mark.integration
 
@@ -51,32 +48,14 @@ ex:agv a pk:Resource ; pk:id "agv" ; pk:name "AGV 1" ; pk:sendsTo ex:cb ; pk:pub
 """
 
 
-@dataclass
-class Deployment:
-    fleet: AgentFleet
-    plant: Path
-    kafka: str
-    cb_port: int
-
-    def cli(self, *args: str) -> int:
-        return main([args[0], str(self.plant), "--agents", str(self.fleet.agents_file), *args[1:]])
+def _plant(ports: dict[str, int]) -> str:
+    return PLANT.format(kf=KF, kf_port=ports["kf"], cb=CB, cb_port=ports["cb"], topic=TOPIC)
 
 
 @pytest.fixture(scope="module")
 def dep(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Deployment]:
-    tmp = tmp_path_factory.mktemp("cb-kafka-closed")
-    fleet = start_agents([KF, CB], tmp)
-    try:
-        kf_port, cb_port = netutil.free_port(KF), netutil.free_port(CB)
-        plant = tmp / "plant.ttl"
-        plant.write_text(PLANT.format(kf=KF, kf_port=kf_port, cb=CB, cb_port=cb_port, topic=TOPIC),
-                         encoding="utf-8")
-        made = Deployment(fleet, plant, f"{KF}:{kf_port}", cb_port)
-        assert made.cli("apply", "--yes") == 0
+    with deployment(tmp_path_factory.mktemp("cb-kafka-closed"), {"kf": KF, "cb": CB}, _plant) as made:
         yield made
-        assert made.cli("destroy", "--yes") == 0
-    finally:
-        fleet.stop()
 
 
 def subscribe(url: str, token: str, bootstrap: str, entity_id: str) -> str:
@@ -132,35 +111,35 @@ def shown_when(url: str, token: str, sub_id: str, done: Any, deadline: float = 6
 
 def test_the_context_broker_is_told_the_closed_kafka_and_the_plan_is_settled(
         dep: Deployment, capsys: pytest.CaptureFixture[str]) -> None:
-    assert dep.fleet.brokers()["cb"].spec.closed_kafkas == (dep.kafka,)
+    assert dep.fleet.brokers()["cb"].spec.closed_kafkas == (dep.address("kf"),)
     code = dep.cli("plan", "--detailed-exitcode")
     out = capsys.readouterr().out
     assert code == 0 and "No changes." in out, out
 
 
 def test_notifications_arrive_in_the_closed_kafka(dep: Deployment) -> None:
-    url, token = f"http://{CB}:{dep.cb_port}", dep.fleet.agents[CB].token
+    url, token = f"http://{CB}:{dep.ports['cb']}", dep.fleet.agents[CB].token
     entity_id = f"urn:ngsi-ld:AgvState:{uuid.uuid4().hex[:8]}"
-    sub_id = subscribe(url, token, dep.kafka, entity_id)
+    sub_id = subscribe(url, token, dep.address("kf"), entity_id)
     write_updates(url, token, entity_id, UPDATES)
-    assert notifications(dep.kafka, entity_id, UPDATES, deadline=90) == list(range(UPDATES))
+    assert notifications(dep.address("kf"), entity_id, UPDATES, deadline=90) == list(range(UPDATES))
     shown = shown_when(url, token, sub_id, lambda s: s["notification"].get("timesSent") == UPDATES)
     assert shown["notification"].get("timesSent") == UPDATES and "lastFailure" not in shown["notification"], shown
 
 
 def test_the_anonymous_path_stays_refused(dep: Deployment, tmp_path: Path) -> None:
-    assert _metadata_or_none(dep.kafka) is None  # a client without credentials gets nothing
+    assert _metadata_or_none(dep.address("kf")) is None  # a client without credentials gets nothing
     other = ContextBroker(tmp_path / "cb-not-told", host=OTHER).start()  # no --closed-kafka
     try:
         entity_id = f"urn:ngsi-ld:AgvState:{uuid.uuid4().hex[:8]}"
-        sub_id = subscribe(other.url, other.token, dep.kafka, entity_id)
+        sub_id = subscribe(other.url, other.token, dep.address("kf"), entity_id)
         write_updates(other.url, other.token, entity_id, 1)
         shown = shown_when(other.url, other.token, sub_id, lambda s: "lastFailure" in s["notification"])
         assert shown["status"] == "failed" and "lastSuccess" not in shown["notification"], shown
         assert "Kafka" in shown["notification"].get("lastFailureReason", ""), shown
     finally:
         other.stop()
-    assert notifications(dep.kafka, entity_id, 1, deadline=10) == []
+    assert notifications(dep.address("kf"), entity_id, 1, deadline=10) == []
 
 
 def _metadata_or_none(bootstrap: str) -> object:

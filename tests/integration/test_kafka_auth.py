@@ -29,9 +29,7 @@ import pytest
 from confluent_kafka import KafkaException, Producer
 from confluent_kafka.admin import AdminClient
 
-from engine import netutil
-from engine.cli import main
-from tests.integration.agents import AgentFleet, start_agents
+from tests.integration.agents import Deployment, deployment
 from tests.integration.kafka_clients import password_files, publish_numbered, read_topic
 
 pytestmark = pytest.mark.integration
@@ -40,16 +38,18 @@ MQ, KF = "127.0.0.2", "127.0.0.3"
 BRIDGED = 1000
 
 
-@dataclass
+@dataclass(frozen=True)
 class Closed:
-    fleet: AgentFleet
-    plant: Path
-    kafka: str
-    mqtt_port: int
+    deployed: Deployment
     passwords: dict[str, str]
 
+    @property
+    def kafka(self) -> str:
+        return self.deployed.address("kf")
 
-def _plant(tmp: Path, mq_port: int, kf_port: int, files: dict[str, Path]) -> str:
+
+def _plant(ports: dict[str, int], files: dict[str, Path]) -> str:
+    mq_port, kf_port = ports["mq"], ports["kf"]
     return f"""@prefix pk: <https://w3id.org/plantkg/ontology#> .
 @prefix ex: <http://example.org/kafka-auth#> .
 ex:mq a pk:Broker ; pk:id "mq" ; pk:name "cell-mqtt" ; pk:brokerType "mosquitto" ; pk:ip "{MQ}" ;
@@ -70,17 +70,8 @@ ex:camera a pk:Resource ; pk:id "camera" ; pk:name "Camera" ; pk:sendsTo ex:mq ;
 def closed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Closed]:
     tmp = tmp_path_factory.mktemp("kafka-auth")
     passwords, files = password_files(tmp, ("robot1", "hist"))
-    fleet = start_agents([MQ, KF], tmp)
-    try:
-        mq_port, kf_port = netutil.free_port(MQ), netutil.free_port(KF)
-        plant = tmp / "plant.ttl"
-        plant.write_text(_plant(tmp, mq_port, kf_port, files), encoding="utf-8")
-        code = main(["apply", str(plant), "--agents", str(fleet.agents_file), "--yes"])
-        assert code == 0
-        yield Closed(fleet, plant, f"{KF}:{kf_port}", mq_port, passwords)
-        assert main(["destroy", str(plant), "--agents", str(fleet.agents_file), "--yes"]) == 0
-    finally:
-        fleet.stop()
+    with deployment(tmp, {"mq": MQ, "kf": KF}, lambda ports: _plant(ports, files)) as made:
+        yield Closed(made, passwords)
 
 
 def _as(user: str | None, password: str | None = None) -> dict[str, str]:
@@ -103,11 +94,11 @@ def _produce(bootstrap: str, topic: str, auth: dict[str, str], count: int = 1) -
 
 
 def test_the_plan_no_longer_warns_that_the_kafka_is_open(closed: Closed, capsys: pytest.CaptureFixture[str]) -> None:
-    code = main(["plan", str(closed.plant), "--agents", str(closed.fleet.agents_file), "--detailed-exitcode"])
+    code = closed.deployed.cli("plan", "--detailed-exitcode")
     out = capsys.readouterr().out
     assert code == 0 and "No changes." in out, out
     assert "broker.kf" not in out  # no "admits anonymous clients" warning for the Kafka
-    code = main(["status", str(closed.plant), "--agents", str(closed.fleet.agents_file)])
+    code = closed.deployed.cli("status")
     out = capsys.readouterr().out
     [row] = [line for line in out.splitlines() if line.startswith("kf ")]
     assert "users (2)" in row, out
@@ -155,19 +146,19 @@ def test_kcat_sees_the_same_rights(closed: Closed, tmp_path: Path) -> None:
 
 
 def test_the_bridge_worker_reaches_the_closed_kafka_as_plantkg(closed: Closed) -> None:
-    publish_numbered(MQ, closed.mqtt_port, "cell.cam", BRIDGED)
+    publish_numbered(MQ, closed.deployed.ports["mq"], "cell.cam", BRIDGED)
     got, errors = read_topic(closed.kafka, "cell.cam", _as("hist", closed.passwords["hist"]), BRIDGED, deadline=90)
     assert (got, errors) == (BRIDGED, set())
 
 
 def test_no_password_is_in_a_file_of_the_agents(closed: Closed) -> None:
-    for agent in closed.fleet.agents.values():
+    for agent in closed.deployed.fleet.agents.values():
         for path in agent.state_dir.rglob("*"):
             if not path.is_file() or path.stat().st_size > 50_000_000:
                 continue
             data = path.read_bytes()
             for name, password in closed.passwords.items():
                 assert password.encode() not in data, f"{name}'s password is in {path}"
-    folder = closed.fleet.agents[KF].state_dir / "brokers" / "kf"
+    folder = closed.deployed.fleet.agents[KF].state_dir / "brokers" / "kf"
     for name in ("server.properties", "scram.digest"):
         assert stat.S_IMODE((folder / name).stat().st_mode) == 0o600, name

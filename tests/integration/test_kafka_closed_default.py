@@ -19,17 +19,13 @@ from __future__ import annotations
 
 import subprocess
 from collections.abc import Iterator
-from dataclasses import dataclass
-from pathlib import Path
 
 import pytest
 from confluent_kafka import KafkaException
 from confluent_kafka.admin import AdminClient
 
-from engine import netutil
-from engine.cli import main
 from engine.security import kafka_client
-from tests.integration.agents import AgentFleet, start_agents
+from tests.integration.agents import Deployment, deployment
 from tests.integration.kafka_clients import publish_numbered, read_topic
 from tests.integration.test_kafka_auth import _produce
 
@@ -39,22 +35,8 @@ MQ, KF = "127.0.0.2", "127.0.0.3"
 BRIDGED = 500
 
 
-@dataclass
-class Plant:
-    fleet: AgentFleet
-    plant: Path
-    kafka: str
-    mqtt_port: int
-    kafka_port: int
-
-    def write(self, kafka_extra: str = "") -> None:
-        self.plant.write_text(_plant(self.mqtt_port, self.kafka_port, kafka_extra), encoding="utf-8")
-
-    def cli(self, *args: str) -> int:
-        return main([args[0], str(self.plant), "--agents", str(self.fleet.agents_file), *args[1:]])
-
-
-def _plant(mq_port: int, kf_port: int, kafka_extra: str) -> str:
+def _plant(ports: dict[str, int], kafka_extra: str = "") -> str:
+    mq_port, kf_port = ports["mq"], ports["kf"]
     return f"""@prefix pk: <https://w3id.org/plantkg/ontology#> .
 @prefix ex: <http://example.org/kafka-closed#> .
 ex:mq a pk:Broker ; pk:id "mq" ; pk:name "cell-mqtt" ; pk:brokerType "mosquitto" ; pk:ip "{MQ}" ;
@@ -68,18 +50,9 @@ ex:hist a pk:Resource ; pk:id "hist" ; pk:name "Historian" ; pk:sendsTo ex:kf ; 
 
 
 @pytest.fixture(scope="module")
-def plant(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Plant]:
-    tmp = tmp_path_factory.mktemp("kafka-closed")
-    fleet = start_agents([MQ, KF], tmp)
-    try:
-        mq_port, kf_port = netutil.free_port(MQ), netutil.free_port(KF)
-        made = Plant(fleet, tmp / "plant.ttl", f"{KF}:{kf_port}", mq_port, kf_port)
-        made.write()
-        assert made.cli("apply", "--yes") == 0
+def plant(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Deployment]:
+    with deployment(tmp_path_factory.mktemp("kafka-closed"), {"mq": MQ, "kf": KF}, _plant) as made:
         yield made
-        assert made.cli("destroy", "--yes") == 0
-    finally:
-        fleet.stop()
 
 
 def _anonymous_metadata(bootstrap: str) -> bool:
@@ -94,20 +67,20 @@ def _kcat_metadata(bootstrap: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(["kcat", "-b", bootstrap, "-m", "10", "-L"], capture_output=True, text=True, timeout=60)
 
 
-def _bridged(plant: Plant, auth: dict[str, str], total: int) -> tuple[int, set[str]]:
-    publish_numbered(MQ, plant.mqtt_port, "cell.cam", BRIDGED)
-    return read_topic(plant.kafka, "cell.cam", auth, total, deadline=90)
+def _bridged(plant: Deployment, auth: dict[str, str], total: int) -> tuple[int, set[str]]:
+    publish_numbered(MQ, plant.ports["mq"], "cell.cam", BRIDGED)
+    return read_topic(plant.address("kf"), "cell.cam", auth, total, deadline=90)
 
 
-def test_an_anonymous_client_and_kcat_are_refused(plant: Plant) -> None:
-    assert not _anonymous_metadata(plant.kafka)
-    errors = _produce(plant.kafka, "cell.cam", {})
+def test_an_anonymous_client_and_kcat_are_refused(plant: Deployment) -> None:
+    assert not _anonymous_metadata(plant.address("kf"))
+    errors = _produce(plant.address("kf"), "cell.cam", {})
     assert errors != [], "an anonymous producer's record was acknowledged"
-    done = _kcat_metadata(plant.kafka)
+    done = _kcat_metadata(plant.address("kf"))
     assert done.returncode != 0 and "cell.cam" not in done.stdout, (done.stdout, done.stderr)
 
 
-def test_the_plan_has_no_warning_and_status_says_users(plant: Plant, capsys: pytest.CaptureFixture[str]) -> None:
+def test_the_plan_has_no_warning_and_status_says_users(plant: Deployment, capsys: pytest.CaptureFixture[str]) -> None:
     code = plant.cli("plan", "--detailed-exitcode")
     out = capsys.readouterr().out
     assert code == 0 and "No changes." in out, out
@@ -119,30 +92,30 @@ def test_the_plan_has_no_warning_and_status_says_users(plant: Plant, capsys: pyt
     assert "users (0)" in row, out
 
 
-def test_the_bridge_worker_carries_into_the_closed_kafka(plant: Plant) -> None:
+def test_the_bridge_worker_carries_into_the_closed_kafka(plant: Deployment) -> None:
     got, errors = _bridged(plant, kafka_client.client_settings(True), BRIDGED)
     assert (got, errors) == (BRIDGED, set())
 
 
-def test_check_taps_and_probes_the_closed_kafka(plant: Plant, capsys: pytest.CaptureFixture[str]) -> None:
+def test_check_taps_and_probes_the_closed_kafka(plant: Deployment, capsys: pytest.CaptureFixture[str]) -> None:
     code = plant.cli("check", "--probe", "--deadline", "30")
     out = capsys.readouterr().out
     assert code == 0, out
     assert "kf" in out, out
 
 
-def test_allow_anonymous_true_opens_it_and_plan_warns(plant: Plant, capsys: pytest.CaptureFixture[str]) -> None:
-    plant.write("pk:allowAnonymous true ;")
+def test_allow_anonymous_true_opens_it_and_plan_warns(plant: Deployment, capsys: pytest.CaptureFixture[str]) -> None:
+    plant.plant.write_text(_plant(plant.ports, "pk:allowAnonymous true ;"), encoding="utf-8")
     code = plant.cli("plan", "--detailed-exitcode")
     out = capsys.readouterr().out
     assert code == 2, out
     assert ("broker.kf admits anonymous clients (the plant says pk:allowAnonymous true): anyone who reaches "
-            f"{KF}:{plant.kafka_port} may publish and read every topic") in out, out
+            f"{KF}:{plant.ports['kf']} may publish and read every topic") in out, out
     assert plant.cli("apply", "--yes") == 0
     capsys.readouterr()
-    assert _anonymous_metadata(plant.kafka)
-    assert _produce(plant.kafka, "cell.cam", {}) == []
-    done = _kcat_metadata(plant.kafka)
+    assert _anonymous_metadata(plant.address("kf"))
+    assert _produce(plant.address("kf"), "cell.cam", {}) == []
+    done = _kcat_metadata(plant.address("kf"))
     assert done.returncode == 0 and "cell.cam" in done.stdout, (done.stdout, done.stderr)
     assert plant.cli("status") == 0
     out = capsys.readouterr().out

@@ -31,10 +31,8 @@ import pytest
 from confluent_kafka import KafkaException, Producer
 from confluent_kafka.admin import AdminClient
 
-from engine import netutil
-from engine.cli import main
 from engine.model import BrokerStatus
-from tests.integration.agents import AgentFleet, start_agents
+from tests.integration.agents import Deployment, deployment
 from tests.integration.kafka_clients import password_files, read_topic
 from tests.integration.test_kafka_auth import _as, _produce
 
@@ -49,23 +47,20 @@ HMI = """ex:hmi a pk:Resource ; pk:id "hmi" ; pk:name "HMI" ; pk:sendsTo ex:c ; 
 
 @dataclass
 class Cluster:
-    fleet: AgentFleet
-    plant: Path
-    ports: dict[str, int]
+    deployed: Deployment
     passwords: dict[str, str]
     files: dict[str, Path]
     capsys: object = None
 
     def address(self, node: str) -> str:
-        return f"{NODES[node]}:{self.ports[node]}"
+        return self.deployed.address(node)
 
     @property
     def bootstrap(self) -> str:
         return ",".join(self.address(n) for n in NODES)
 
     def run(self, *args: object) -> tuple[int, str]:
-        code = main([str(args[0]), str(self.plant), "--agents", str(self.fleet.agents_file),
-                     *(str(a) for a in args[1:])])
+        code = self.deployed.cli(*(str(a) for a in args))
         out = self.capsys.readouterr()  # type: ignore[attr-defined]
         return code, out.out + out.err
 
@@ -97,18 +92,9 @@ ex:mes a pk:Resource ; pk:id "mes" ; pk:name "MES" ; pk:sendsTo ex:c ; pk:subscr
 def deployed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Cluster]:
     tmp = tmp_path_factory.mktemp("kafka-cluster-closed")
     passwords, files = password_files(tmp, USERS)
-    fleet = start_agents(list(NODES.values()), tmp)
-    try:
-        ports: dict[str, int] = {}
-        for node, host in NODES.items():
-            ports[node], ports[node + ":controller"] = netutil.free_ports(2, host)
-        plant = tmp / "plant.ttl"
-        plant.write_text(_plant(ports, files), encoding="utf-8")
-        yield Cluster(fleet, plant, ports, passwords, files)
-        assert main(["destroy", str(plant), "--agents", str(fleet.agents_file), "--yes"]) == 0
-        assert fleet.brokers() == {}
-    finally:
-        fleet.stop()
+    ports = {name: host for node, host in NODES.items() for name in (node, node + ":controller")}
+    with deployment(tmp, ports, lambda picked: _plant(picked, files), apply=False) as made:
+        yield Cluster(made, passwords, files)
 
 
 @pytest.fixture()
@@ -122,8 +108,8 @@ def test_apply_forms_one_closed_cluster(cluster: Cluster) -> None:
     assert code == 0, out
     assert "admits anonymous clients" not in out, out
     for node, host in NODES.items():
-        props = (cluster.fleet.agents[host].state_dir / "brokers" / node / "server.properties").read_text()
-        assert f"listeners=SASL_PLAINTEXT://{host}:{cluster.ports[node]}," in props, props
+        props = (cluster.deployed.fleet.agents[host].state_dir / "brokers" / node / "server.properties").read_text()
+        assert f"listeners=SASL_PLAINTEXT://{host}:{cluster.deployed.ports[node]}," in props, props
         assert "inter.broker.listener.name=SASL_PLAINTEXT" in props
         assert "CONTROLLER:SASL_PLAINTEXT" in props
     code, out = cluster.run("plan", "--detailed-exitcode")
@@ -160,8 +146,8 @@ def test_each_user_does_exactly_what_the_graph_says_through_every_node(cluster: 
 
 
 def test_apply_adds_a_user_while_the_cluster_serves(cluster: Cluster) -> None:
-    before = {n: b.started_at for n, b in cluster.fleet.brokers().items()}  # type: ignore[attr-defined]
-    cluster.plant.write_text(_plant(cluster.ports, cluster.files, HMI.format(file=cluster.files["hmi"])),
+    before = {n: b.started_at for n, b in cluster.deployed.fleet.brokers().items()}  # type: ignore[attr-defined]
+    cluster.deployed.plant.write_text(_plant(cluster.deployed.ports, cluster.files, HMI.format(file=cluster.files["hmi"])),
                              encoding="utf-8")
     assert _produce(cluster.bootstrap, "plant.kpi", cluster.user("hmi")) != []  # not a user yet
     stop, sent, errors = threading.Event(), [0], []
@@ -188,7 +174,7 @@ def test_apply_adds_a_user_while_the_cluster_serves(cluster: Cluster) -> None:
     assert errors == [] and sent[0] > 50, (errors[:5], sent[0])
     assert _produce(cluster.bootstrap, "plant.kpi", cluster.user("hmi"), 3) == []
     assert _produce(cluster.bootstrap, "line.energy", cluster.user("hmi")) == ["TOPIC_AUTHORIZATION_FAILED"]
-    after = cluster.fleet.brokers()
+    after = cluster.deployed.fleet.brokers()
     assert all(b.status is BrokerStatus.RUNNING for b in after.values())  # type: ignore[attr-defined]
     # the users are set through the lead node only: it alone restarted
     assert [n for n in NODES if after[n].started_at != before[n]] == ["n1"]  # type: ignore[attr-defined]

@@ -21,18 +21,15 @@ import stat
 import subprocess
 import uuid
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 from confluent_kafka import KafkaException
 from confluent_kafka.admin import AdminClient
 
-from engine import netutil
-from engine.cli import main
 from engine.drivers.kafka import tls
 from engine.security import ca
-from tests.integration.agents import AgentFleet, start_agents
+from tests.integration.agents import Deployment, deployment
 from tests.integration.kafka_clients import publish_numbered, read_topic
 
 pytestmark = pytest.mark.integration
@@ -41,15 +38,8 @@ MQ, KF = "127.0.0.2", "127.0.0.3"
 BRIDGED = 1000
 
 
-@dataclass
-class Secure:
-    fleet: AgentFleet
-    plant: Path
-    kafka: str
-    mqtt_port: int
-
-
-def _plant(mq_port: int, kf_port: int, kafka_open: str = "pk:allowAnonymous true ;") -> str:
+def _plant(ports: dict[str, int], kafka_open: str = "pk:allowAnonymous true ;") -> str:
+    mq_port, kf_port = ports["mq"], ports["kf"]
     return f"""@prefix pk: <https://w3id.org/plantkg/ontology#> .
 @prefix ex: <http://example.org/kafka-tls#> .
 ex:mq a pk:Broker ; pk:id "mq" ; pk:name "cell-mqtt" ; pk:brokerType "mosquitto" ; pk:ip "{MQ}" ;
@@ -64,18 +54,9 @@ ex:hist a pk:Resource ; pk:id "hist" ; pk:name "Historian" ; pk:sendsTo ex:kf ; 
 
 
 @pytest.fixture(scope="module")
-def secure(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Secure]:
-    tmp = tmp_path_factory.mktemp("kafka-tls")
-    fleet = start_agents([MQ, KF], tmp)
-    try:
-        mq_port, kf_port = netutil.free_port(MQ), netutil.free_port(KF)
-        plant = tmp / "plant.ttl"
-        plant.write_text(_plant(mq_port, kf_port), encoding="utf-8")
-        assert main(["apply", str(plant), "--agents", str(fleet.agents_file), "--yes"]) == 0
-        yield Secure(fleet, plant, f"{KF}:{kf_port}", mq_port)
-        assert main(["destroy", str(plant), "--agents", str(fleet.agents_file), "--yes"]) == 0
-    finally:
-        fleet.stop()
+def secure(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Deployment]:
+    with deployment(tmp_path_factory.mktemp("kafka-tls"), {"mq": MQ, "kf": KF}, _plant) as made:
+        yield made
 
 
 def _tls(ca_file: Path | None = None) -> dict[str, str]:
@@ -83,11 +64,11 @@ def _tls(ca_file: Path | None = None) -> dict[str, str]:
             "ssl.endpoint.identification.algorithm": "https"}
 
 
-def test_status_shows_tls_and_a_second_plan_changes_nothing(secure: Secure, capsys: pytest.CaptureFixture[str]) -> None:
-    code = main(["plan", str(secure.plant), "--agents", str(secure.fleet.agents_file), "--detailed-exitcode"])
+def test_status_shows_tls_and_a_second_plan_changes_nothing(secure: Deployment, capsys: pytest.CaptureFixture[str]) -> None:
+    code = secure.cli("plan", "--detailed-exitcode")
     out = capsys.readouterr().out
     assert code == 0 and "No changes." in out, out
-    assert main(["status", str(secure.plant), "--agents", str(secure.fleet.agents_file)]) == 0
+    assert secure.cli("status") == 0
     out = capsys.readouterr().out
     [row] = [line for line in out.splitlines() if line.startswith("kf ")]
     assert "TLS" in row, out
@@ -95,21 +76,21 @@ def test_status_shows_tls_and_a_second_plan_changes_nothing(secure: Secure, caps
     assert stat.S_IMODE(keystore.stat().st_mode) == 0o600
 
 
-def test_a_plain_client_and_one_without_the_plant_ca_get_nothing(secure: Secure, tmp_path: Path) -> None:
+def test_a_plain_client_and_one_without_the_plant_ca_get_nothing(secure: Deployment, tmp_path: Path) -> None:
     with pytest.raises(KafkaException):
-        AdminClient({"bootstrap.servers": secure.kafka, "log_level": 0}).list_topics(timeout=5)
+        AdminClient({"bootstrap.servers": secure.address("kf"), "log_level": 0}).list_topics(timeout=5)
     other = ca.load_or_create_ca(tmp_path / "other-ca")
     with pytest.raises(KafkaException):
-        AdminClient({"bootstrap.servers": secure.kafka, "log_level": 0,
+        AdminClient({"bootstrap.servers": secure.address("kf"), "log_level": 0,
                      **_tls(other.cert_file)}).list_topics(timeout=5)
-    topics = AdminClient({"bootstrap.servers": secure.kafka, "log_level": 0, **_tls()}).list_topics(timeout=15)
+    topics = AdminClient({"bootstrap.servers": secure.address("kf"), "log_level": 0, **_tls()}).list_topics(timeout=15)
     assert {"cell.pos", "cell.cam"} <= set(topics.topics)
 
 
-def test_kcat_writes_and_reads_with_the_plant_ca(secure: Secure) -> None:
+def test_kcat_writes_and_reads_with_the_plant_ca(secure: Deployment) -> None:
     def kcat(*args: str, stdin: str = "", cafile: Path | None = None) -> subprocess.CompletedProcess[str]:
         return subprocess.run(["kcat", "-X", "security.protocol=ssl", "-X", f"ssl.ca.location={cafile or ca.ca_cert_file()}",
-                               "-b", secure.kafka, "-m", "10", *args],
+                               "-b", secure.address("kf"), "-m", "10", *args],
                               input=stdin, capture_output=True, text=True, timeout=60)
 
     marker = uuid.uuid4().hex
@@ -117,13 +98,13 @@ def test_kcat_writes_and_reads_with_the_plant_ca(secure: Secure) -> None:
     assert done.returncode == 0, done.stderr
     done = kcat("-C", "-t", "cell.pos", "-o", "beginning", "-e")
     assert done.returncode == 0 and marker in done.stdout, done.stderr
-    done = subprocess.run(["kcat", "-b", secure.kafka, "-m", "5", "-L"], capture_output=True, text=True, timeout=60)
+    done = subprocess.run(["kcat", "-b", secure.address("kf"), "-m", "5", "-L"], capture_output=True, text=True, timeout=60)
     assert done.returncode != 0, done.stdout
 
 
-def test_the_bridge_worker_carries_mosquitto_into_the_tls_kafka(secure: Secure) -> None:
-    publish_numbered(MQ, secure.mqtt_port, "cell.cam", BRIDGED)
-    got, errors = read_topic(secure.kafka, "cell.cam", _tls(), BRIDGED, deadline=90)
+def test_the_bridge_worker_carries_mosquitto_into_the_tls_kafka(secure: Deployment) -> None:
+    publish_numbered(MQ, secure.ports["mq"], "cell.cam", BRIDGED)
+    got, errors = read_topic(secure.address("kf"), "cell.cam", _tls(), BRIDGED, deadline=90)
     assert (got, errors) == (BRIDGED, set())
 
 
@@ -135,21 +116,16 @@ def test_a_closed_tls_kafka_takes_its_users_over_sasl_ssl(tmp_path: Path) -> Non
     secret = tmp_path / "hist.pw"
     secret.write_text(password + "\n", encoding="utf-8")
     secret.chmod(0o600)
-    fleet = start_agents([MQ, KF], tmp_path)
-    try:
-        mq_port, kf_port = netutil.free_port(MQ), netutil.free_port(KF)
-        plant = tmp_path / "plant.ttl"
-        plant.write_text(_plant(mq_port, kf_port, kafka_open="").replace(
-            "pk:subscribes ex:pos , ex:cam .", f'pk:subscribes ex:pos , ex:cam ; pk:secretRef "file:{secret}" .'),
-            encoding="utf-8")
-        assert main(["apply", str(plant), "--agents", str(fleet.agents_file), "--yes"]) == 0
-        kafka = f"{KF}:{kf_port}"
+
+    def plant(ports: dict[str, int]) -> str:
+        return _plant(ports, kafka_open="").replace(
+            "pk:subscribes ex:pos , ex:cam .", f'pk:subscribes ex:pos , ex:cam ; pk:secretRef "file:{secret}" .')
+
+    with deployment(tmp_path, {"mq": MQ, "kf": KF}, plant) as made:
+        kafka = made.address("kf")
         with pytest.raises(KafkaException):
             AdminClient({"bootstrap.servers": kafka, "log_level": 0, **_tls()}).list_topics(timeout=5)
-        publish_numbered(MQ, mq_port, "cell.cam", 200)
+        publish_numbered(MQ, made.ports["mq"], "cell.cam", 200)
         hist = {**_tls(), "security.protocol": "sasl_ssl", "sasl.mechanism": "SCRAM-SHA-512",
                 "sasl.username": "hist", "sasl.password": password}
         assert read_topic(kafka, "cell.cam", hist, 200, deadline=90) == (200, set())
-        assert main(["destroy", str(plant), "--agents", str(fleet.agents_file), "--yes"]) == 0
-    finally:
-        fleet.stop()
