@@ -10,6 +10,11 @@ plantkg, each until a QoS-1 publish of a small message is acknowledged.
   the CLI adds an interpreter start (~0.6 s) on top.
 - ``plantkg-dispatch``: the same apply with the plan already made — only the agent round trip
   and broker start — to show where the time goes.
+- ``plantkg-warm``: the same apply by a long-running process that keeps its pipeline warm
+  (``engine.incremental.warm.WarmPipeline``, as ``plantkg serve``'s reconcile loop and the fleet
+  manager do): each run's plant differs from the last one only by the broker's port, a one-line
+  edit the warm session follows (re-validates and re-reasons what it touches) instead of loading,
+  validating and reasoning the plant afresh.
 - ``plantkg-cli``: ``plantkg apply --yes`` of the same plant as a person types it, a whole process
   (interpreter start, imports, pipeline, apply) until it exits, then the same acknowledged
   publish; ``--cli-runs`` runs (default 10; the desired-state cache is emptied before each, so
@@ -44,6 +49,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from contextlib import ExitStack, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
@@ -62,7 +68,8 @@ from engine.agents_config import AgentDirectory
 from engine.apply import apply
 from engine.drivers.mosquitto.runtime import MosquittoConfig, default_run_as, mosquitto_command, render_mosquitto_conf
 from engine.parts import mosquitto_binary
-from engine.pipeline import run_pipeline
+from engine.incremental.warm import WarmPipeline
+from engine.pipeline import Pipeline, run_pipeline
 
 HOST = "127.0.0.2"
 PROXIED_HOST = "127.0.0.3"
@@ -189,7 +196,8 @@ def bare(work: Path) -> float:
 
 def through_plantkg(work: Path, directory: AgentDirectory, dispatch_only: bool, kind: str = "mosquitto",
                     host: str = HOST, publish_delay_s: float = 0.0,
-                    stages: dict[str, list[float]] | None = None) -> float:
+                    stages: dict[str, list[float]] | None = None,
+                    pipeline: Callable[..., Pipeline] = run_pipeline) -> float:
     """Apply a one-broker plant until its first acknowledged message; ``publish_delay_s``: the
     publish goes through a :class:`DelayProxy` delaying that much each way. ``stages`` gets the
     seconds of each pipeline stage, of apply (dispatch and check) and of the publish."""
@@ -199,7 +207,7 @@ def through_plantkg(work: Path, directory: AgentDirectory, dispatch_only: bool, 
     prepared = run_pipeline([plant], directory) if dispatch_only else None
     with DelayProxy(host, port, publish_delay_s) if publish_delay_s else nullcontext() as proxy:
         start = time.perf_counter()
-        result = prepared or run_pipeline([plant], directory)
+        result = prepared or pipeline([plant], directory)
         assert result.plan is not None and result.desired is not None
         planned = time.perf_counter()
         outcome = apply(result.plan, result.desired, directory)
@@ -276,8 +284,10 @@ def _proxy_remote(stack: ExitStack, work: Path, delay_ms: float) -> Remote:
 
 def measure(runs: int, kafka_runs: int = 0, delay_ms: float | None = None, cli_runs: int = 0) -> dict[str, object]:
     info = machine()
-    times: dict[str, list[float]] = {"bare": [], "plantkg": [], "plantkg-dispatch": []}
+    times: dict[str, list[float]] = {"bare": [], "plantkg": [], "plantkg-dispatch": [], "plantkg-warm": []}
     stages: dict[str, list[float]] = {}  # where the plantkg row's time goes
+    warm_stages: dict[str, list[float]] = {}
+    warm = WarmPipeline()
     remotes: list[Remote] = []
     remote_note = ""
     with tempfile.TemporaryDirectory(prefix="plantkg-bench-") as tmp, ExitStack() as stack:
@@ -298,10 +308,12 @@ def measure(runs: int, kafka_runs: int = 0, delay_ms: float | None = None, cli_r
             through_plantkg(work, remote.directory, False, host=remote.host,
                             publish_delay_s=remote.publish_delay_s)  # warm-up of that agent
         through_plantkg(work, directory, False)  # warm-up: imports, JIT-free but caches
+        through_plantkg(work, directory, False, pipeline=warm)  # the warm session's start
         for _ in range(runs):
             times["bare"].append(bare(work))
             times["plantkg"].append(through_plantkg(work, directory, False, stages=stages))
             times["plantkg-dispatch"].append(through_plantkg(work, directory, True))
+            times["plantkg-warm"].append(through_plantkg(work, directory, False, stages=warm_stages, pipeline=warm))
             for remote in remotes:
                 times[remote.row].append(through_plantkg(work, remote.directory, False, host=remote.host,
                                                          publish_delay_s=remote.publish_delay_s))
@@ -322,6 +334,8 @@ def measure(runs: int, kafka_runs: int = 0, delay_ms: float | None = None, cli_r
     return {"benchmark": "deploy", "machine": info, "runs": runs, "kafka_runs": kafka_runs, "cli_runs": cli_runs,
             "delay_ms": delay_ms, "remote_note": remote_note, "ms": table,
             "plantkg_stages_ms": {k: statistics.median(v) * 1000 for k, v in stages.items()},
+            "plantkg_warm_stages_ms": {k: statistics.median(v) * 1000 for k, v in warm_stages.items()},
+            "warm_calls": dict(warm.stats),
             "paper": {"bare_ms": 23.9, "tool_cable_ms": 80.1, "ratio": 3.35}}
 
 
@@ -341,6 +355,11 @@ def to_markdown(data: dict[str, object]) -> str:
     if parts:
         lines += ["", "Where the `plantkg` row's time goes (median ms of its runs): "
                   + ", ".join(f"{k} {v:.1f}" for k, v in parts.items()) + "."]
+    warm = data.get("plantkg_warm_stages_ms") or {}
+    if warm:
+        lines += ["", "Where the `plantkg-warm` row's time goes (median ms; the session's stages, then apply "
+                  "and publish): " + ", ".join(f"{k} {v:.1f}" for k, v in warm.items())
+                  + f". Calls of the warm pipeline: {data.get('warm_calls')} (one cold start before the runs)."]
     lines += ["", "The paper (its hardware, over cable): 23.9 ms bare, 80.1 ms through its tool (3.35x). "
               "Kafka rows are divided by kafka-bare, the others by bare."]
     return "\n".join(lines) + "\n"

@@ -20,15 +20,16 @@ run, measured as five arms:
 
 Before measuring, the run checks that each closed broker refuses an anonymous client (and fails
 otherwise). Per arm and repeat (the order rotates between repeats, so drift of the shared machine
-falls on all alike): N QoS-1 messages from one paho publisher with at most ``--window`` in flight,
+falls on all alike): N QoS-1 messages from one publisher with at most ``--window`` in flight,
 to one QoS-1 subscriber; publish → PUBACK latency (p50, p99), end-to-end throughput (distinct
 messages delivered / time from the first publish to the last delivery), and missing messages
 (must be 0). A short warm-up per arm precedes the repeats and is not counted. Reported: medians
 over the repeats, and ratios to the plain open arm of the same path (single broker, bridge).
 
-The clients are Python (paho), on the same 2 cores as the brokers: the client side is likely the
-bottleneck, so the ratio bounds what users, ACLs and TLS cost a plant's Python clients, not
-Mosquitto's own ceiling.
+The clients are the Go load generator (``tools/loadgen``, built by ``make setup``; the run refuses
+without it): publisher and subscriber each in its own process, so the client side no longer runs
+in Python on the brokers' cores (they still share the machine's 2 cores; each run records the
+clients' CPU per message). The anonymous-refusal probe stays a paho client (it measures nothing).
 
 Usage: ``python -m benchmarks.bench_security [--messages 20000] [--repeats 3] [--window 100] [--tiny]``.
 Results: ``benchmarks/results/security.{json,md}``.
@@ -41,8 +42,6 @@ import os
 import secrets
 import statistics
 import tempfile
-import threading
-import time
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
@@ -51,6 +50,7 @@ from typing import Any
 import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
+from benchmarks import loadgen
 from benchmarks.common import RESULTS, command_line, machine, percentile, write_results
 from engine import netutil, process
 from engine.agent.folder import RENDERED_MODE, write_atomic
@@ -215,84 +215,35 @@ def _admitted(port: int, answers: list[str], role: str) -> bool:
     return bool(answers)
 
 
+def _target(client: Client) -> loadgen.Target:
+    creds = client.creds
+    return loadgen.Target(f"{HOST}:{client.port}", creds.user if creds else None,
+                          creds.password if creds else None, client.ca_file)
+
+
 def one_run(pub: Client, sub: Client, count: int, window: int) -> dict[str, Any]:
     """``count`` QoS-1 messages, at most ``window`` unacknowledged, to one subscriber (on the
-    same broker, or on the far side of a bridge)."""
-    got: list[int] = []
-    last = [0.0]
-    port = pub.port
-    subscriber, sub_up = _client(sub, "sub")
-    granted: list[int] = []
-    subscriber.on_subscribe = lambda _c, _u, _mid, codes, _p: granted.extend(c.value for c in codes)
-
-    def on_message(_c: object, _u: object, msg: mqtt.MQTTMessage) -> None:
-        got.append(int(msg.payload))
-        last[0] = time.perf_counter()
-
-    subscriber.on_message = on_message
-    publisher, pub_up = _client(pub, "pub")
-    publisher.max_inflight_messages_set(window)
-    publisher.max_queued_messages_set(0)
-    acks: list[tuple[int, float]] = []
-    room = threading.BoundedSemaphore(window)
-
-    def on_publish(_c: object, _u: object, mid: int, _reason: object, _p: object) -> None:
-        acks.append((mid, time.perf_counter()))
-        room.release()
-
-    publisher.on_publish = on_publish
-    subscriber.connect(HOST, sub.port, keepalive=30)
-    subscriber.loop_start()
-    publisher.connect(HOST, pub.port, keepalive=30)
-    publisher.loop_start()
+    same broker, or on the far side of a bridge): the Go load generator's ``mqtt-sub`` and
+    ``mqtt-pub``, each in its own process, the publisher started once the subscriber holds its
+    SUBACK. The subscriber stops at ``count`` distinct messages, or 5 s after the last new one (the
+    rest counts as missing)."""
+    deadline = 60.0 + count / 100
+    receiver = loadgen.start("mqtt-sub", _target(sub), TOPIC, count, deadline, ("--idle", "5s"))
     try:
-        process.wait_until(lambda: _admitted(sub.port, sub_up, "subscriber") and _admitted(port, pub_up, "publisher"),
-                           10.0, 0.005, what=f"both clients admitted on {port}")
-        subscriber.subscribe(TOPIC, 1)
-        process.wait_until(lambda: granted, 10.0, 0.005, what=f"the SUBACK on {port}")
-        if granted[0] != 1:
-            raise RuntimeError(f"the subscriber's QoS-1 subscription to {TOPIC} on port {port} got {granted[0]:#x}")
-        sent: list[tuple[int, float]] = []
-        start = time.perf_counter()
-        for n in range(count):
-            if not room.acquire(timeout=30):
-                raise RuntimeError(f"no PUBACK for 30 s on port {port} after {n} messages")
-            t = time.perf_counter()
-            info = publisher.publish(TOPIC, str(n).encode(), qos=1)
-            if info.rc != mqtt.MQTT_ERR_SUCCESS:
-                raise RuntimeError(f"publish {n} on port {port} failed: {mqtt.error_string(info.rc)}")
-            sent.append((info.mid, t))
-        process.wait_until(lambda: len(acks) >= count, 60.0, 0.005, what=f"every PUBACK on {port}")
-        # done when every message arrived, or nothing arrived for 5 s (the rest counts as missing)
-        process.wait_until(lambda: len(set(got)) >= count or time.perf_counter() - max(last[0], start) > 5.0,
-                           60.0 + count / 100, 0.01, what=f"the deliveries on {port}")
-    finally:
-        for client in (publisher, subscriber):
-            client.disconnect()
-            client.loop_stop()
-    distinct = len(set(got))
-    seconds = last[0] - start
-    latencies = pair_latencies(sent, list(acks))
-    return {"messages": count, "received": distinct, "missing": count - distinct,
-            "duplicates": len(got) - distinct, "seconds": seconds,
-            "msg_per_s": distinct / seconds if distinct and seconds > 0 else 0.0,
-            "puback_ms": latency_summary(latencies)}
-
-
-def pair_latencies(sent: list[tuple[int, float]], acks: list[tuple[int, float]]) -> list[float]:
-    """Seconds from each publish to its PUBACK. Message ids are reused once acknowledged (and wrap
-    at 65535), so the k-th send of an id pairs with the k-th PUBACK of that id."""
-    by_mid: dict[int, list[float]] = {}
-    for mid, t in acks:
-        by_mid.setdefault(mid, []).append(t)
-    seen: dict[int, int] = {}
-    out = []
-    for mid, t in sent:
-        k = seen.get(mid, 0)
-        seen[mid] = k + 1
-        if k < len(by_mid.get(mid, ())):
-            out.append(by_mid[mid][k] - t)
-    return out
+        sent = loadgen.publish(_target(pub), TOPIC, count, window, deadline)
+    except BaseException:
+        receiver.stop()
+        raise
+    got = receiver.result(deadline + 30.0)
+    if sent.error or sent.acked != count:
+        raise RuntimeError(f"the publisher on port {pub.port} got {sent.acked}/{count} PUBACKs: {sent.error}")
+    seconds = (got.last_ns - sent.start_ns) / 1e9 if got.last_ns and sent.start_ns else 0.0
+    return {"messages": count, "received": got.received, "missing": got.missing,
+            "duplicates": got.duplicates, "seconds": seconds,
+            "msg_per_s": got.received / seconds if got.received and seconds > 0 else 0.0,
+            "puback_ms": {"n": sent.acked, "p50": sent.p50_ms, "p99": sent.p99_ms, "max": sent.max_ms},
+            "end_to_end_ms": {"p50": got.p50_ms, "p99": got.p99_ms, "max": got.max_ms},
+            "client_cpu_s": {"publisher": sent.cpu_s, "subscriber": got.cpu_s}}
 
 
 def latency_summary(seconds: list[float]) -> dict[str, float]:
@@ -306,7 +257,11 @@ def medians(runs: list[dict[str, Any]]) -> dict[str, float]:
     return {"msg_per_s": statistics.median(r["msg_per_s"] for r in runs),
             "p50_ms": statistics.median(r["puback_ms"]["p50"] for r in runs),
             "p99_ms": statistics.median(r["puback_ms"]["p99"] for r in runs),
-            "missing": sum(r["missing"] for r in runs)}
+            "missing": sum(r["missing"] for r in runs),
+            # the load generator's own CPU (publisher + subscriber) per delivered message, µs
+            "client_cpu_us_per_msg": statistics.median(
+                1e6 * (r["client_cpu_s"]["publisher"] + r["client_cpu_s"]["subscriber"]) / max(r["received"], 1)
+                for r in runs)}
 
 
 def _ratio(value: float, base: float) -> float | None:
@@ -349,18 +304,28 @@ def to_markdown(data: dict[str, Any]) -> str:
         f"`{TOPIC}` → one QoS-1 subscriber (on the same broker, or on the far side of a Mosquitto bridge); "
         f"{data['repeats']} repeats per arm, order rotating; medians. `closed`: anonymous refused (checked), "
         "password check at CONNECT, ACL (dynamic security plugin) on every publish and delivery. `tls`: the "
-        "listener speaks TLS only, clients (and the bridge) verify a plant-CA certificate.",
+        "listener speaks TLS only, clients (and the bridge) verify a plant-CA certificate. Clients: the Go load "
+        "generator (`tools/loadgen`), publisher and subscriber each in its own process; client CPU is theirs "
+        "(user + system) per delivered message.",
         "",
-        "| arm | msg/s delivered | publish → PUBACK p50 ms | p99 ms | missing | throughput vs baseline | p99 vs baseline |",
-        "|---|---|---|---|---|---|---|",
+        "| arm | msg/s delivered | publish → PUBACK p50 ms | p99 ms | missing | client CPU µs/msg | "
+        "throughput vs baseline | p99 vs baseline |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for arm in ARMS:
         m, r = med[arm], ratios.get(arm)
         lines.append(f"| {arm} | {m['msg_per_s']:.0f} | {m['p50_ms']:.2f} | {m['p99_ms']:.2f} | {m['missing']} | "
+                     + f"{m['client_cpu_us_per_msg']:.0f} | "
                      + (f"{_fmt(r['throughput'])} | {_fmt(r['p99'])} |" if r else "baseline | baseline |"))
     lines += ["", "Per repeat (throughput vs baseline): "
               + "; ".join(f"{arm}: " + ", ".join(_fmt(x) for x in ratios[arm]["throughput_per_repeat"])
                           for arm in BASELINE) + ".", ""]
+    cpu = [med[arm]["client_cpu_us_per_msg"] for arm in ARMS]
+    cores = med["open"]["client_cpu_us_per_msg"] * med["open"]["msg_per_s"] / 1e6
+    lines += [f"Client side: the load generator (publisher + subscriber processes) used {min(cpu):.0f}–{max(cpu):.0f} µs "
+              f"of CPU per delivered message (medians per arm), i.e. {cores:.2f} of a core at the open arm's rate, "
+              f"on the same {data['machine'].get('cpus', '?')} cores as the brokers: the ratios include that share.",
+              ""]
     for g in data["goals"]:
         lines.append(f"Goal: {g['goal']}: {g['measured']}, target {g['target']}: "
                      f"{'met' if g['met'] else '**not met**'}.")
@@ -383,6 +348,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--{name} must be at least 1 (got {getattr(args, name)})")
     if args.warmup < 0:
         parser.error(f"--warmup must be at least 0 (got {args.warmup})")
+    loadgen.binary()  # refuse before starting brokers when the load generator is not built
     info = machine()
     runs: dict[str, list[dict[str, Any]]] = {arm: [] for arm in ARMS}
     with tempfile.TemporaryDirectory(prefix="plantkg-bench-security-") as tmp:

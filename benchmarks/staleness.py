@@ -33,7 +33,7 @@ MEASURES: dict[str, tuple[str, ...]] = {
     "fleet_join": ("fleet/manager", "fleet/discovery", "fleet/model", "engine/apply.py", "engine/agent"),
     "fleet_tasks": ("fleet/planner", "fleet/sim"),
     "cli": ("engine/cli",),
-    "security": ("engine/drivers/mosquitto", "engine/security"),
+    "security": ("engine/drivers/mosquitto", "engine/security", "tools/loadgen", "benchmarks/loadgen.py"),
     "kafka_cluster": ("engine/drivers/kafka", "engine/derived/kafka_cluster.py", "engine/apply.py", "engine/agent",
                       "engine/derived/bridge_pairs.py"),
     "validate": ("kg", "shapes"),

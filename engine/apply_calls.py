@@ -16,7 +16,6 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from engine.errors import EngineError
-from engine.security import kafka_client
 from engine.model import Action, BridgeMechanism, Change, DesiredState, Plan
 from engine.plan import ALL_TOPIC_SETTINGS, NEW_BROKER_FIELDS, broker_of, topic_settings
 
@@ -119,9 +118,7 @@ def _bridge_calls(change: Change, desired: DesiredState) -> tuple[Call, ...]:
     if spec is None:
         raise EngineError(f"the plan creates {change.address}, which the plant does not describe",
                           hint="make the plan again from the same plant")
-    remote = desired.broker(spec.remote.id)
-    closed_kafka = spec.mechanism is BridgeMechanism.WORKER and remote is not None and kafka_client.is_closed(remote)
-    if spec.mechanism is BridgeMechanism.NGSI or closed_kafka:  # the worker logs in on the remote
+    if spec.mechanism is BridgeMechanism.NGSI:  # the worker writes with the context broker's token
         return (Call(spec.local.host, "put_bridge", (spec,), remote_token_of=spec.remote.host),)
     return (Call(spec.local.host, "put_bridge", (spec,)),)
 

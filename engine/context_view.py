@@ -16,20 +16,25 @@ ask "which broker carries AGV 7's state, and what does it say now".
   named in :attr:`ContextView.unavailable`, so the dashboard can say so; it never fails the
   observation of brokers.
 
-Reads send no token (the context broker's reads are open; one with principals answers 401 and is
-reported unavailable, docs/security.md); only loopback or plant addresses the
+A context broker plantkg deploys is read with its agent's token (:func:`agent_tokens`: the
+engine's agents file holds every agent's), plantkg's own principal there: a closed one (with
+principals) answers 401 without it, and its reads of the whole graph are plantkg's only
+(docs/security.md). A ``pk:external`` context broker (a real Orion) is read without a token, so no
+agent's token ever goes to a broker plantkg does not run; only loopback or plant addresses the
 plant itself names are asked.
 """
 
 from __future__ import annotations
 
 import http.client
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import pyoxigraph as ox
 
+from engine.errors import EngineError
+from engine.model import BrokerSpec
 from engine.values import host_in_url
 from kg.load import PlantGraph
 from kg.namespaces import NGSI_GRAPH_BASE
@@ -45,11 +50,13 @@ _CONTEXT_BROKERS = """SELECT ?broker ?ip ?port WHERE {
 
 @dataclass(frozen=True)
 class ContextSource:
-    """A context broker of the plant: its individual and where it answers."""
+    """A context broker of the plant: its individual, where it answers and the token it is read
+    with (None: none sent)."""
 
     iri: str
     host: str
     port: int
+    token: str | None = field(default=None, repr=False)  # never shown
 
     @property
     def url(self) -> str:
@@ -65,13 +72,30 @@ class ContextView:
     unavailable: tuple[tuple[str, str], ...] = ()   # (broker IRI, why)
 
 
-def context_sources(plant: PlantGraph) -> list[ContextSource]:
-    """The plant's context brokers (needs the inferred classes: run after reasoning)."""
+def agent_tokens(brokers: Iterable[BrokerSpec], token_for: Callable[[str], str]) -> dict[str, str]:
+    """Broker IRI -> the token of its agent, for each context broker plantkg deploys (``brokers``:
+    the desired state's, so no ``pk:external`` one); ``token_for(host)`` is the agents file's
+    (:meth:`engine.agents_config.AgentDirectory.token_for`). A broker whose agent has no token is
+    left out (it is then read without one, and a closed one is reported unavailable)."""
+    out = {}
+    for spec in brokers:
+        if spec.kind == "ngsi-v2":
+            try:
+                out[spec.iri] = token_for(spec.host)
+            except EngineError:
+                continue
+    return out
+
+
+def context_sources(plant: PlantGraph, tokens: Mapping[str, str] | None = None) -> list[ContextSource]:
+    """The plant's context brokers (needs the inferred classes: run after reasoning), each with
+    its token from ``tokens`` (broker IRI -> token, :func:`agent_tokens`) if there."""
+    tokens = tokens or {}
     found = []
     for broker, ip, port in run_query(plant, _CONTEXT_BROKERS).rows:
         if isinstance(broker, ox.NamedNode) and isinstance(ip, ox.Literal) and isinstance(port, ox.Literal):
             try:
-                found.append(ContextSource(broker.value, ip.value, int(port.value)))
+                found.append(ContextSource(broker.value, ip.value, int(port.value), tokens.get(broker.value)))
             except ValueError:
                 continue   # a port the shapes refused already; nothing to ask
     return found
@@ -82,7 +106,10 @@ def fetch_context(source: ContextSource, timeout: float = 3.0) -> list[ox.Quad]:
     :class:`ValueError` saying why it could not be read."""
     conn = http.client.HTTPConnection(source.host, source.port, timeout=timeout)
     try:
-        conn.request("GET", GRAPH_PATH, headers={"Accept": "application/n-quads"})
+        headers = {"Accept": "application/n-quads"}
+        if source.token is not None:
+            headers["Authorization"] = f"Bearer {source.token}"
+        conn.request("GET", GRAPH_PATH, headers=headers)
         response = conn.getresponse()
         body = response.read(MAX_CONTEXT_BYTES + 1)
     finally:

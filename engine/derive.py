@@ -47,6 +47,7 @@ from engine.derived.access import (
     check_kafka_tls_supported,
     close_brokers,
     with_bridge_principals,
+    with_closed_kafkas,
 )
 from engine.errors import ConfigValueError, EngineError
 from engine.derived.bridge_cycles import check_no_cycles
@@ -236,8 +237,11 @@ def derive_parts(plant: PlantGraph, only: frozenset[str] | None = None, known: P
     topics = [_with_entity(plant, t) if CONTEXT_BROKER in classes[iri_of_id[t.broker_id]] else t
               for t in topics]
     # a context broker's principals get their topics' entities (the broker knows no topic names)
-    users = broker_users(select, {(iri_of_id[t.broker_id], t.iri): t.name if t.entity_id is None else t.entity_id
-                                  for t in topics})
+    carried = {(iri_of_id[t.broker_id], t.iri): t.name if t.entity_id is None else t.entity_id for t in topics}
+    # a cluster's clients send to the cluster, whose topics are planned on its lead node
+    carried |= {(cluster, topic): name for cluster, lead in leads.items()
+                for (broker, topic), name in list(carried.items()) if broker == lead.iri}
+    users = broker_users(select, carried)
     for cluster, lead in leads.items():  # a cluster's clients are its nodes' users (refused below)
         if cluster in users and lead.kafka is not None:
             users |= {b.iri: users[cluster] for b in brokers if b.kafka and b.kafka.cluster == lead.kafka.cluster}
@@ -364,6 +368,7 @@ def assemble_from(parts: Parts, previous: Assembled | None = None,
     check_access_supported(deployed, bridges)
     check_kafka_tls_supported(deployed, bridges)
     deployed = with_bridge_principals(deployed, bridges)  # each bridge a user where it logs in
+    deployed = with_closed_kafkas(deployed)  # where a context broker's kafka:// notifications log in
     outside = {parts.brokers[iri].id for iri in parts.external}
     ids = {b.iri: b.id for b in brokers}
     if previous is None:

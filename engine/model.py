@@ -106,6 +106,9 @@ class BrokerSpec:
                                         # the plant says pk:allowAnonymous true
     tls: bool = False       # pk:tls — the listener speaks TLS only (a plant-CA certificate)
     kafka: KafkaNode | None = None  # a node of a multi-node Kafka cluster (None: a broker of its own)
+    closed_kafkas: tuple[str, ...] = ()  # a context broker: the plant's closed Kafka brokers
+                                         # ("host:port", sorted); its kafka:// notifications log in
+                                         # there as plantkg's own principal (engine.derived.access)
 
     @property
     def address(self) -> str:
@@ -173,6 +176,7 @@ class BridgeEnd:
     port: int
     bootstrap: tuple[str, ...] = ()  # a Kafka cluster: host:port of each of its broker nodes
     tls: bool = False       # the broker's listener speaks TLS: connect with it, verify with the plant CA
+    closed: bool = False    # a Kafka that authenticates every client: a worker logs in as plantkg's principal
 
 
 @dataclass(frozen=True)

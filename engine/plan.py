@@ -23,7 +23,8 @@ A bridge is compared on its essence (both ends' addresses, mechanism, routes), s
 broker or changing a bridged topic updates the bridge, which the agent of its local broker applies
 (a Mosquitto bridge by re-rendering and restarting that broker only, a worker by restarting the
 worker). A bridge whose local broker starts anew is created again, like its topics. A worker whose
-Kafka opens or closes (``pk:allowAnonymous``, users) is updated, so it logs in there anew.
+Kafka opens or closes (``pk:allowAnonymous``, users) is updated, so it logs in there anew: its
+remote end's ``closed`` changed.
 
 A node of a Kafka cluster (``BrokerSpec.kafka``, docs/kafka.md) is a broker like the others; a
 change of what it renders replaces it (apply rolls a cluster's replaced nodes one at a time), a
@@ -57,7 +58,6 @@ from typing import Any
 from engine.derived.access import open_broker_warnings
 from engine.model import (
     Action,
-    BridgeMechanism,
     BridgeSpec,
     BridgeStatus,
     BrokerSpec,
@@ -74,12 +74,11 @@ from engine.model import (
     TopicSpec,
     to_dict,
 )
-from engine.security import kafka_client
 
 #: Broker fields whose change needs a new broker process (the agent restarts it): Terraform's
 #: "forces replacement". Every other BrokerSpec field is changed in place.
 REPLACE_FIELDS: tuple[str, ...] = ("kind", "host", "port", "persist_every", "allow_anonymous", "mqtt_port",
-                                   "users", "tls", "kafka")
+                                   "users", "tls", "kafka", "closed_kafkas")
 #: Fields of a cluster node's ``kafka`` that are not rendered into its config: a change of only
 #: these (the cluster gained a broker, the lead moved) is made in place.
 KAFKA_IN_PLACE: tuple[str, ...] = ("lead", "bootstrap")
@@ -115,16 +114,20 @@ _DELETE_ORDER = {"bridge": 0, "topic": 1, "broker": 2}
 
 def broker_essence(spec: BrokerSpec) -> dict[str, Any]:
     """The fields of a broker the plan compares (all of BrokerSpec), as JSON-able values; no
-    ``users`` key for a broker without users, no ``tls`` key for a plain one, and no ``kafka``
-    key for a broker that is not a cluster's node, so plans of other brokers read as before. A
+    ``users`` key for a broker without users, no ``tls`` key for a plain one, no ``kafka``
+    key for a broker that is not a cluster's node and no ``closed_kafkas`` key for a broker told
+    none, so plans of other brokers read as before. A
     user shows its secret reference, never a secret (the plan has none)."""
-    out = {f.name: getattr(spec, f.name) for f in fields(spec) if f.name not in ("users", "tls", "kafka")}
+    out = {f.name: getattr(spec, f.name) for f in fields(spec)
+           if f.name not in ("users", "tls", "kafka", "closed_kafkas")}
     if spec.users:
         out["users"] = to_dict(spec.users)
     if spec.tls:
         out["tls"] = True
     if spec.kafka is not None:  # a node of a cluster
         out["kafka"] = to_dict(spec.kafka)
+    if spec.closed_kafkas:  # a context broker whose kafka:// notifications log in there
+        out["closed_kafkas"] = list(spec.closed_kafkas)
     return out
 
 
@@ -134,8 +137,9 @@ def bridge_essence(spec: BridgeSpec) -> dict[str, Any]:
     data = to_dict(spec)
     data.pop("asserted")
     for end in ("local", "remote"):  # a plain end, not a Kafka cluster, reads as before
-        if not data[end]["tls"]:
-            del data[end]["tls"]
+        for flag in ("tls", "closed"):
+            if not data[end][flag]:
+                del data[end][flag]
         if not data[end]["bootstrap"]:
             data[end].pop("bootstrap")
     data["routes"] = [{k: v for k, v in route.items() if v is not None} for route in data["routes"]]
@@ -199,7 +203,6 @@ def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False,
     deletes: list[Change] = []
     foreign: list[Foreign] = []
     fresh_brokers: set[str] = set()
-    relogin: set[str] = set()  # Kafka brokers that open or close: their workers log in anew
     claimed: set[str] = set()
     seen: dict[str, tuple[tuple[object, ...], tuple[object, ...]]] = {}
     sort_keys: list[tuple[int, str]] = []  # with a memo: the sort key of each change, in order
@@ -207,8 +210,6 @@ def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False,
         if spec.host in unreachable:
             continue  # its state is unknown: no change is planned, the host is listed
         have = observed.broker(spec.id)
-        if have is not None and kafka_client.is_closed(have.spec) != kafka_client.is_closed(spec):
-            relogin.add(spec.id)
         wanted_topics = desired.topics_of(spec.id)
         key = (spec, wanted_topics, have, owner, prune)
         cached = memo.brokers.get(spec.id) if memo is not None else None
@@ -259,11 +260,10 @@ def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False,
         if hosts.get(bridge.local.id) in unreachable or bridge.local.id in claimed:
             continue
         have = None if bridge.local.id in fresh_brokers else observed.bridge(bridge.address)
-        relogs = bridge.mechanism is BridgeMechanism.WORKER and bridge.remote.id in relogin
-        key = (bridge, have, bridge.local.id in held, owner, relogs)
+        key = (bridge, have, bridge.local.id in held, owner)
         cached = memo.bridges.get(bridge.address) if memo is not None else None
         done = (cached[1] if cached is not None and cached[0] == key
-                else _plan_bridge(bridge, have, key[2], owner, relogs))
+                else _plan_bridge(bridge, have, key[2], owner))
         bridges_seen[bridge.address] = (key, done)
         refusal, change = done
         if refusal is not None:
@@ -314,17 +314,12 @@ def _plan_broker(spec: BrokerSpec, wanted_topics: tuple[TopicSpec, ...], have: O
 
 
 def _plan_bridge(bridge: BridgeSpec, have: ObservedBridge | None, held: bool,
-                 owner: str | None, relogs: bool = False) -> tuple[Refusal | None, Change | None]:
-    """One desired bridge's part of the plan: a refusal (another plant's) or its change
-    (``relogs``: a worker whose Kafka opens or closes is PUT again, to log in anew)."""
+                 owner: str | None) -> tuple[Refusal | None, Change | None]:
+    """One desired bridge's part of the plan: a refusal (another plant's) or its change."""
     whose = Ownership.MINE if have is None else ownership(have.owner, owner)
     if whose is Ownership.OTHER:
         return _claimed_refusal(bridge.address, have.owner if have else None, importable=False), None
     change = _bridge_change(bridge, have, held)
-    if relogs and change.action is Action.NOOP:
-        change = Change(bridge.address, Action.UPDATE, change.before, change.after,
-                        f"Kafka broker {bridge.remote.id!r} opens or closes to anonymous clients "
-                        "(its worker restarts, to log in there anew)")
     return None, (_adopted(change, owner) if whose is Ownership.NOBODY else change)
 
 

@@ -37,7 +37,8 @@ from engine.agents_config import AgentDirectory
 from engine.apply import ApplyResult, apply
 from engine.model import DesiredState, ObservedState, Plan
 from engine.observed import observe
-from engine.pipeline import Pipeline, run_pipeline
+from engine.incremental.warm import WarmPipeline
+from engine.pipeline import Pipeline
 from engine.plan import plan as make_plan
 from engine.render.plan import summary_counts
 from kg.errors import PlantKGError
@@ -143,7 +144,7 @@ class ReconcileLoop:
         prune: bool = False,
         apply_lock: threading.Lock | None = None,
         on_run: Callable[[LoopRun], None] | None = None,
-        pipeline: Callable[..., Pipeline] = run_pipeline,
+        pipeline: Callable[..., Pipeline] | None = None,
         apply_fn: Callable[..., ApplyResult] = apply,
         observe_fn: Callable[[AgentDirectory, Iterable[str]], ObservedState] = observe,
         clock: Callable[[], float] = time.time,
@@ -159,7 +160,9 @@ class ReconcileLoop:
         self.prune = prune
         self.apply_lock = apply_lock or threading.Lock()
         self._on_run = on_run
-        self._pipeline, self._apply, self._observe = pipeline, apply_fn, observe_fn
+        # the loop's own warm pipeline (engine.incremental.warm): a run re-plans from the edit
+        self._pipeline = pipeline if pipeline is not None else WarmPipeline()
+        self._apply, self._observe = apply_fn, observe_fn
         self._clock = clock
         self._run_lock = threading.Lock()
         self._state_lock = threading.Lock()

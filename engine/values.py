@@ -69,6 +69,17 @@ def host_in_url(host: str) -> str:
     return f"[{host}]" if ipaddress.ip_address(host).version == 6 else host
 
 
+def check_address(field: str, value: object) -> tuple[str, int]:
+    """``host:port`` (an IPv6 host in brackets): the normalised address and the port."""
+    if not isinstance(value, str) or ":" not in value:
+        raise ConfigValueError(field, value, "expected 'host:port' (an IPv6 address in brackets)")
+    host, _, port = value.rpartition(":")
+    bare = host[1:-1] if host.startswith("[") and host.endswith("]") else host
+    if not port.isdigit() or (":" in bare and not host.startswith("[")):
+        raise ConfigValueError(field, value, "expected 'host:port' (an IPv6 address in brackets)")
+    return check_host(field, bare), check_port(field, int(port))
+
+
 #: Orion's identifier rules (entity ids and types): 1 to 256 printable ASCII characters, none of
 #: ``< > " ' = ; ( )`` (forbidden everywhere) nor ``& ? / #`` (forbidden in identifiers), no blank.
 NGSI_ID_MAX = 256

@@ -164,10 +164,11 @@ def run_fleet_demo(*, vehicles: int, work_dir: Path | None, deadline: float, kee
         finished = _follow(api, planner, deadline)
 
         click.secho("\n5. the Task entities on the context broker (GET /v2/entities?type=Task)", bold=True)
-        entities = _task_entities(ports[CONTEXT_ID])
+        cb_read_token = cb_token.read_text(encoding="utf-8").strip()  # closed by default: reads need it
+        entities = _task_entities(ports[CONTEXT_ID], cb_read_token)
         if finished:  # the planner writes each Task entity after its own state changed: wait for it
             try:
-                entities = process.wait_until(lambda: _ended(_task_entities(ports[CONTEXT_ID])), 30, 0.1,
+                entities = process.wait_until(lambda: _ended(_task_entities(ports[CONTEXT_ID], cb_read_token)), 30, 0.1,
                                               what="the context broker to show every task ended")
             except process.WaitTimeoutError as exc:
                 click.secho(f"   {exc}", fg="red")
@@ -244,10 +245,12 @@ def _ended(entities: list[dict[str, Any]]) -> list[dict[str, Any]] | None:
     return entities if entities and all(e.get("state") in done for e in entities) else None
 
 
-def _task_entities(port: int) -> list[dict[str, Any]]:
-    url = f"http://127.0.0.3:{port}/v2/entities?type=Task&options=keyValues&limit=100"
+def _task_entities(port: int, token: str) -> list[dict[str, Any]]:
+    """The Task entities, read with the context broker's agent's token (reads need it too)."""
+    request = urllib.request.Request(f"http://127.0.0.3:{port}/v2/entities?type=Task&options=keyValues&limit=100",
+                                     headers={"Authorization": f"Bearer {token}"})
     try:
-        with urllib.request.urlopen(url, timeout=5) as reply:  # noqa: S310 - the plant's own broker
+        with urllib.request.urlopen(request, timeout=5) as reply:  # noqa: S310 - the plant's own broker
             return json.loads(reply.read())
     except (OSError, ValueError) as exc:
         return [{"id": "(the context broker did not answer)", "state": str(exc)}]

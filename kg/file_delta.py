@@ -93,6 +93,14 @@ def _common_suffix(a: bytes, b: bytes, limit: int) -> int:
     return i
 
 
+def edited_bytes(old: bytes, new: bytes) -> int:
+    """The bytes of the longer text between the two texts' common beginning and common end: what
+    an edit touched at most, found without parsing."""
+    p = _common_prefix(old, new)
+    s = _common_suffix(old, new, min(len(old), len(new)) - p)
+    return max(len(old), len(new)) - p - s
+
+
 def _significant(line: bytes) -> bytes:
     return _STRIP.sub(b'""', line).strip()
 

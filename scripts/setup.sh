@@ -8,6 +8,9 @@
 #      plugins/plantkg-rabbitmq, editable, redone only when its pyproject.toml changed.
 #   3. Kafka: broker jars resolved from Maven Central by third_party/kafka/pom.xml into
 #      .plantkg/kafka/<version>/libs, redone only when the pom changed (stamp beside libs/).
+#   4. The Go load generator tools/loadgen (benchmarks' MQTT/Kafka clients) built into
+#      .plantkg/loadgen/loadgen, redone only when its sources changed (stamp beside it); skipped
+#      with a message when `go` is absent (the benchmarks that need it then refuse, naming it).
 # A second run installs nothing and takes about a second.
 set -euo pipefail
 
@@ -184,4 +187,25 @@ log4j.appender.stderr.Target=System.err
 log4j.appender.stderr.layout=org.apache.log4j.PatternLayout
 log4j.appender.stderr.layout.ConversionPattern=[%d] %p %m (%c)%n"
 
-say "ready: mosquitto $(command -v mosquitto || echo /usr/sbin/mosquitto), java $(command -v java), kafka $KAFKA_VERSION, .venv"
+# --- 4. Go load generator ----------------------------------------------------------------------
+
+LOADGEN_SRC="$ROOT/tools/loadgen"
+LOADGEN_DIR="$ROOT/.plantkg/loadgen"
+GO="$(command -v go || { [ -x /usr/local/go/bin/go ] && echo /usr/local/go/bin/go; } || true)"
+LOADGEN_NOTE="loadgen (go absent: benchmarks using it will refuse)"
+if [ -n "$GO" ]; then
+    LOADGEN_HASH="$(cd "$LOADGEN_SRC" && cat go.mod go.sum ./*.go | sha256sum | cut -d' ' -f1)"
+    if [ "$(cat "$LOADGEN_DIR/.sources.sha256" 2>/dev/null || true)" != "$LOADGEN_HASH" ] \
+        || [ ! -x "$LOADGEN_DIR/loadgen" ]; then
+        say "go: building tools/loadgen into ${LOADGEN_DIR#"$ROOT"/}/loadgen (its sources changed)"
+        mkdir -p "$LOADGEN_DIR"
+        (cd "$LOADGEN_SRC" && quietly loadgen "$GO" build -trimpath -o "$LOADGEN_DIR/loadgen.partial" .)
+        mv "$LOADGEN_DIR/loadgen.partial" "$LOADGEN_DIR/loadgen"
+        printf '%s\n' "$LOADGEN_HASH" >"$LOADGEN_DIR/.sources.sha256"
+    fi
+    LOADGEN_NOTE="loadgen ($("$GO" version | cut -d' ' -f3))"
+else
+    say "go: not found; skipping tools/loadgen (install Go >= 1.22 from https://go.dev/dl and rerun to run bench_security)"
+fi
+
+say "ready: mosquitto $(command -v mosquitto || echo /usr/sbin/mosquitto), java $(command -v java), kafka $KAFKA_VERSION, .venv, $LOADGEN_NOTE"

@@ -46,12 +46,12 @@ MAX_TOKEN = 4096
 
 def check_remote_token(value: Any, mechanism: BridgeMechanism, where: str = REMOTE_TOKEN) -> str | None:
     """A bridge PUT's ``remote_token`` (None if absent): the remote broker's agent token, which only
-    an mqtt-ngsi bridge (a context broker's write token) or an mqtt-kafka one (a closed Kafka's,
-    from which the worker derives plantkg's password there) takes."""
+    an mqtt-ngsi bridge (a context broker's write token) takes. A worker into a closed Kafka takes
+    none: its agent derives plantkg's password there from the principal key (``BridgeEnd.closed``)."""
     if value is None:
         return None
-    if mechanism not in (BridgeMechanism.NGSI, BridgeMechanism.WORKER):
-        raise WireError(where, f"only an mqtt-ngsi or mqtt-kafka bridge takes one, not {mechanism.value}")
+    if mechanism is not BridgeMechanism.NGSI:
+        raise WireError(where, f"only an mqtt-ngsi bridge takes one, not {mechanism.value}")
     if not isinstance(value, str) or not value.strip() or not value.isprintable() or len(value) > MAX_TOKEN:
         raise WireError(where, f"must be a non-empty printable string of at most {MAX_TOKEN} characters")
     return value.strip()

@@ -84,6 +84,9 @@ _SCHEMAS: dict[str, Any] = {
                                      "allow_anonymous is true"},
             "kafka": {"oneOf": [{"type": "null"}, {"$ref": "#/components/schemas/KafkaNode"}],
                       "description": "kafka: the broker is one node of a multi-node cluster"},
+            "closed_kafkas": {"type": "array", "items": {"type": "string"},
+                              "description": "ngsi-v2: the plant's closed Kafka brokers ('host:port'), "
+                                             "where its kafka:// notifications log in as plantkg"},
         },
     },
     "KafkaNode": {
@@ -176,7 +179,12 @@ _SCHEMAS: dict[str, Any] = {
         "properties": {"id": {"type": "string"}, "kind": {"type": "string"},
                        "host": {"type": "string"}, "port": {"type": "integer"},
                        "bootstrap": {"type": "array", "items": {"type": "string"},
-                                     "description": "a Kafka cluster: host:port of each broker node"}},
+                                     "description": "a Kafka cluster: host:port of each broker node"},
+                       "tls": {"type": "boolean",
+                               "description": "the broker speaks TLS: connect with it, verify with the plant CA"},
+                       "closed": {"type": "boolean",
+                                  "description": "a Kafka that authenticates every client: the worker "
+                                                 "logs in as plantkg's principal"}},
     },
     "BridgeSpec": {
         "type": "object", "additionalProperties": False,

@@ -85,7 +85,7 @@ def _typed(data: dict[str, Any], name: str, types: tuple[type, ...], where: str,
 
 def _names(types: tuple[type, ...]) -> str:
     return " or ".join({str: "a string", int: "an integer", bool: "a boolean",
-                        float: "a number"}[t] for t in types)
+                        float: "a number", list: "an array"}[t] for t in types)
 
 
 def _json_type(value: Any) -> str:
@@ -132,10 +132,12 @@ def broker_spec_from_json(data: Any, where: str = "", *, strict: bool = True) ->
     users = _typed(data, "users", (list,), where, optional=True) or []
     tls = _typed(data, "tls", (bool,), where, optional=True) or False
     kafka = data.get("kafka")
+    closed_kafkas = _typed(data, "closed_kafkas", (list,), where, optional=True) or []
     return BrokerSpec(id=broker_id, iri=iri, name=name, kind=kind, host=host, port=port,
                       persist_every=persist, allow_anonymous=anonymous, mqtt_port=mqtt_port,
                       users=_users(users, _join(where, "users")), tls=tls,
-                      kafka=None if kafka is None else _kafka_node(kafka, _join(where, "kafka"), strict))
+                      kafka=None if kafka is None else _kafka_node(kafka, _join(where, "kafka"), strict),
+                      closed_kafkas=_bootstrap(closed_kafkas, _join(where, "closed_kafkas")))
 
 
 def _kafka_node(data: Any, where: str, strict: bool) -> KafkaNode:
@@ -295,8 +297,11 @@ def _bridge_end(data: Any, where: str, strict: bool) -> BridgeEnd:
     _checked(where, check_host, "host", host)
     port = _checked(where, check_port, "port", _typed(data, "port", (int,), where))
     tls = _typed(data, "tls", (bool,), where, optional=True) or False
+    closed = _typed(data, "closed", (bool,), where, optional=True) or False
+    if closed and kind != "kafka":
+        raise WireError(_join(where, "closed"), f"only a Kafka end is closed (a login of plantkg's), not a {kind} one")
     bootstrap = _typed(data, "bootstrap", (list,), where) if "bootstrap" in data else []
-    return BridgeEnd(id=end_id, kind=kind, host=host, port=port, tls=tls,
+    return BridgeEnd(id=end_id, kind=kind, host=host, port=port, tls=tls, closed=closed,
                      bootstrap=_bootstrap(bootstrap, _join(where, "bootstrap")))
 
 

@@ -10,9 +10,9 @@ A worker bridge lives in ``<state-dir>/bridges/<local>--<remote>/``::
                   engine.drivers.kafka.mirror_worker.MirrorWorkerConfig for kafka-mirror)
     remote.token  mqtt-ngsi: the context broker's write token (the token of the agent that runs
                   it); mqtt-kafka to a closed Kafka: plantkg's password there, derived from the
-                  principal key (engine.security.kafka_client) when the PUT says the Kafka is
-                  closed (it comes with that Kafka's agent token, whose value is not used);
-                  mode 0600; absent for an open remote
+                  principal key (engine.security.kafka_client) when the spec's remote end says
+                  the Kafka is ``closed`` (no token travels for it); mode 0600; absent for an
+                  open remote
     pid.json      pid, start time, argv, restarts, config hash (as for brokers)
     stats.json    what the worker reports: readiness, counters, forwarding rate, last error
     logs/bridge.log
@@ -184,7 +184,7 @@ def _bootstrap(end: BridgeEnd) -> tuple[str, ...]:
 def _config_text(spec: BridgeSpec, folder: Path, remote_token: str | None) -> str:
     if spec.mechanism is BridgeMechanism.MIRROR:
         if remote_token is not None:
-            raise ConfigValueError("remote_token", "(hidden)", "only an mqtt-ngsi or mqtt-kafka bridge takes a remote token")
+            raise ConfigValueError("remote_token", "(hidden)", "only an mqtt-ngsi bridge takes a remote token")
         if any(r.direction is not BridgeDirection.IN for r in spec.routes):
             raise ConfigValueError("routes", [r.direction.value for r in spec.routes],
                                    "a kafka-mirror bridge copies into its carrier only (direction in)")
@@ -192,8 +192,10 @@ def _config_text(spec: BridgeSpec, folder: Path, remote_token: str | None) -> st
     if spec.mechanism is BridgeMechanism.NGSI:
         token_file = folder / TOKEN_FILE if remote_token is not None else None
         return ngsi_worker_config(spec, folder, token_file).to_json()
+    if remote_token is not None:
+        raise ConfigValueError("remote_token", "(hidden)", "only an mqtt-ngsi bridge takes a remote token")
     cfg = worker_config(spec, folder)
-    if remote_token is not None:  # a closed Kafka: the worker's clients log in as plantkg
+    if spec.remote.closed:  # a closed Kafka: the worker's clients log in as plantkg
         cfg = replace(cfg, kafka_password_file=folder / TOKEN_FILE)
     return cfg.to_json()
 
@@ -291,8 +293,8 @@ class WorkerManager:
         text = _config_text(spec, folder.path, remote_token)  # refuses bad values before anything changes
         with self._lock:
             w = self._workers.setdefault(key, _Worker(spec, folder))
-        if remote_token is not None and spec.mechanism is BridgeMechanism.WORKER:
-            remote_token = kafka_client.password()  # the principal key's, never the other agent's token
+        if spec.mechanism is BridgeMechanism.WORKER and spec.remote.closed:
+            remote_token = kafka_client.password()  # plantkg's on a closed Kafka, from the principal key
         with w.op:
             owner = claim(w.record().owner, owner, spec.address)
             files = {WORKER_FILE: text}

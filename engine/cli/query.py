@@ -76,7 +76,7 @@ def _live_plant(files: list[str], agents_file: Path | None) -> PlantGraph | None
     """The plant with its inferred, observed and context graphs; None (after printing the
     report) when the plant is not valid."""
     from engine.cli.reconcile import load_directory, print_violations
-    from engine.context_view import context_sources, write_context
+    from engine.context_view import agent_tokens, context_sources, write_context
     from engine.pipeline import run_pipeline
 
     directory = load_directory(agents_file) if agents_file is not None else None
@@ -86,7 +86,9 @@ def _live_plant(files: list[str], agents_file: Path | None) -> PlantGraph | None
         return None
     for host in (result.observed.unreachable if result.observed else ()):
         click.echo(f"warning: the agent for {host} did not answer; its brokers are pk:Unknown", err=True)
-    view = write_context(result.plant, context_sources(result.plant))
+    tokens = (agent_tokens(result.desired.brokers, directory.token_for)
+              if directory is not None and result.desired is not None else {})
+    view = write_context(result.plant, context_sources(result.plant, tokens))
     for iri, why in view.unavailable:
         click.echo(f"warning: context broker {iri}: its context could not be read ({why})", err=True)
     return result.plant

@@ -1,7 +1,7 @@
 """``plantkg status FILE...``: what each broker of the plant is doing, as its agent reports it.
 
 One row per broker: id, kind, host:port, status, pid, uptime, restarts, topics (present/asked),
-access (who may use it: ``users (N)``, ``token for writes``, ``open``; engine.derived.access);
+access (who may use it: ``users (N)``, ``principals (N)``, ``token``, ``open``; engine.derived.access);
 then, if the plant has bridges, one row per bridge: its address, mechanism, status, routes,
 messages forwarded, its forwarding rate (``rate/s``: messages per second over the worker's last
 ~10 s) and messages retried (Mosquitto's own bridges count nothing: "-"), last error.
@@ -264,7 +264,7 @@ def typed_broker_rows(desired: DesiredState, observed: ObservedState, now: float
 
 
 def _anonymous(spec: BrokerSpec) -> bool:
-    """Whether a running broker admits clients without credentials (a context broker: writes)."""
+    """Whether a running broker admits clients without credentials (a context broker: reads and writes)."""
     return spec.allow_anonymous is not False
 
 

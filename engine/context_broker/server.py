@@ -1,12 +1,15 @@
 """The context broker as a process: arguments, token, store, subscriptions, WSGI server, signals.
 
 ``python -m engine.context_broker --host H --port P --data-dir D [--token-file F | --open]
-[--principals P] [--log-file L] [--allow-remote] [--threads N] [--fsync]``
+[--principals P] [--closed-kafka HOST:PORT ...] [--log-file L] [--allow-remote] [--threads N] [--fsync]``
 
 - Binds loopback unless ``--allow-remote`` (a non-loopback ``--host`` is refused otherwise).
 - Writes need ``Authorization: Bearer <token>`` (the first line of ``--token-file``) unless
   ``--open``; one of the two must be given. ``--principals P`` (with ``--token-file``) closes
   it: reads need a token too, and each principal of ``P`` may use only its entities (:mod:`.access`).
+- ``--closed-kafka HOST:PORT`` (repeated; the NGSI driver renders them from the plant): the
+  plant's closed Kafka brokers, where ``kafka://`` notifications log in as plantkg's own Kafka
+  principal (:mod:`.subscriptions.kafka`); any other Kafka gets no credentials.
 - The store lives in ``D/oxigraph`` and its write-ahead log in ``D/context.wal`` (``D/context.lock``
   keeps a second process out, with a clear message and exit code 2); subscriptions in
   ``D/subscriptions``. An answered write survives kill -9; ``--fsync`` also makes it survive a
@@ -30,6 +33,8 @@ from engine.context_broker.access import Gate
 from engine.security.ngsi_principals import PrincipalsFileError, load_principals
 from engine.context_broker.app import MAX_BODY, create_app
 from engine.context_broker.store import ContextStore, StoreLocked
+from engine.errors import ConfigValueError
+from engine.values import check_address
 
 log = logging.getLogger("engine.context_broker")
 DEFAULT_THREADS = 8
@@ -49,6 +54,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--open", action="store_true", help="writes need no token")
     parser.add_argument("--principals", type=Path,
                         help="the principals file (token digests and entities): closes the broker")
+    parser.add_argument("--closed-kafka", action="append", default=[], metavar="HOST:PORT",
+                        help="a closed Kafka of the plant: kafka:// notifications log in there as "
+                             "plantkg's own principal (its password from the principal key)")
     parser.add_argument("--log-file", type=Path)
     parser.add_argument("--allow-remote", action="store_true", help="allow a non-loopback --host")
     parser.add_argument("--threads", type=int, default=DEFAULT_THREADS)
@@ -100,6 +108,16 @@ def read_gate(args: argparse.Namespace, token: str | None) -> Gate | None:
         raise ConfigError(str(err)) from None
 
 
+def read_closed_kafkas(args: argparse.Namespace) -> frozenset[tuple[str, int]]:
+    out = set()
+    for address in args.closed_kafka:
+        try:
+            out.add(check_address("--closed-kafka", address))
+        except ConfigValueError as err:
+            raise ConfigError(f"--closed-kafka {address!r}: {err.problem}") from None
+    return frozenset(out)
+
+
 def _logging(log_file: Path | None) -> None:
     try:
         handler: logging.Handler = (logging.FileHandler(log_file, encoding="utf-8") if log_file
@@ -118,6 +136,7 @@ def main(argv: list[str] | None = None) -> int:
         check_host(args.host, args.allow_remote)
         token = read_token(args)
         gate = read_gate(args, token)
+        closed_kafkas = read_closed_kafkas(args)
         _logging(args.log_file)
     except ConfigError as err:
         print(f"error: {err}", file=sys.stderr)
@@ -131,7 +150,8 @@ def main(argv: list[str] | None = None) -> int:
     from engine.context_broker.http_server import make_server
     from engine.context_broker.subscriptions import SubscriptionService
 
-    subscriptions = SubscriptionService(args.data_dir / "subscriptions", fsync=args.fsync)
+    subscriptions = SubscriptionService(args.data_dir / "subscriptions", fsync=args.fsync,
+                                        closed_kafkas=closed_kafkas)
     subscriptions.start()
     try:
         app = create_app(store, token=token, gate=gate, listeners=[subscriptions],

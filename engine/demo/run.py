@@ -115,11 +115,14 @@ def _table(taps: list[Tap | NgsiTap], started: float, via: dict[tuple[str, str],
     return lines
 
 
-def _tap(broker: BrokerSpec, desired: DesiredState, stop: threading.Event) -> Tap | NgsiTap:
-    """A tap on every topic of ``broker``: MQTT/Kafka messages, or a context broker's entities."""
+def _tap(broker: BrokerSpec, desired: DesiredState, agents: LocalAgents, stop: threading.Event) -> Tap | NgsiTap:
+    """A tap on every topic of ``broker``: MQTT/Kafka messages, or a context broker's entities
+    (read with its agent's token: a context broker is closed to reads too unless the plant opens it)."""
     topics = desired.topics_of(broker.id)
     if broker.kind == NGSI:
-        return NgsiTap(broker, {t.name: (t.entity_id or "", t.entity_type or "") for t in topics}, stop)
+        token = None if broker.allow_anonymous else agents.agents[broker.host].token
+        return NgsiTap(broker, {t.name: (t.entity_id or "", t.entity_type or "") for t in topics}, stop,
+                       token)
     return Tap(broker, [t.name for t in topics], stop)
 
 
@@ -183,7 +186,7 @@ def run_demo(files: list[str], run: Runner, *, duration: float | None, work_dir:
                        f"{what} {feed.topic} at {feed.rate_hz:g} Hz")
         for (broker, topic), source in sorted(via.items()):
             click.echo(f"   bridge: {topic} from {source} to {broker}")
-        taps = [_tap(b, desired, stop) for b in desired.brokers if desired.topics_of(b.id)]
+        taps = [_tap(b, desired, agents, stop) for b in desired.brokers if desired.topics_of(b.id)]
         threads += taps
         for tap in taps:
             tap.start()

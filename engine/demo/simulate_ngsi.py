@@ -4,7 +4,7 @@ A resource that publishes a topic on a context broker (the task planner of the A
 motion and action commands) writes the topic's entity there: one
 ``POST /v2/entities?options=upsert&options=keyValues`` per message, with its agent's token, at
 1 Hz. An :class:`NgsiTap` reads every entity of its broker's topics (``GET /v2/entities/<id>``,
-``keyValues``) twice a second and counts the changes it sees, so the demo shows the attribute
+``keyValues``, with its agent's token) twice a second and counts the changes it sees, so the demo shows the attribute
 values that really are on the context broker, whether a source wrote them or the MQTT <-> NGSI
 bridge did. Plain ``http.client`` (no proxy: the broker is addressed directly).
 """
@@ -83,9 +83,11 @@ class NgsiSource(threading.Thread):
 class NgsiTap(threading.Thread):
     """Reads the entities of ``topics`` (topic name -> (entity id, entity type)) on ``broker``."""
 
-    def __init__(self, broker: BrokerSpec, topics: dict[str, tuple[str, str]], stop: threading.Event) -> None:
+    def __init__(self, broker: BrokerSpec, topics: dict[str, tuple[str, str]], stop: threading.Event,
+                 token: str | None = None) -> None:
+        """``token``: its agent's, for a closed context broker (reads need it too)."""
         super().__init__(name=f"ngsi-tap-{broker.id}", daemon=True)
-        self.broker, self.topics, self.stop_event = broker, topics, stop
+        self.broker, self.topics, self.stop_event, self.token = broker, topics, stop, token
         self.seen: dict[str, Seen] = {t: Seen() for t in topics}
         self.ready = threading.Event()
         self._previous: dict[str, bytes] = {}
@@ -101,7 +103,7 @@ class NgsiTap(threading.Thread):
 
     def _read(self, topic: str, entity_id: str, entity_type: str) -> None:
         try:
-            status, body = _request(self.broker, "GET", entity_path(entity_id, entity_type))
+            status, body = _request(self.broker, "GET", entity_path(entity_id, entity_type), token=self.token)
         except OSError:
             return
         if status != 200 or body == self._previous.get(topic):

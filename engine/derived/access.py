@@ -15,11 +15,13 @@ of its topics the broker carries. Nothing here decides who may do what: the rule
   broker, with exactly the topics it forwards there; and, for an MQTT <-> NGSI bridge that brings
   entities back, the context broker's notify principal, writing exactly those topics;
 - :func:`check_access_supported` refuses, before anything is deployed, what plantkg cannot run
-  yet: users on a broker whose driver renders none (Mosquitto's and Kafka's do; not a Kafka
-  cluster's nodes), a resource whose ``pk:id`` is one of plantkg's principal names, and a
+  yet: users on a broker whose driver renders none (Mosquitto's and Kafka's do, a Kafka
+  cluster's nodes included), a resource whose ``pk:id`` is one of plantkg's principal names, and a
   MirrorMaker 2 at a closed Kafka (a bridge worker into a closed Kafka authenticates as plantkg's
   own principal, engine.security.kafka_client; bridges at a closed Mosquitto as their bridge
   principal);
+- :func:`with_closed_kafkas` tells each context broker the plant's closed Kafka brokers, where its
+  ``kafka://`` notifications log in as plantkg's own principal;
 - :func:`open_broker_warnings` and :func:`access_label` say, in a plan and in ``status``, which
   brokers anyone on the network may use.
 """
@@ -36,7 +38,8 @@ import pyoxigraph as ox
 
 from engine.errors import EngineError
 from engine.model import BridgeDirection, BridgeMechanism, BridgeSpec, BrokerSpec, BrokerUser
-from engine.security import mqtt_client, principals
+from engine.security import kafka_client, mqtt_client, principals
+from engine.values import host_in_url
 
 #: The broker kinds whose driver renders users and ACLs.
 USER_KINDS = frozenset({"mosquitto", "kafka"})
@@ -45,7 +48,7 @@ TOKEN_KINDS = frozenset({"ngsi-v2"})
 #: The broker kinds whose brokers plantkg's own MQTT principals log in to (closed by default).
 MQTT_USER_KINDS = mqtt_client.USER_KINDS
 #: The broker kinds closed by default: unless the plant says ``pk:allowAnonymous true``, only
-#: their users and plantkg's own principals get in (a Kafka cluster's nodes: not yet, below).
+#: their users and plantkg's own principals get in (a Kafka cluster's nodes too).
 CLOSED_BY_DEFAULT = MQTT_USER_KINDS | {"kafka"}
 
 USERS = """
@@ -88,13 +91,13 @@ def close_brokers(brokers: Iterable[BrokerSpec], users: Mapping[str, tuple[Broke
     """The specs with their users. A Mosquitto or a Kafka broker of its own with no
     ``pk:allowAnonymous`` of its own (``anonymous_said``: IRIs that state one) is closed
     (``allow_anonymous`` False): closed by default, whether or not its clients have a
-    ``pk:secretRef``. A Kafka cluster's nodes are left as the plant says (the shapes require
-    ``pk:allowAnonymous true`` on a cluster until closed clusters are built)."""
+    ``pk:secretRef``. A Kafka cluster's nodes are closed or open together: the caller counts a
+    node as saying ``pk:allowAnonymous`` when its cluster says it (engine.derive)."""
     out = []
     for spec in brokers:
         mine = users.get(spec.iri, ())
         said = spec.iri in anonymous_said
-        if spec.kind in CLOSED_BY_DEFAULT and not said and spec.kafka is None:
+        if spec.kind in CLOSED_BY_DEFAULT and not said:
             spec = replace(spec, allow_anonymous=False)
         if mine:
             spec = replace(spec, users=mine, allow_anonymous=spec.allow_anonymous if said else False)
@@ -143,14 +146,24 @@ def with_bridge_principals(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
     return out
 
 
+def with_closed_kafkas(brokers: Iterable[BrokerSpec]) -> list[BrokerSpec]:
+    """The specs with each context broker told the plant's closed Kafka brokers of their own
+    (``closed_kafkas``, ``host:port`` sorted): its ``kafka://`` notifications log in there as
+    plantkg's own Kafka principal (engine.security.kafka_client), and only there, so plantkg's
+    password never goes to a Kafka a subscription names that is not the plant's."""
+    brokers = list(brokers)
+    closed = tuple(sorted(f"{host_in_url(b.host)}:{b.port}" for b in brokers
+                          if kafka_client.is_closed(b) and b.kafka is None))
+    return [replace(b, closed_kafkas=closed) if b.kind in TOKEN_KINDS else b for b in brokers]
+
+
 def is_closed(spec: BrokerSpec) -> bool:
     """A Mosquitto or a Kafka that admits only its users."""
     return spec.kind in USER_KINDS and spec.allow_anonymous is False
 
 
 def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[BridgeSpec] = ()) -> None:
-    """Refuse users on a broker whose driver renders none or on a Kafka cluster's nodes, plant
-    users named like plantkg's own principals (``plantkg.``...), principals on a context broker
+    """Refuse users on a broker whose driver renders none, plant users named like plantkg's own principals (``plantkg.``...), principals on a context broker
     open to anonymous writes, users on a Kafka open to anonymous clients (a Kafka is either SASL
     or open: it cannot admit both), and a MirrorMaker 2 at a closed Kafka."""
     bridges = tuple(bridges)
@@ -161,7 +174,7 @@ def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
                 f"broker {spec.id!r} (context broker): the plant says pk:allowAnonymous true, but its "
                 f"clients {', '.join(u.name for u in spec.users)} have a pk:secretRef (principals "
                 "close it)", hint="remove pk:allowAnonymous, or the clients' pk:secretRef")
-        if spec.users and spec.kind == "kafka" and spec.kafka is None and spec.allow_anonymous:
+        if spec.users and spec.kind == "kafka" and spec.allow_anonymous:
             raise AccessNotSupportedError(
                 f"broker {spec.id!r} (kafka): the plant says pk:allowAnonymous true, but its clients "
                 f"{', '.join(u.name for u in spec.users)} have a pk:secretRef: a Kafka's listener "
@@ -181,13 +194,6 @@ def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
                 f"broker {spec.id!r}: the resource with pk:id {reserved[0]!r} has a pk:secretRef, "
                 f"but user names starting with {principals.PREFIX!r} are plantkg's own principals",
                 hint="give the resource another pk:id")
-        if spec.users and spec.kafka is not None:
-            raise AccessNotSupportedError(
-                f"broker {spec.id!r} is a node of Kafka cluster {spec.kafka.cluster!r}, whose clients "
-                "have a pk:secretRef: plantkg renders SASL users and ACLs for a Kafka broker of its "
-                "own only (yet); its nodes would need one shared secret for plantkg's own principal",
-                hint="remove pk:secretRef from the cluster's clients, or let them send to a Kafka "
-                     "broker of its own")
     for bridge in bridges:
         # a bridge logs in to a closed Mosquitto as its principal, a bridge worker to a closed
         # Kafka as plantkg's own principal; MirrorMaker 2 has no credentials at a closed Kafka yet
@@ -205,7 +211,7 @@ def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
 def access_label(spec: BrokerSpec) -> str:
     """Who may use the broker, in a word or two (``status``): ``users (N)`` for a closed
     Mosquitto or Kafka (N: the plant's users and the bridges' principals; plantkg's fixed principals not
-    counted), ``token`` for a context broker whose writes need its agent's token, ``open``
+    counted), ``token`` for a closed context broker without principals (its agent's token only), ``open``
     (anyone who reaches it) otherwise; ``, TLS`` when its listener speaks TLS only."""
     if spec.kind in USER_KINDS:
         tls = ", TLS" if spec.tls else ""
@@ -215,7 +221,7 @@ def access_label(spec: BrokerSpec) -> str:
     if spec.kind == "ngsi-v2":
         if spec.users:
             return f"principals ({len(spec.users)})"
-        return "open" if spec.allow_anonymous else "token for writes"
+        return "open" if spec.allow_anonymous else "token"
     return "open"
 
 
@@ -227,8 +233,9 @@ def open_broker_warnings(brokers: Iterable[BrokerSpec]) -> tuple[str, ...]:
     for spec in sorted(brokers, key=lambda b: b.id):
         if spec.kind in USER_KINDS and spec.allow_anonymous is not False:
             if spec.kafka is not None:
-                why = f"a node of Kafka cluster {spec.kafka.cluster}: a cluster is not closed yet"
-                fix = "nothing closes a Kafka cluster yet"
+                why = f"a node of Kafka cluster {spec.kafka.cluster}, which says pk:allowAnonymous true"
+                fix = (f"remove pk:allowAnonymous from cluster {spec.kafka.cluster} (closed by default) "
+                       "and give its clients a pk:secretRef")
             else:
                 why = ("the plant says pk:allowAnonymous true" if spec.allow_anonymous
                        else "its spec does not close it")
@@ -236,9 +243,11 @@ def open_broker_warnings(brokers: Iterable[BrokerSpec]) -> tuple[str, ...]:
             out.append(f"broker.{spec.id} admits anonymous clients ({why}): anyone who reaches "
                        f"{spec.host}:{spec.port} may publish and read every topic; {fix}")
         elif spec.kind == "ngsi-v2" and spec.allow_anonymous:
-            out.append(f"broker.{spec.id} (context broker) takes writes without its agent's token "
-                       "(the plant says pk:allowAnonymous true): anyone who reaches "
-                       f"{spec.host}:{spec.port} may change every entity")
+            out.append(f"broker.{spec.id} (context broker) admits anonymous clients (the plant says "
+                       "pk:allowAnonymous true): anyone who reaches "
+                       f"{spec.host}:{spec.port} may read and change every entity; remove "
+                       "pk:allowAnonymous (closed by default) and give its clients its agent's token "
+                       "or a pk:secretRef")
     return tuple(out)
 
 

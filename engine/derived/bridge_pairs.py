@@ -43,6 +43,7 @@ from engine.model import (
     BridgeSpec,
     BrokerSpec,
 )
+from engine.security import kafka_client
 
 #: The inferred broker classes a bridge mechanism is chosen from (as engine.reasoning.rules_fast.short_name writes them).
 MQTT_CLASS = "pk:MqttBroker"
@@ -122,7 +123,7 @@ def _pair(ds: list[DirectedBridge], brokers: Mapping[str, BrokerSpec],
         routes.append(BridgeRoute(topic, direction, qos, key,
                                   entity_id=opts.entity_id if ngsi else None,
                                   entity_type=opts.entity_type if ngsi else None))
-    return BridgeSpec(local=_end(brokers[local], classes), remote=_end(brokers[remote], classes), mechanism=mechanism,
+    return BridgeSpec(local=bridge_end(brokers[local], classes), remote=bridge_end(brokers[remote], classes), mechanism=mechanism,
                       routes=tuple(routes), asserted=any(d.asserted for d in ds))
 
 
@@ -228,11 +229,12 @@ def _ipv6(host: str) -> bool:
     return ":" in host
 
 
-def _end(spec: BrokerSpec, classes: Mapping[str, frozenset[str]]) -> BridgeEnd:
+def bridge_end(spec: BrokerSpec, classes: Mapping[str, frozenset[str]]) -> BridgeEnd:
     """Where a bridge reaches ``spec``: an MQTT broker at its ``pk:mqttPort`` if it has one (its
-    ``pk:port`` speaks another protocol), every other broker at its ``pk:port``."""
+    ``pk:port`` speaks another protocol), every other broker at its ``pk:port``; ``closed`` when
+    it is a Kafka closed to anonymous clients (a worker logs in there as plantkg's principal)."""
     mqtt = MQTT_CLASS in classes.get(spec.id, frozenset()) and spec.mqtt_port is not None
     return BridgeEnd(id=spec.id, kind=spec.kind, host=spec.host,
                      port=spec.mqtt_port if mqtt else spec.port,  # type: ignore[arg-type]
-                     tls=spec.tls,
+                     tls=spec.tls, closed=kafka_client.is_closed(spec),
                      bootstrap=spec.kafka.bootstrap if spec.kafka is not None else ())

@@ -2,9 +2,13 @@
 
 plantkg's own context broker (:mod:`engine.context_broker`) is a process the agent runs like any
 broker: one listener on the spec's address and port, its entities in ``<broker dir>/data/``, its
-log in ``<broker dir>/logs/ngsi-v2.log``. Writes need ``Authorization: Bearer <token>`` with the
-token of the broker's own agent (so the engine, which reads every agent's token file from
-agents.toml, can write to it), unless the plant says ``pk:allowAnonymous true`` (``--open``).
+log in ``<broker dir>/logs/ngsi-v2.log``. It is closed by default: every request but ``GET
+/version`` needs ``Authorization: Bearer <token>``, reads included, with the token of the broker's
+own agent (so the engine, which reads every agent's token file from agents.toml, can use it) or a
+principal's (``principals.json``, rendered always: empty when no client has a ``pk:secretRef``),
+unless the plant says ``pk:allowAnonymous true`` (``--open``: reads and writes without a token).
+Its ``kafka://`` notifications log in as plantkg's own Kafka principal at the plant's closed Kafka
+brokers the engine names in ``closed_kafkas`` (``--closed-kafka HOST:PORT``), and nowhere else.
 
 A context broker holds entities, not topics: a topic it carries is one entity (``entity_id``,
 ``entity_type``, filled by derive), which needs no creation. So topics are implicit, as on MQTT:
@@ -41,7 +45,7 @@ from engine.drivers.base import (
 from engine.security.ngsi_principals import render_principals
 from engine.errors import ConfigValueError
 from engine.model import BridgeSpec, BrokerSpec, ObservedTopic, TopicSpec
-from engine.values import check_host, check_ngsi_id, check_path, check_port
+from engine.values import check_address, check_host, check_ngsi_id, check_path, check_port
 
 #: The module the agent runs (``python -m``), and the agent's token file name in its state dir.
 SERVER_MODULE = "engine.context_broker"
@@ -82,16 +86,19 @@ class NgsiDriver:
         if spec.persist_every is not None:
             raise ConfigValueError("persist_every", spec.persist_every,
                                    "does not apply to a context broker (it saves every write)")
+        for i, address in enumerate(spec.closed_kafkas):
+            check_address(f"closed_kafkas[{i}]", address)
 
     def render_config(self, spec: BrokerSpec, broker_dir: Path,
                       bridges: tuple[BridgeSpec, ...] = ()) -> dict[str, str]:
-        """The principals file of a broker with users (each user's token read here, on the broker's
-        machine, and written as its SHA-256 digest only; 0600 like every rendered file); else no
-        file. Bridges run as workers beside MQTT."""
+        """The principals file of a closed broker (each user's token read here, on the broker's
+        machine, and written as its SHA-256 digest only; 0600 like every rendered file; no users:
+        an empty list, so only the agent's token gets in); none for an open one. Bridges run as
+        workers beside MQTT."""
         self.validate(spec)
         check_path("broker_dir", broker_dir)
         refuse_bridges(self.kind, bridges)
-        if not spec.users:
+        if spec.allow_anonymous:
             return {}
         tokens = {u.name: (resolve_secret(u), u.write, u.read) for u in spec.users}
         return {PRINCIPALS_FILE: render_principals(tokens)}
@@ -110,6 +117,8 @@ class NgsiDriver:
         check_path("broker_dir", broker_dir)
         argv = [self.python, "-m", SERVER_MODULE, "--host", spec.host, "--port", str(spec.port),
                 "--data-dir", str(broker_dir / DATA_DIR), "--log-file", str(log_file(broker_dir, self.kind))]
+        for address in spec.closed_kafkas:  # its kafka:// notifications log in there as plantkg
+            argv += ["--closed-kafka", address]
         if spec.allow_anonymous:
             return [*argv, "--open"]
         token = check_path("token_file", self.token_file(broker_dir))
@@ -117,13 +126,12 @@ class NgsiDriver:
             raise ConfigValueError("token_file", str(token),
                                    "the agent's token file is missing, and the context broker needs "
                                    f"it for writes (set {TOKEN_FILE_ENV}, or pk:allowAnonymous true)")
-        argv = [*argv, "--token-file", str(token)]
-        return [*argv, "--principals", str(broker_dir / PRINCIPALS_FILE)] if spec.users else argv
+        return [*argv, "--token-file", str(token), "--principals", str(broker_dir / PRINCIPALS_FILE)]
 
     def prepare(self, spec: BrokerSpec, broker_dir: Path) -> None:
         """The data folder the entities are stored in."""
         (broker_dir / DATA_DIR).mkdir(parents=True, exist_ok=True)
-        if not spec.users:
+        if spec.allow_anonymous:
             (broker_dir / PRINCIPALS_FILE).unlink(missing_ok=True)
 
     def health(self, spec: BrokerSpec, timeout: float) -> bool:
@@ -164,8 +172,11 @@ class NgsiDriver:
         return []
 
     def essence(self, spec: BrokerSpec) -> dict[str, Any]:
-        """Listener, whether writes need the token (both on the command line), and the principals."""
+        """Listener, whether writes need the token, the closed Kafkas (all on the command line),
+        and the principals."""
         out = {**spec_essence(spec), "allow_anonymous": bool(spec.allow_anonymous)}
+        if spec.closed_kafkas:
+            out["closed_kafkas"] = list(spec.closed_kafkas)
         if spec.users:  # principals: who they are and their entities (their tokens are not in it)
             out["users"] = [{"name": u.name, "secret_ref": u.secret_ref, "write": sorted(u.write),
                              "read": sorted(u.read)} for u in sorted(spec.users, key=lambda u: u.name)]

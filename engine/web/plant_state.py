@@ -36,7 +36,7 @@ from engine.agents_config import AgentDirectory
 from engine.apply import ApplyEvent, apply
 from engine.cli.progress import result_lines
 from engine.errors import EngineError
-from engine.context_view import ContextView, context_sources, write_context
+from engine.context_view import ContextView, agent_tokens, context_sources, write_context
 from engine.model import DesiredState, ObservedBroker, ObservedState, Plan
 from engine.observed import observe, write_observed
 from engine.pipeline import run_pipeline
@@ -230,7 +230,7 @@ class PlantState:
                     "fingerprint": None, "observed_at": time.time()}
         with self.store_lock.writing():
             write_observed(plant, observed)
-            context = write_context(plant, context_sources(plant))
+            context = write_context(plant, context_sources(plant, agent_tokens(desired.brokers, directory.token_for)))
         plan = make_plan(desired, observed)
         return {"observed": observed, "plan": plan, "fingerprint": plan_fingerprint(plan), "error": None,
                 "observed_at": time.time(), "context": context, "agent_urls": tuple((h, directory.url_for(h)) for h in sorted(hosts))}

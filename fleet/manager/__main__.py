@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 from engine.agents_config import AgentDirectory
+from engine.incremental.warm import WarmPipeline
 from fleet.manager import apply_step
 from fleet.manager.api import ApiServer
 from fleet.manager.plant import binding_and_address
@@ -56,7 +57,8 @@ def main(argv: list[str] | None = None) -> int:
         directory = AgentDirectory.load(args.agents)
         config = ManagerConfig(tuple(plant), args.data_dir.resolve(), args.mqtt or address, binding,
                                batch_window=args.batch_window, resync=args.resync)
-        manager = FleetManager(config, lambda files: apply_step.reconcile(files, directory))
+        warm = WarmPipeline()  # one plant for the manager's life: each join re-plans from its edit
+        manager = FleetManager(config, lambda files: apply_step.reconcile(files, directory, warm))
         api = ApiServer(manager, config.data_dir, args.api_host, args.api_port)
     except (PlantKGError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -9,13 +9,13 @@ for agents that fail: those are results the manager logs and writes to its statu
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
 from engine.agents_config import AgentDirectory
 from engine.apply import RetryPolicy, apply
-from engine.pipeline import run_pipeline
+from engine.pipeline import Pipeline, run_pipeline
 from kg.errors import PlantKGError
 
 #: Short retries: the manager reconciles again on the next change or drift, it does not wait 5 min.
@@ -56,11 +56,14 @@ def check(files: Iterable[Path | str]) -> StepResult:
     return StepResult(result.valid, _violations(result), ok=result.valid, seconds=time.perf_counter() - began)
 
 
-def reconcile(files: Iterable[Path | str], directory: AgentDirectory) -> StepResult:
-    """Make what runs match ``files``: validate, plan against the agents, apply, check."""
+def reconcile(files: Iterable[Path | str], directory: AgentDirectory,
+              pipeline: Callable[..., Pipeline] = run_pipeline) -> StepResult:
+    """Make what runs match ``files``: validate, plan against the agents, apply, check.
+    ``pipeline``: the manager's warm one (engine.incremental.warm), so a join re-plans from the
+    vehicles' edit, not from scratch; ``run_pipeline`` (cold) by default."""
     began = time.perf_counter()
     try:
-        result = run_pipeline(list(files), directory)
+        result = pipeline(list(files), directory)
     except PlantKGError as exc:  # a file that does not parse: the plant cannot be read
         return StepResult(False, (Violation(None, "", str(exc)),), seconds=time.perf_counter() - began)
     if not result.valid:

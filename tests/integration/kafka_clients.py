@@ -3,8 +3,11 @@ and publish a run of numbered MQTT messages (QoS 1, each acknowledged) with paho
 
 from __future__ import annotations
 
+import secrets
 import time
 import uuid
+from collections.abc import Iterable
+from pathlib import Path
 
 from confluent_kafka import Consumer, KafkaError
 from paho.mqtt import client as mqtt
@@ -31,6 +34,18 @@ def read_topic(bootstrap: str, topic: str, auth: dict[str, str], want: int,
     finally:
         consumer.close()
     return got, errors
+
+
+def password_files(folder: Path, names: Iterable[str]) -> tuple[dict[str, str], dict[str, Path]]:
+    """A throwaway password per name and the 0600 file holding it (``folder/<name>.pw``), for
+    ``pk:secretRef "file:..."``: (passwords, files)."""
+    passwords = {name: secrets.token_urlsafe(18) for name in names}
+    files = {}
+    for name, password in passwords.items():
+        files[name] = folder / f"{name}.pw"
+        files[name].write_text(password + "\n", encoding="utf-8")
+        files[name].chmod(0o600)
+    return passwords, files
 
 
 def publish_numbered(host: str, port: int, topic: str, count: int) -> None:

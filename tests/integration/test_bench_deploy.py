@@ -19,8 +19,11 @@ def test_deploy_benchmark_runs(tmp_path: Path) -> None:
                               "--out", str(tmp_path)]) == 0
     data = json.loads((tmp_path / "deploy.json").read_text())
     rows = set(data["ms"])
-    assert rows >= {"bare", "plantkg", "plantkg-dispatch", "plantkg-cli", "plantkg-proxy-1ms", "kafka-bare",
-                    "kafka-plantkg"}
+    assert rows >= {"bare", "plantkg", "plantkg-dispatch", "plantkg-warm", "plantkg-cli", "plantkg-proxy-1ms",
+                    "kafka-bare", "kafka-plantkg"}
+    # the warm row's pipeline started once, then followed each run's one-line edit (the port)
+    assert data["warm_calls"] == {"cold": 1, "warm": 1}
+    assert "load" not in data["plantkg_warm_stages_ms"] and "apply" in data["plantkg_warm_stages_ms"]
     # every row one run; bare once more, interleaved with the command line's run
     assert {name: row["n"] for name, row in data["ms"].items() if row["n"] != 1} == {"bare": 2}
     # `plantkg apply` as a process starts an interpreter and imports: slower than in-process

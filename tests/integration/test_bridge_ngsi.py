@@ -580,7 +580,8 @@ def test_apply_of_the_agv_middleware_plant_bridges_mqtt_and_the_context_broker(
             http = Http("127.0.0.3", cb_port)  # the context broker the agent runs
 
             def status_entity() -> dict | None:
-                reply = http.request("GET", "/v2/entities/urn:ngsi-ld:AGV:agv-1?type=AGV&options=keyValues")
+                reply = http.request("GET", "/v2/entities/urn:ngsi-ld:AGV:agv-1?type=AGV&options=keyValues",
+                                     headers={"Authorization": f"Bearer {cb_token}"})  # closed: reads too
                 return reply.json() if reply.status == 200 else None
             entity = process.wait_until(status_entity, 30.0, 0.1, what="the AGV entity")
             assert (entity["state"], entity["battery"], entity["seq"]) == ("idle", 87, 0)

@@ -2,8 +2,8 @@
 
 One ``plantkg agent`` serves 127.0.0.3; the plant is a context broker on a free port with one
 topic (an entity). The tests run in file order on one deployment: apply -> ``status`` shows it
-running and its health (GET /version) passes -> writes need the agent's token (401 without or
-with a wrong one) -> the context broker is SIGKILLed while writes stream: the agent restarts it and
+running and its health (GET /version) passes -> writes and reads need the agent's token (401
+without or with a wrong one) -> the context broker is SIGKILLed while writes stream: the agent restarts it and
 every write it answered 2xx is there afterwards -> the agent itself is SIGKILLed and restarted on
 the same state dir: it re-adopts the running context broker (same pid) -> destroy leaves no
 broker and no process. The module fixture checks that no broker process survived.
@@ -18,7 +18,7 @@ import signal
 import threading
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import pytest
@@ -124,14 +124,18 @@ def test_plan_after_apply_has_no_changes(dep: Deployment, capsys: pytest.Capture
     assert code == 0, out
 
 
-def test_writes_need_the_agents_token(dep: Deployment) -> None:
+def test_requests_need_the_agents_token_reads_included(dep: Deployment) -> None:
+    """Closed by default (no pk:allowAnonymous): writes and reads need the agent's token."""
     token = dep.agent.token
     assert dep.request("POST", "/v2/entities", entity(0))[0] == 401
     assert dep.request("POST", "/v2/entities", entity(0), token="not-" + token)[0] == 401
-    assert dep.request("GET", f"/v2/entities/{entity(0)['id']}")[0] == 404  # nothing half-written
+    assert dep.request("GET", f"/v2/entities/{entity(0)['id']}", token=token)[0] == 404  # nothing half-written
     assert dep.request("POST", "/v2/entities", entity(0), token=token)[0] == 201
-    status, body = dep.request("GET", f"/v2/entities/{entity(0)['id']}?options=keyValues")
-    assert status == 200 and json.loads(body)["seq"] == 0  # reads need no token
+    status, body = dep.request("GET", f"/v2/entities/{entity(0)['id']}?options=keyValues", token=token)
+    assert status == 200 and json.loads(body)["seq"] == 0
+    for path in (f"/v2/entities/{entity(0)['id']}", "/v2/entities", "/v2/subscriptions", "/plantkg/v1/graph"):
+        assert dep.request("GET", path)[0] == 401, path  # reads are closed too
+        assert dep.request("GET", path, token="not-" + token)[0] == 401, path
 
 
 def test_a_killed_context_broker_is_restarted_and_keeps_every_acknowledged_write(dep: Deployment) -> None:
@@ -173,7 +177,7 @@ def test_a_killed_context_broker_is_restarted_and_keeps_every_acknowledged_write
     after = dep.broker()
     assert after.restarts >= before.restarts + 1 and after.pid != before.pid
     missing = [i for i in acknowledged
-               if dep.request("GET", f"/v2/entities/{entity(i)['id']}?type={ENTITY_TYPE}")[0] != 200]
+               if dep.request("GET", f"/v2/entities/{entity(i)['id']}?type={ENTITY_TYPE}", token=token)[0] != 200]
     assert missing == [], f"{len(missing)} of {len(acknowledged)} acknowledged writes lost: {missing[:10]}"
     print(f"context broker SIGKILLed after {killed_at} acknowledged creates, running again after "
           f"{back_after:.1f} s, {len(acknowledged)} acknowledged in all, none lost")
@@ -246,7 +250,22 @@ def test_an_agent_with_its_own_token_file_gives_it_to_its_context_broker(tmp_pat
                                                         "Authorization": f"Bearer {token}"})
             assert conn.getresponse().status == expected
             conn.close()
+        assert _read_status(host, cb_port) == 401  # closed by default: reads need the token too
+        # pk:allowAnonymous true opens it: reads (and writes) without a token; the agent restarts it
+        assert client.put_broker(replace(spec, allow_anonymous=True)).status is BrokerStatus.RUNNING
+        process.wait_until(lambda: _read_status(host, cb_port) == 200, 30.0, 0.1, what="the opened broker",
+                           ignore=(OSError,))
         client.delete_broker("cb")
     finally:
         process.stop(child, grace=30.0)
     assert not netutil.port_open(host, cb_port)
+
+
+def _read_status(host: str, port: int) -> int:
+    """The status of an anonymous read of the context broker's entities."""
+    conn = http.client.HTTPConnection(host, port, timeout=10)
+    try:
+        conn.request("GET", "/v2/entities/urn:ngsi-ld:Thing:1")
+        return conn.getresponse().status
+    finally:
+        conn.close()

@@ -107,3 +107,55 @@ def test_plantkg_query_live_sees_inferred_facts_and_context(broker: ContextBroke
     assert gone.exit_code == 0 and "could not be read" in gone.output
     lonely = runner.invoke(cli, ["query", str(plant), "--agents", "agents.toml", query])
     assert lonely.exit_code == 2 and "--agents goes with --live" in lonely.output
+
+
+def test_a_closed_context_broker_is_read_with_its_agents_token(tmp_path: Path) -> None:
+    """A context broker with principals answers 401 to a read without a token: the dashboard (and
+    ``plantkg query --live``) read it with its agent's token, from the agents file (issue 13)."""
+    from click.testing import CliRunner
+
+    from engine.agents_config import AgentDirectory, AgentEntry
+    from engine.cli import cli
+    from engine.security.ngsi_principals import render_principals
+
+    principals = tmp_path / "principals.json"
+    principals.write_text(render_principals({"planner": ("planner-Token-51be02", (), ())}), encoding="utf-8")
+    principals.chmod(0o600)
+    rig = ContextBroker(tmp_path / "cb", extra_args=("--principals", str(principals))).start()
+    state = None
+    try:
+        put_battery(rig, 77.5)
+        assert rig.http().request("GET", "/plantkg/v1/graph", None, {}).status == 401  # closed, reads too
+        plant = tmp_path / "live.ttl"
+        plant.write_text(PLANT.replace("{port}", str(rig.port)), encoding="utf-8")
+        agents = {"127.0.0.1": AgentEntry("127.0.0.1", f"http://127.0.0.1:{rig.port + 1}", token=rig.token)}
+        state = PlantState([str(plant)], None, directory_loader=lambda _p: AgentDirectory(entries=agents))
+        state.reload()
+        context = state.snapshot.context
+        assert context is not None and context.quads > 0 and context.unavailable == (), context
+        with state.store_lock.reading():
+            rows = list(state.snapshot.plant.store.query(
+                'PREFIX ngsi: <https://w3id.org/plantkg/ngsi#> '
+                'SELECT ?v WHERE { GRAPH ?g { ?a ngsi:name "battery" ; ngsi:hasValue ?v } }'))
+        assert [float(r["v"].value) for r in rows] == [77.5]
+
+        # without the agent's token (another agent's), the read is refused and reported as such
+        agents["127.0.0.1"] = AgentEntry("127.0.0.1", f"http://127.0.0.1:{rig.port + 1}", token="y" * 20)
+        state.refresh()
+        context = state.snapshot.context
+        assert context is not None and context.quads == 0
+        assert [why for _iri, why in context.unavailable] == [
+            f"ValueError: http://127.0.0.1:{rig.port}/plantkg/v1/graph answered HTTP 401"]
+
+        agents_file = tmp_path / "agents.toml"
+        agents_file.write_text(f'[agents."127.0.0.1"]\nurl = "http://127.0.0.1:{rig.port + 1}"\n'
+                               f'token = "{rig.token}"\n', encoding="utf-8")
+        live = CliRunner().invoke(cli, ["query", str(plant), "--live", "--agents", str(agents_file),
+                                        "--format", "csv", PREFIXES + BATTERY])
+        assert live.exit_code == 0 and "could not be read" not in live.output, live.output
+        assert live.output.strip().splitlines()[-1] == "77.5,https://example.org/live#cb", live.output
+        assert rig.token not in live.output
+    finally:
+        if state is not None:
+            state.close()
+        rig.stop()

@@ -34,7 +34,7 @@ from paho.mqtt.enums import CallbackAPIVersion
 from engine import process
 from engine.model import BrokerStatus
 from tests.integration.test_fleet_planner import (  # noqa: F401 - rig is the module's fixture
-    CB_HOST, MQTT_HOST, PARK, ROOT, Planner, Rig, rig, spawn_sim, wait_ready, write_map,
+    CB_HOST, MQTT_HOST, PARK, ROOT, Planner, Rig, cb_read, rig, spawn_sim, wait_ready, write_map,
 )
 
 pytestmark = pytest.mark.integration
@@ -148,8 +148,7 @@ def write_event(rig: Rig, name: str, value: Any) -> None:
 
 
 def subscriptions(rig: Rig) -> list[dict[str, Any]]:
-    url = f"http://{CB_HOST}:{rig.cb_port}/v2/subscriptions?limit=1000"
-    with urllib.request.urlopen(url, timeout=10) as reply:
+    with urllib.request.urlopen(cb_read(rig, "/v2/subscriptions?limit=1000"), timeout=10) as reply:
         return [s for s in json.loads(reply.read()) if (s.get("description") or "").startswith("plantkg task planner")]
 
 

@@ -125,9 +125,11 @@ class Poller(threading.Thread):
     """The independent NGSI client (the paper's JMeter): plain HTTP GETs of the status entities,
     every ``period`` s, each sample kept with its time."""
 
-    def __init__(self, port: int, period: float = 0.05) -> None:
+    def __init__(self, port: int, token: str, period: float = 0.05) -> None:
+        """``token``: the context broker's agent's (closed by default: reads need it too)."""
         super().__init__(daemon=True, name="fig7-poller")
         self.base, self.period = f"http://{CB_IP}:{port}", period
+        self.auth = {"Authorization": f"Bearer {token}"}
         self.samples: dict[str, list[tuple[float, dict[str, Any]]]] = {a: [] for a in AGVS}
         self.requests = 0
         self.failures = 0
@@ -136,7 +138,8 @@ class Poller(threading.Thread):
     def read(self, entity_id: str) -> dict[str, Any] | None:
         self.requests += 1
         try:
-            with urllib.request.urlopen(f"{self.base}/v2/entities/{entity_id}?options=keyValues", timeout=5) as reply:
+            with urllib.request.urlopen(urllib.request.Request(f"{self.base}/v2/entities/{entity_id}?options=keyValues",
+                                                               headers=self.auth), timeout=5) as reply:
                 return json.loads(reply.read())
         except urllib.error.HTTPError as exc:
             if exc.code != 404:  # 404: the vehicle has not published its status yet
@@ -192,7 +195,7 @@ def test_fig7_two_agvs_reach_their_points_in_order_and_an_ngsi_poller_sees_them_
     session.headers["Authorization"] = f"Bearer {fleet.agents[CB_IP].token}"
     writer = filip_cb.ContextBrokerClient(url=f"http://{CB_IP}:{cb_port}", session=session,
                                           fiware_header=FiwareHeader())
-    poller = Poller(cb_port)
+    poller = Poller(cb_port, fleet.agents[CB_IP].token)
     poller.start()
     try:
         for agv in AGVS:

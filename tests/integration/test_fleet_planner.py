@@ -242,9 +242,16 @@ class Planner:
         return "".join(p.read_text(errors="replace") for p in sorted((self.rig.tmp / "logs").glob(f"{self.name}-*")))
 
 
+def cb_read(rig: Rig, path: str) -> urllib.request.Request:
+    """A read of the fleet's context broker, with its agent's token (closed by default, reads too)."""
+    token = rig.cb_token_file.read_text(encoding="utf-8").splitlines()[0].strip()
+    return urllib.request.Request(f"http://{CB_HOST}:{rig.cb_port}{path}",
+                                  headers={"Authorization": f"Bearer {token}"})
+
+
 def entities(rig: Rig) -> dict[str, dict[str, Any]]:
-    url = f"http://{CB_HOST}:{rig.cb_port}/v2/entities?type=Task&options=keyValues&limit=100"
-    with urllib.request.urlopen(url, timeout=10) as reply:
+    with urllib.request.urlopen(cb_read(rig, "/v2/entities?type=Task&options=keyValues&limit=100"),
+                                timeout=10) as reply:
         return {e["id"]: e for e in json.loads(reply.read())}
 
 
@@ -467,7 +474,7 @@ def test_a_withdrawn_task_is_cancelled_on_its_vehicle_and_a_manager_restart_is_w
 
 def ngsi_get(rig: Rig, entity_id: str) -> dict[str, Any] | None:
     try:
-        with urllib.request.urlopen(f"http://{CB_HOST}:{rig.cb_port}/v2/entities/{entity_id}?options=keyValues",
+        with urllib.request.urlopen(cb_read(rig, f"/v2/entities/{entity_id}?options=keyValues"),
                                     timeout=5) as reply:
             return json.loads(reply.read())
     except (OSError, ValueError):

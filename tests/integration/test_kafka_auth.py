@@ -18,7 +18,6 @@ its config file, 0600, holds the throwaway password):
 
 from __future__ import annotations
 
-import secrets
 import stat
 import subprocess
 import uuid
@@ -33,7 +32,7 @@ from confluent_kafka.admin import AdminClient
 from engine import netutil
 from engine.cli import main
 from tests.integration.agents import AgentFleet, start_agents
-from tests.integration.kafka_clients import publish_numbered, read_topic
+from tests.integration.kafka_clients import password_files, publish_numbered, read_topic
 
 pytestmark = pytest.mark.integration
 
@@ -70,12 +69,7 @@ ex:camera a pk:Resource ; pk:id "camera" ; pk:name "Camera" ; pk:sendsTo ex:mq ;
 @pytest.fixture(scope="module")
 def closed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Closed]:
     tmp = tmp_path_factory.mktemp("kafka-auth")
-    passwords = {name: secrets.token_urlsafe(18) for name in ("robot1", "hist")}
-    files = {}
-    for name, password in passwords.items():
-        files[name] = tmp / f"{name}.pw"
-        files[name].write_text(password + "\n", encoding="utf-8")
-        files[name].chmod(0o600)
+    passwords, files = password_files(tmp, ("robot1", "hist"))
     fleet = start_agents([MQ, KF], tmp)
     try:
         mq_port, kf_port = netutil.free_port(MQ), netutil.free_port(KF)

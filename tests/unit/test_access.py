@@ -79,15 +79,37 @@ def test_a_kafka_with_users_is_closed_and_its_bridge_worker_allowed(tmp_path: Pa
     assert [(b.local.id, b.remote.id) for b in state.bridges] == [("m1", "k1")]
 
 
-def test_users_on_a_kafka_cluster_are_refused(tmp_path: Path) -> None:
-    cluster = ('ex:c a pk:Broker ; pk:id "c" ; pk:name "c" ; pk:brokerType "kafka" ; pk:hasTopic ex:pose .\n'
-               'ex:n1 a pk:Broker ; pk:id "n1" ; pk:name "n1" ; pk:brokerType "kafka" ; pk:ip "127.0.0.2" ; '
-               'pk:port 9092 ; pk:nodeOf ex:c ; pk:nodeId 1 ; pk:kafkaRole "broker" , "controller" ; '
-               'pk:controllerPort 9093 .\n'
-               'ex:hist a pk:Resource ; pk:id "hist" ; pk:name "Historian" ; pk:sendsTo ex:c ; '
-               'pk:subscribes ex:pose ; pk:secretRef "env:HIST" .\n')
-    with pytest.raises(AccessNotSupportedError, match="'n1' is a node of Kafka cluster 'c'"):
-        derived(tmp_path, cluster)
+CLUSTER = ('ex:c a pk:Broker ; pk:id "c" ; pk:name "c" ; pk:brokerType "kafka" ; pk:hasTopic ex:pose .\n'
+           + "".join(f'ex:n{i} a pk:Broker ; pk:id "n{i}" ; pk:name "n{i}" ; pk:brokerType "kafka" ; '
+                     f'pk:ip "127.0.0.{i + 1}" ; pk:port 9092 ; pk:nodeOf ex:c ; pk:nodeId {i} ; '
+                     'pk:kafkaRole "broker" , "controller" ; pk:controllerPort 9093 .\n' for i in (1, 2, 3)))
+HIST = ('ex:hist a pk:Resource ; pk:id "hist" ; pk:name "Historian" ; pk:sendsTo ex:c ; '
+        'pk:subscribes ex:pose ; pk:secretRef "env:HIST" .\n')
+
+# name: (extra Turtle, users of every node, allow_anonymous of every node)
+CLUSTER_CASES = {
+    "a-cluster-is-closed-by-default": ("", (), False),
+    "a-cluster-client-with-a-secret-is-a-user-of-every-node": (
+        HIST, (BrokerUser("hist", "env:HIST", read=("cell/pose",)),), False),
+    "the-plant-closes-the-cluster": ("ex:c pk:allowAnonymous false .", (), False),
+    "the-plant-opens-the-cluster": ("ex:c pk:allowAnonymous true .", (), True),
+}
+
+
+@pytest.mark.parametrize("engine", ["fast", "owlready2"])
+@pytest.mark.parametrize("name", sorted(CLUSTER_CASES))
+def test_a_kafka_clusters_nodes_are_closed_together_with_the_clusters_users(
+        tmp_path: Path, name: str, engine: str) -> None:
+    extra, users, anonymous = CLUSTER_CASES[name]
+    state = derived(tmp_path, CLUSTER + extra, engine)
+    nodes = [b for b in state.brokers if b.kafka is not None]
+    assert sorted(b.id for b in nodes) == ["n1", "n2", "n3"]
+    assert {(b.users, b.allow_anonymous) for b in nodes} == {(users, anonymous)}
+
+
+def test_a_kafka_cluster_open_to_anonymous_clients_with_users_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(AccessNotSupportedError, match="'n1' \\(kafka\\): the plant says pk:allowAnonymous true"):
+        derived(tmp_path, CLUSTER + HIST + "ex:c pk:allowAnonymous true .")
 
 
 @pytest.mark.parametrize("engine", ["fast", "owlready2"])
@@ -151,8 +173,8 @@ def _spec(**kw):
     (_spec(kind="kafka", port=9092, allow_anonymous=False), "users (0)", None),
     (_spec(kind="kafka", port=9092, allow_anonymous=True), "open", "the plant says pk:allowAnonymous true"),
     (_spec(kind="kafka", port=9092, allow_anonymous=False, users=(HMI_USER,)), "users (1)", None),
-    (_spec(kind="ngsi-v2", allow_anonymous=False), "token for writes", None),
-    (_spec(kind="ngsi-v2", allow_anonymous=True), "open", "takes writes without its agent's token"),
+    (_spec(kind="ngsi-v2", allow_anonymous=False), "token", None),
+    (_spec(kind="ngsi-v2", allow_anonymous=True), "open", "may read and change every entity"),
     (_spec(kind="ngsi-v2", allow_anonymous=False, users=(ROBOT_USER, HMI_USER)), "principals (2)", None),
 ])
 def test_plans_and_status_say_who_may_use_a_broker(spec, label: str, warning: str | None) -> None:
@@ -162,13 +184,17 @@ def test_plans_and_status_say_who_may_use_a_broker(spec, label: str, warning: st
     assert (warnings == ()) if warning is None else (len(warnings) == 1 and warning in warnings[0])
 
 
-def test_a_kafka_cluster_node_warns_that_clusters_cannot_be_closed_yet() -> None:
+def test_an_open_kafka_cluster_node_warns_and_says_how_to_close_it() -> None:
     from engine.derived.access import open_broker_warnings  # noqa: PLC0415
     from engine.model import KafkaNode  # noqa: PLC0415
     node = _spec(kind="kafka", port=9092, allow_anonymous=True,
                  kafka=KafkaNode("plant", "A" * 22, 1, ("broker", "controller"), ()))
     [warning] = open_broker_warnings([node])
-    assert "a node of Kafka cluster plant: a cluster is not closed yet" in warning
+    assert "a node of Kafka cluster plant, which says pk:allowAnonymous true" in warning
+    assert "remove pk:allowAnonymous from cluster plant (closed by default)" in warning
+    closed = _spec(kind="kafka", port=9092, allow_anonymous=False,
+                   kafka=KafkaNode("plant", "A" * 22, 1, ("broker", "controller"), ()))
+    assert open_broker_warnings([closed]) == ()
 
 
 def test_a_kafka_open_to_anonymous_clients_with_users_is_refused() -> None:
@@ -184,3 +210,36 @@ def test_principals_on_a_context_broker_are_taken_and_an_open_one_with_them_refu
     check_access_supported([_spec(kind="ngsi-v2", allow_anonymous=False, users=(ROBOT_USER,))])
     with pytest.raises(AccessNotSupportedError, match="pk:allowAnonymous true, but its clients"):
         check_access_supported([_spec(kind="ngsi-v2", allow_anonymous=True, users=(ROBOT_USER,))])
+
+
+KAFKA_AND_CB = """ex:k a pk:Broker ; pk:id "k1" ; pk:name "plant-kafka" ; pk:brokerType "kafka" ; pk:ip "127.0.0.4" ;
+    pk:port 9092 ; pk:hasTopic ex:pose .
+ex:cb a pk:Broker ; pk:id "cb1" ; pk:name "context" ; pk:brokerType "ngsi-v2" ; pk:ip "127.0.0.5" ;
+    pk:port 1026 ; pk:hasTopic ex:state .
+ex:state a pk:Topic ; pk:id "state" ; pk:name "cell/state" .
+ex:agv a pk:Resource ; pk:id "agv" ; pk:name "AGV" ; pk:sendsTo ex:cb ; pk:publishes ex:state .
+"""
+
+
+@pytest.mark.parametrize(("kafka_extra", "told"), [
+    ("", ("127.0.0.4:9092",)),                                   # closed by default
+    ("ex:k pk:allowAnonymous true .", ()),                        # open: its notifications go anonymous
+])
+def test_a_context_broker_is_told_the_plants_closed_kafkas(tmp_path: Path, kafka_extra: str, told: tuple) -> None:
+    """Its kafka:// notifications log in as plantkg there, and nowhere else (engine.derived.access)."""
+    desired = derived(tmp_path, KAFKA_AND_CB + kafka_extra)
+    specs = {b.id: b for b in desired.brokers}
+    assert specs["cb1"].closed_kafkas == told
+    assert specs["k1"].closed_kafkas == () and specs["m1"].closed_kafkas == ()  # only context brokers
+
+
+def test_closed_kafkas_name_ipv6_addresses_in_brackets_and_skip_cluster_nodes() -> None:
+    from engine.derived.access import with_closed_kafkas  # noqa: PLC0415
+    from engine.model import KafkaNode  # noqa: PLC0415
+    node = _spec(id="n1", kind="kafka", host="127.0.0.7", port=9092, allow_anonymous=True,
+                 kafka=KafkaNode("plant", "A" * 22, 1, ("broker", "controller"), ()))
+    specs = with_closed_kafkas([_spec(id="k6", kind="kafka", host="::1", port=9092, allow_anonymous=False),
+                                _spec(id="k4", kind="kafka", host="127.0.0.4", port=9094, allow_anonymous=False),
+                                _spec(id="open", kind="kafka", host="127.0.0.6", port=9092, allow_anonymous=True),
+                                node, _spec(id="cb", kind="ngsi-v2", allow_anonymous=False)])
+    assert specs[-1].closed_kafkas == ("127.0.0.4:9094", "[::1]:9092")

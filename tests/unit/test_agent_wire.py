@@ -74,6 +74,25 @@ def test_ngsi_fields_round_trip() -> None:
     assert bridge_spec_from_json(to_dict(bridge)) == bridge
 
 
+def test_a_closed_end_round_trips_and_only_a_kafka_is_closed() -> None:
+    from engine.agent.wire import bridge_spec_from_json
+    from engine.model import BridgeDirection, BridgeEnd, BridgeMechanism, BridgeRoute, BridgeSpec
+
+    bridge = BridgeSpec(BridgeEnd("mqtt", "mosquitto", "127.0.0.2", 1883),
+                        BridgeEnd("kf", "kafka", "127.0.0.3", 9092, closed=True),
+                        BridgeMechanism.WORKER, (BridgeRoute("t", BridgeDirection.OUT),))
+    assert bridge_spec_from_json(to_dict(bridge)) == bridge
+    body = to_dict(bridge)
+    body["local"]["closed"] = True
+    with pytest.raises(WireError) as info:
+        bridge_spec_from_json(body)
+    assert info.value.field == "local.closed" and "Kafka" in str(info.value)
+    body["local"]["closed"] = "yes"
+    with pytest.raises(WireError) as info:
+        bridge_spec_from_json(body)
+    assert info.value.field == "local.closed"
+
+
 @pytest.mark.parametrize(("changes", "field"), [
     ({"entity_id": "has space"}, "entity_id"),
     ({"entity_id": "a/b"}, "entity_id"),
@@ -130,3 +149,14 @@ def test_two_users_of_one_name_are_refused() -> None:
     user = {"name": "robot1", "secret_ref": "env:X"}
     with pytest.raises(WireError, match="two users with the same name"):
         broker_spec_from_json({**USER_BASE, "users": [user, user]})
+
+
+def test_a_context_brokers_closed_kafkas_round_trip_and_bad_ones_are_refused() -> None:
+    spec = broker_spec_from_json({**to_dict(NGSI), "closed_kafkas": ["127.0.0.4:9092", "[::1]:9093"]})
+    assert spec.closed_kafkas == ("127.0.0.4:9092", "[::1]:9093")
+    assert broker_spec_from_json(to_dict(spec)) == spec
+    for bad, field in ((["kafka.local:9092"], "closed_kafkas[0].host"), (["127.0.0.4:x"], "closed_kafkas[0]"),
+                       ("127.0.0.4:9092", "closed_kafkas")):
+        with pytest.raises(WireError) as info:
+            broker_spec_from_json({**to_dict(NGSI), "closed_kafkas": bad})
+        assert info.value.field == field, (bad, info.value)

@@ -5,7 +5,7 @@ carrying agent as a transport field (never in a plan, an operation, a spec or an
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import pytest
@@ -71,18 +71,19 @@ def test_ipv6_context_broker_url_is_bracketed(tmp_path: Path) -> None:
     assert ngsi_worker_config(spec, tmp_path, None).ngsi_url == "http://[::1]:1026"
 
 
-def test_only_an_ngsi_or_kafka_worker_takes_a_remote_token(tmp_path: Path) -> None:
+def test_only_an_ngsi_worker_takes_a_remote_token(tmp_path: Path) -> None:
     mirror = BridgeSpec(BridgeEnd("k2", "kafka", "127.0.0.4", 9092), BridgeEnd("kafka", "kafka", "127.0.0.3", 9092),
                         BridgeMechanism.MIRROR, (BridgeRoute("t", BridgeDirection.IN),))
-    with pytest.raises(ConfigValueError) as exc:
-        _config_text(mirror, tmp_path, "secret")
-    assert exc.value.field == "remote_token" and "secret" not in str(exc.value)
-    # into a closed Kafka: the worker reads plantkg's password from a file, never from worker.json
-    kafka = BridgeSpec(MQTT, BridgeEnd("kafka", "kafka", "127.0.0.3", 9092), BridgeMechanism.WORKER,
+    kafka = BridgeSpec(MQTT, BridgeEnd("kafka", "kafka", "127.0.0.3", 9092, closed=True), BridgeMechanism.WORKER,
                        (BridgeRoute("t", BridgeDirection.OUT),))
-    closed = json.loads(_config_text(kafka, tmp_path, "secret"))
-    assert closed["kafka_password_file"] == str(tmp_path / "remote.token") and "secret" not in json.dumps(closed)
-    assert "kafka_password_file" not in json.loads(_config_text(kafka, tmp_path, None))
+    for spec in (mirror, kafka):
+        with pytest.raises(ConfigValueError) as exc:
+            _config_text(spec, tmp_path, "secret")
+        assert exc.value.field == "remote_token" and "secret" not in str(exc.value)
+    # into a closed Kafka: the worker reads plantkg's password from a file, never from worker.json
+    assert json.loads(_config_text(kafka, tmp_path, None))["kafka_password_file"] == str(tmp_path / "remote.token")
+    opened = replace(kafka, remote=replace(kafka.remote, closed=False))
+    assert "kafka_password_file" not in json.loads(_config_text(opened, tmp_path, None))
     open_cb = json.loads(_config_text(ngsi_spec(), tmp_path, None))
     assert open_cb["token_file"] is None
     with_token = json.loads(_config_text(ngsi_spec(), tmp_path, "secret"))

@@ -13,6 +13,7 @@ import socket
 import sys
 import threading
 from collections.abc import Iterator
+from dataclasses import replace
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
@@ -60,7 +61,8 @@ def test_command_uses_the_agents_token_file(broker_dir: Path, monkeypatch: pytes
     argv = NgsiDriver().command(cb_spec(), broker_dir)
     assert argv == [sys.executable, "-m", "engine.context_broker", "--host", "127.0.0.3", "--port", "11026",
                     "--data-dir", str(broker_dir / "data"), "--log-file", str(broker_dir / "logs" / "ngsi-v2.log"),
-                    "--token-file", str(broker_dir.parent.parent / "token")]
+                    "--token-file", str(broker_dir.parent.parent / "token"),
+                    "--principals", str(broker_dir / "principals.json")]  # closed by default: reads need a token
 
 
 def test_an_agent_with_another_token_file_passes_it_in_the_environment(
@@ -69,7 +71,7 @@ def test_an_agent_with_another_token_file_passes_it_in_the_environment(
     other.parent.mkdir()
     other.write_text("y" * 32)
     monkeypatch.setenv(TOKEN_FILE_ENV, str(other))
-    assert NgsiDriver().command(cb_spec(), broker_dir)[-2:] == ["--token-file", str(other)]
+    assert NgsiDriver().command(cb_spec(), broker_dir)[-4:-2] == ["--token-file", str(other)]
 
 
 def test_allow_anonymous_opens_writes_and_needs_no_token(tmp_path: Path) -> None:
@@ -85,12 +87,16 @@ def test_a_missing_token_file_is_refused_naming_what_to_do(tmp_path: Path, monke
     assert info.value.field == "token_file" and "pk:allowAnonymous" in str(info.value)
 
 
-def test_prepare_makes_the_data_folder_and_nothing_is_rendered(broker_dir: Path) -> None:
+def test_prepare_makes_the_data_folder_and_a_closed_broker_gets_an_empty_principals_file(broker_dir: Path) -> None:
     driver = NgsiDriver()
     driver.prepare(cb_spec(), broker_dir)
     driver.prepare(cb_spec(), broker_dir)  # idempotent
     assert (broker_dir / "data").is_dir()
-    assert driver.render_config(cb_spec(), broker_dir) == {}
+    assert json.loads(driver.render_config(cb_spec(), broker_dir)["principals.json"]) == {"principals": []}
+    assert driver.render_config(cb_spec(allow_anonymous=True), broker_dir) == {}  # open: nothing rendered
+    (broker_dir / "principals.json").write_text("{}")
+    driver.prepare(cb_spec(allow_anonymous=True), broker_dir)
+    assert not (broker_dir / "principals.json").exists()  # an opened broker loses its file
 
 
 def test_bridges_are_not_native() -> None:
@@ -108,6 +114,10 @@ def test_bridges_are_not_native() -> None:
     ({"host": "127.0.0.1\n--open"}, "host"),
     ({"allow_anonymous": "yes"}, "allow_anonymous"),
     ({"persist_every": 1}, "persist_every"),
+    ({"closed_kafkas": ("127.0.0.4",)}, "closed_kafkas[0]"),
+    ({"closed_kafkas": ("127.0.0.4:9092", "kafka.local:9092")}, "closed_kafkas[1]"),
+    ({"closed_kafkas": ("127.0.0.4:9092\n--open",)}, "closed_kafkas[0]"),
+    ({"closed_kafkas": ("::1:9092",)}, "closed_kafkas[0]"),
 ])
 def test_bad_broker_values_are_refused(changes: dict, field: str) -> None:
     with pytest.raises(ConfigValueError) as info:
@@ -159,6 +169,18 @@ def test_the_longest_entity_id_is_accepted() -> None:
     NgsiDriver().ensure_topic(cb_spec(), topic(entity_id="e" * 256))
 
 
+def test_the_plants_closed_kafkas_are_on_the_command_line(broker_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The context broker's kafka:// notifications log in there (and nowhere else) as plantkg."""
+    monkeypatch.delenv(TOKEN_FILE_ENV, raising=False)
+    spec = cb_spec(closed_kafkas=("127.0.0.4:9092", "[::1]:9093"))
+    argv = NgsiDriver().command(spec, broker_dir)
+    at = argv.index("--closed-kafka")
+    assert argv[at:at + 4] == ["--closed-kafka", "127.0.0.4:9092", "--closed-kafka", "[::1]:9093"]
+    assert argv.count("--closed-kafka") == 2
+    assert "--closed-kafka" in NgsiDriver().command(replace(spec, allow_anonymous=True), broker_dir)
+    assert "--closed-kafka" not in NgsiDriver().command(cb_spec(), broker_dir)
+
+
 # --- essence --------------------------------------------------------------------------------
 
 def test_essence_is_the_listener_and_the_write_policy() -> None:
@@ -169,6 +191,8 @@ def test_essence_is_the_listener_and_the_write_policy() -> None:
     assert driver.essence(cb_spec(allow_anonymous=None)) == driver.essence(spec)  # unset: token needed
     assert driver.essence(cb_spec(allow_anonymous=True)) != driver.essence(spec)
     assert driver.essence(cb_spec(port=11027)) != driver.essence(spec)
+    closed = cb_spec(closed_kafkas=("127.0.0.4:9092",))  # on the command line: a change restarts it
+    assert driver.essence(closed) == {**driver.essence(spec), "closed_kafkas": ["127.0.0.4:9092"]}
 
 
 # --- health ---------------------------------------------------------------------------------

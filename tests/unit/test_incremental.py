@@ -206,19 +206,21 @@ def _observed_as(desired) -> ObservedState:  # noqa: ANN001
         bridges=tuple(ObservedBridge(b, BridgeStatus.RUNNING, owner=desired.owner) for b in desired.bridges))
 
 
-def _same_as_full(session: ReplanSession, path: Path) -> None:
+def _same_as_full(session: ReplanSession, path: Path | list[Path]) -> None:
     """The session's refresh equals a full run — report, inferred graph, desired state, and the
     plan against what the agents ran before the edit; a plant the full run refuses (a bridge no
-    mechanism supports, say) the session refuses with the same error."""
+    mechanism supports, say) the session refuses with the same error. A list of files is the
+    plant's file set now (the session is told it)."""
     observed = _observed_as(session.result.desired)
+    files = path if isinstance(path, list) else None
     try:
-        full = run_pipeline([path], observe=False)
+        full = run_pipeline(files or [path], observe=False)
     except Exception as exc:  # noqa: BLE001 - whatever the full run raises, the session must too
         with pytest.raises(type(exc)) as raised:
-            session.refresh(observed)
+            session.refresh(observed, files=files)
         assert str(raised.value) == str(exc)
         return
-    got = session.refresh(observed)
+    got = session.refresh(observed, files=files)
     if full.desired is not None:
         assert got.plan == plan(full.desired, observed)
     assert _results(got.report) == _results(full.report)
@@ -355,3 +357,68 @@ def test_a_plant_with_a_kafka_cluster_derives_in_full_and_matches(tmp_path: Path
     path.write_text(edited)
     _same_as_full(session, path)
     assert "derive" in session.last["full"]
+
+
+def test_files_added_and_removed_replan_as_a_full_run_does(tmp_path: Path) -> None:
+    """The fleet manager writes one file per discovered vehicle into the plant's folder: a session
+    told the new file set reads an added file whole and takes a removed one out whole, and still
+    answers as a full run over the same files — a joining resource that makes a bridge, one that
+    breaks a shape, its removal, an empty file and one that does not parse (refused as loading
+    refuses them)."""
+    path = synthetic.write_file(N, tmp_path)
+    session = ReplanSession([path])
+    head = synthetic.HEADER.split(":type-sensor")[0]
+    joins = tmp_path / "joins"
+    joins.mkdir()
+    first, second = joins / "agv-1.ttl", joins / "agv-2.ttl"
+    first.write_text(head + ':agv1 a pk:Resource ; pk:id "agv-1" ; pk:name "AGV 1" ; pk:isType :type-sensor ; '
+                     "pk:sendsTo :broker0 ; pk:subscribes :topic1 .\n:broker0 pk:hasTopic :topic1 .\n")
+    before = sum(len(b.routes) for b in session.result.desired.bridges)
+    _same_as_full(session, [path, first])
+    assert session.last["cut"] == ["file"] and session.files == [path, first]
+    assert sum(len(b.routes) for b in session.result.desired.bridges) > before  # its subscription is bridged
+    second.write_text(head + ':agv2 a pk:Resource ; pk:id "res-3" ; pk:name "AGV 2" ; pk:sendsTo :broker0 .\n')
+    _same_as_full(session, [path, first, second])  # a duplicate pk:id: the plant is invalid
+    assert not session.result.report.conforms
+    _same_as_full(session, [path, first])  # taken out again: valid
+    assert session.result.report.conforms and session.files == [path, first]
+    _same_as_full(session, [path])
+    assert sum(len(b.routes) for b in session.result.desired.bridges) == before
+    _same_as_full(session, [first, path])  # the same files in another order
+    empty = joins / "empty.ttl"
+    empty.write_text(head)
+    _same_as_full(session, [path, first, empty])  # "holds no triples", as loading says
+    broken = joins / "broken.ttl"
+    broken.write_text(head + ":x a pk:Resource , .\n")
+    fresh = ReplanSession([path])
+    _same_as_full(fresh, [path, broken])  # the loader's syntax error, naming the file and line
+
+
+def test_an_edit_too_large_to_follow_is_done_from_scratch_and_still_matches(tmp_path: Path) -> None:
+    """More than 1/LARGE_EDIT of the plant's triples changed: loading afresh is cheaper than
+    following the edit (a vehicle of 240 triples joining a small plant). Whether the change is
+    read from the statements, found by comparing the whole file, or a whole file added, the
+    answer is a full run's; a small edit after it is followed again."""
+    from engine.incremental.replan import FEW_TRIPLES, LARGE_EDIT
+
+    path = synthetic.write_file(N, tmp_path)
+    session = ReplanSession([path])
+    text = path.read_text()
+    rng = random.Random(SEED)
+    big = text
+    while big.count(":extra") < 8:
+        big = add_resource(big, rng) or big
+    assert 8 * 9 * LARGE_EDIT > session.plant.triple_count and 8 * 9 > FEW_TRIPLES  # large for this plant
+    path.write_text(big)
+    _same_as_full(session, path)
+    assert "load" in session.last["full"] and session.last["large_edit"] is not None
+    path.write_text(text)  # the eight taken out, whole-file path or cut: again from scratch
+    _same_as_full(session, path)
+    assert "load" in session.last["full"]
+    extra = tmp_path / "extra.ttl"
+    extra.write_text(synthetic.HEADER.split(":type-sensor")[0] + big[len(text):])
+    _same_as_full(session, [path, extra])  # a large file added: known by its size, not parsed twice
+    assert "load" in session.last["full"] and session.last["large_edit"] is None
+    path.write_text(text.replace('pk:name "Sensor 5"', 'pk:name "Sensor five"'))
+    _same_as_full(session, [path, extra])
+    assert session.last["full"] == [] and session.last["cut"] == ["cut"]

@@ -23,14 +23,15 @@ HEADER = """@prefix pk: <https://w3id.org/plantkg/ontology#> .
 #: node and one controller-only node; the historian reads the line's position on the site.
 PLANT = """
 :mq a pk:Broker ; pk:id "mq" ; pk:name "mq" ; pk:brokerType "mosquitto" ; pk:ip "127.0.0.5" ; pk:port 1883 .
-:plant a pk:Broker ; pk:id "plant" ; pk:name "plant" ; pk:brokerType "kafka" ; pk:minInsyncReplicas 2 .
+:plant a pk:Broker ; pk:id "plant" ; pk:name "plant" ; pk:brokerType "kafka" ; pk:minInsyncReplicas 2 ;
+    pk:allowAnonymous true .  # mirrored: a MirrorMaker 2 end is open (docs/security.md)
 :k1 a pk:Broker ; pk:id "k1" ; pk:name "k1" ; pk:brokerType "kafka" ; pk:ip "127.0.0.2" ; pk:port 9092 ;
     pk:nodeOf :plant ; pk:nodeId 1 ; pk:kafkaRole "broker" , "controller" ; pk:controllerPort 9093 .
 :k2 a pk:Broker ; pk:id "k2" ; pk:name "k2" ; pk:brokerType "kafka" ; pk:ip "127.0.0.3" ; pk:port 9092 ;
     pk:nodeOf :plant ; pk:nodeId 2 ; pk:kafkaRole "broker" , "controller" ; pk:controllerPort 9093 .
 :k3 a pk:Broker ; pk:id "k3" ; pk:name "k3" ; pk:brokerType "kafka" ; pk:ip "127.0.0.4" ; pk:port 9092 ;
     pk:nodeOf :plant ; pk:nodeId 3 ; pk:kafkaRole "broker" , "controller" ; pk:controllerPort 9093 .
-:site a pk:Broker ; pk:id "site" ; pk:name "site" ; pk:brokerType "kafka" .
+:site a pk:Broker ; pk:id "site" ; pk:name "site" ; pk:brokerType "kafka" ; pk:allowAnonymous true .
 :s1 a pk:Broker ; pk:id "s1" ; pk:name "s1" ; pk:brokerType "kafka" ; pk:ip "127.0.0.6" ; pk:port 9092 ;
     pk:nodeOf :site ; pk:nodeId 7 ; pk:kafkaRole "broker" .
 :s0 a pk:Broker ; pk:id "s0" ; pk:name "s0" ; pk:brokerType "kafka" ; pk:ip "127.0.0.6" ; pk:port 9093 ;

@@ -89,21 +89,26 @@ def test_a_worker_whose_kafka_closes_or_opens_is_put_again() -> None:
     desired, observed, _ = load_case("no-change")
     kafka = desired.brokers[0]
     assert kafka.id == "kafka" and kafka.allow_anonymous is None  # the case's Kafka: open
-    closed = replace(desired, brokers=(replace(kafka, allow_anonymous=False), desired.brokers[1]))
+    [bridge] = desired.bridges
+    assert bridge.remote.id == "kafka" and not bridge.remote.closed
+    closed = replace(desired, brokers=(replace(kafka, allow_anonymous=False), desired.brokers[1]),
+                     bridges=(replace(bridge, remote=replace(bridge.remote, closed=True)),))
     for want, have in ((closed, observed), (desired, _observed_as(observed, closed))):
         result = plan(want, have)
         changes = {c.address: c for c in result.changes}
         assert changes["broker.kafka"].action is Action.REPLACE
-        bridge = changes["bridge.mosquitto.kafka"]
-        assert bridge.action is Action.UPDATE and "opens or closes" in bridge.reason
-        assert bridge.before == bridge.after  # the bridge itself did not change
+        change = changes["bridge.mosquitto.kafka"]
+        assert change.action is Action.UPDATE and change.reason.startswith("remote changed")
+        assert change.after["remote"].get("closed", False) is (want is closed)  # an open end reads as before
     assert all(c.action is Action.NOOP for c in plan(closed, _observed_as(observed, closed)).changes)
 
 
 def _observed_as(observed: ObservedState, desired: DesiredState) -> ObservedState:
-    """``observed`` with each broker running the spec ``desired`` gives it."""
+    """``observed`` with each broker and bridge running the spec ``desired`` gives it."""
+    bridges = {b.address: b for b in desired.bridges}
     return replace(observed, brokers=tuple(replace(b, spec=desired.broker(b.spec.id) or b.spec)
-                                           for b in observed.brokers))
+                                           for b in observed.brokers),
+                   bridges=tuple(replace(b, spec=bridges.get(b.spec.address, b.spec)) for b in observed.bridges))
 
 
 def test_a_bridge_on_an_unreachable_host_is_not_planned() -> None:

@@ -15,6 +15,7 @@ from engine.agent.save_tick import SaveTicker, catches, chars_read
 CATCHER = """
 import signal, sys
 signal.signal(signal.SIGUSR1, lambda *_: (sys.stdout.write("saved\\n"), sys.stdout.flush()))
+signal.signal(signal.SIGINT, signal.default_int_handler)  # its own, even where SIGINT came ignored
 print("ready", flush=True)
 for line in sys.stdin:
     print("read", flush=True)
@@ -42,7 +43,7 @@ def start(children: list[subprocess.Popen[str]], code: str) -> subprocess.Popen[
 def test_catches_reads_the_handlers_of_a_process(children: list[subprocess.Popen[str]]) -> None:
     catcher, ignorant = start(children, CATCHER), start(children, IGNORANT)
     assert catches(catcher.pid, signal.SIGUSR1) and not catches(ignorant.pid, signal.SIGUSR1)
-    assert catches(catcher.pid, signal.SIGINT)  # Python's own KeyboardInterrupt handler
+    assert catches(catcher.pid, signal.SIGINT)  # a second handler it installed (KeyboardInterrupt)
     gone = subprocess.Popen([sys.executable, "-c", "pass"])
     gone.wait(10)
     assert not catches(gone.pid, signal.SIGUSR1) and chars_read(gone.pid) is None

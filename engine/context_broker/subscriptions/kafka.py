@@ -7,38 +7,77 @@ difference). Headers as Orion's: ``Fiware-Service``, ``Fiware-ServicePath``,
 ``Fiware-Correlator``, ``Ngsiv2-AttrsFormat``. A notification counts as sent when the broker
 acknowledged the record; an error or no answer within :data:`DELIVERY_TIMEOUT` is a temporary
 failure (the lane retries).
+
+A Kafka of the plant that is closed (engine.derived.access: no ``pk:allowAnonymous true``) admits
+only SASL clients. The context broker is told those brokers (``--closed-kafka``, rendered by the
+NGSI driver from the plant) and logs in there as plantkg's own Kafka principal, SASL/PLAIN with
+the password derived from the principal key its agent exports
+(:mod:`engine.security.kafka_client`), when any address of a target's bootstrap list is one of
+them. Any other Kafka a subscription names gets no credentials: plantkg's password (sent in clear
+by PLAIN) goes only where the plant deployed a closed Kafka. A key that cannot be read makes each
+notification a temporary failure, named in ``lastFailureReason``.
 """
 
 from __future__ import annotations
 
+import ipaddress
 import threading
 import time
+from typing import Any
 
 from confluent_kafka import KafkaError, KafkaException, Producer
 
 from engine.context_broker.subscriptions.model import KafkaTarget
 from engine.context_broker.subscriptions.render import Outgoing
 from engine.context_broker.subscriptions.result import Result
+from engine.errors import EngineError
+from engine.security import kafka_client
 
 DELIVERY_TIMEOUT = 10.0
 
 
+def bootstrap_addresses(bootstrap: str) -> frozenset[tuple[str, int]]:
+    """The (address, port) pairs of a ``host:port[,host:port...]`` list, an IP address
+    normalised as :func:`engine.values.check_host` does (a name kept, lower case)."""
+    out = set()
+    for item in bootstrap.split(","):
+        host, _, port = item.rpartition(":")
+        host = host.strip("[]").lower()
+        try:
+            host = str(ipaddress.ip_address(host))
+        except ValueError:
+            pass
+        if port.isdigit():
+            out.add((host, int(port)))
+    return frozenset(out)
+
+
 class KafkaSender:
-    def __init__(self) -> None:
+    def __init__(self, closed_kafkas: frozenset[tuple[str, int]] = frozenset()) -> None:
+        """``closed_kafkas``: the plant's closed Kafka brokers (address, port): a target naming
+        one of them is sent to logged in as plantkg's own principal."""
         self._lock = threading.Lock()
         self._producers: dict[str, Producer] = {}
+        self._closed = closed_kafkas
+
+    def logs_in(self, bootstrap: str) -> bool:
+        """True when ``bootstrap`` names one of the plant's closed Kafka brokers."""
+        return bool(bootstrap_addresses(bootstrap) & self._closed)
 
     def _producer(self, bootstrap: str) -> Producer:
+        """The producer of ``bootstrap``; raises EngineError when plantkg's password cannot be
+        derived (the principal key unreadable)."""
         with self._lock:
             producer = self._producers.get(bootstrap)
             if producer is None:
-                producer = Producer({
+                config: dict[str, Any] = {
                     "bootstrap.servers": bootstrap,
                     "acks": "all",
                     "enable.idempotence": True,
                     "message.timeout.ms": int(DELIVERY_TIMEOUT * 1000),
                     "client.id": "plantkg-context-broker",
-                })
+                }
+                producer = Producer(config | kafka_client.client_settings(self.logs_in(bootstrap)))
                 self._producers[bootstrap] = producer
             return producer
 
@@ -47,7 +86,10 @@ class KafkaSender:
             self._producers.pop(bootstrap, None)
 
     def send(self, target: KafkaTarget, msg: Outgoing) -> Result:
-        producer = self._producer(target.bootstrap)
+        try:
+            producer = self._producer(target.bootstrap)
+        except EngineError as err:  # the principal key, for a closed Kafka
+            return Result.temporary(f"Kafka {target.bootstrap}: cannot log in as plantkg: {err}")
         done = threading.Event()
         outcome: list[KafkaError | None] = []
 

@@ -45,8 +45,12 @@ class SubscriptionService:
                  parse_q: QParser | None = None, queue_bound: int = DEFAULT_BOUND,
                  backoff: Callable[[int], float] = backoff_delay,
                  status_flush_interval: float = STATUS_FLUSH_INTERVAL,
-                 senders: dict[type, Sender] | None = None, fsync: bool = False) -> None:
+                 senders: dict[type, Sender] | None = None, fsync: bool = False,
+                 closed_kafkas: frozenset[tuple[str, int]] = frozenset()) -> None:
+        """``closed_kafkas``: the plant's closed Kafka brokers (address, port), where ``kafka://``
+        notifications log in as plantkg's own principal (:mod:`.kafka`)."""
         self.clock = clock
+        self._closed_kafkas = closed_kafkas
         self._parse_q = parse_q or _default_parse_q
         self.registry = Registry(Path(data_dir), self._parse_q)
         self._queries: dict[tuple[str, bool], Any] = {}
@@ -180,7 +184,7 @@ class SubscriptionService:
         with self._sender_lock:
             sender = self._senders.get(kind)
             if sender is None:
-                sender = self._senders[kind] = _new_sender(kind)
+                sender = self._senders[kind] = _new_sender(kind, self._closed_kafkas)
             return sender
 
     def attempted(self, sub_id: str, result: Result) -> bool:
@@ -202,7 +206,7 @@ class SubscriptionService:
             self.registry.record_dropped(sub_id, count)
 
 
-def _new_sender(kind: type) -> Sender:
+def _new_sender(kind: type, closed_kafkas: frozenset[tuple[str, int]]) -> Sender:
     if kind is HttpTarget:
         return HttpSender()
     if kind is MqttTarget:
@@ -212,5 +216,5 @@ def _new_sender(kind: type) -> Sender:
     if kind is KafkaTarget:
         from engine.context_broker.subscriptions.kafka import KafkaSender
 
-        return KafkaSender()
+        return KafkaSender(closed_kafkas)
     raise TypeError(f"no sender for {kind.__name__}")

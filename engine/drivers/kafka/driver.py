@@ -11,7 +11,9 @@ id from the graph, so every node's agent renders and formats alike without talki
 Health: a node alone answers a metadata request; a cluster node with the broker role is
 registered and back in the ISR of every partition it holds (so a rolling restart waits for it
 before the next node stops, and a node the agent restarted after a crash counts as running once
-it caught up); a controller-only node accepts a connection on its quorum listener.
+it caught up); a controller-only node accepts a connection on its quorum listener. A closed node
+alone, or a closed cluster's lead node, counts as running once its users and ACLs are as the spec
+says (engine.drivers.kafka.access; a cluster's are in its metadata log, shared by all its nodes).
 """
 
 from __future__ import annotations
@@ -80,6 +82,7 @@ class KafkaDriver:
             data_dir=broker_dir / DATA_DIR, node_id=node.node_id, roles=node.roles,
             voters=tuple((v.node_id, v.host, v.port) for v in node.voters),
             replication=node.replication, min_insync=node.min_insync,
+            internal_password=access.internal_password() if access.is_closed(spec) else None,
             tls=tls.node_tls(spec, broker_dir),  # refused: TLS is for a broker of its own only
         )
 
@@ -97,14 +100,14 @@ class KafkaDriver:
     def render_config(self, spec: BrokerSpec, broker_dir: Path,
                       bridges: tuple[BridgeSpec, ...] = ()) -> dict[str, str]:
         """``server.properties``; a node alone needs the controller port that :meth:`prepare`
-        stored. A closed broker also gets the digest of its users' passwords, so a
-        changed password restarts it (engine.drivers.kafka.access); a TLS broker its keystore and
+        stored. A closed broker (a closed cluster's lead node) also gets the digest of its users'
+        passwords, so a changed password restarts it (engine.drivers.kafka.access); a TLS broker its keystore and
         the plant CA's certificate (engine.drivers.kafka.tls). Kafka carries no native bridge
         (its bridges are workers)."""
         refuse_bridges(self.kind, bridges)
         cfg = self.node_config(spec, broker_dir)
         files = {PROPERTIES_FILE: kafka_runtime.render_server_properties(cfg), **tls.tls_files(spec, broker_dir)}
-        if cfg.internal_password is not None:
+        if cfg.internal_password is not None and _sets_access(spec):
             files[access.DIGEST_FILE] = access.users_digest(spec.users, cfg.internal_password)
         return files
 
@@ -149,7 +152,7 @@ class KafkaDriver:
             return False
         if node is None and not bool(metadata.brokers) or node is not None and not in_sync(metadata, node.node_id):
             return False
-        if access.is_closed(spec):  # its users and ACLs as the spec says, before it counts as up
+        if access.is_closed(spec) and _sets_access(spec):  # users and ACLs as the spec says
             try:
                 access.sync_access(admin, spec.users, max(timeout, 5.0))
             except (DriverError, ConfigValueError) as exc:
@@ -182,7 +185,7 @@ class KafkaDriver:
         out = spec_essence(spec)
         if access.is_closed(spec):  # SASL listeners: a change either way restarts the broker
             out["closed"] = True
-        if spec.users:  # a password's new content shows in the rendered digest, not here
+        if spec.users and _sets_access(spec):  # a password's new content shows in the digest
             out["users"] = [{"name": u.name, "secret_ref": u.secret_ref, "write": sorted(u.write),
                              "read": sorted(u.read)} for u in sorted(spec.users, key=lambda u: u.name)]
         if spec.tls:  # only then: a plain broker's essence, and so its config hash, stays as it was
@@ -196,6 +199,13 @@ class KafkaDriver:
         """Why a TLS broker's certificate must be issued again (None: current, or plain); the
         agent reports it, the plan turns it into an update, the PUT renders a new one."""
         return tls.renewal(spec, broker_dir)
+
+
+def _sets_access(spec: BrokerSpec) -> bool:
+    """This node sets the users and ACLs: a node alone, or a cluster's lead node. A cluster keeps
+    them in its metadata log, shared by every node, so they are set once for all, and only the
+    lead's machine reads the users' passwords (a change of users restarts the lead only)."""
+    return spec.kafka is None or spec.kafka.lead
 
 
 def read_controller_port(broker_dir: Path) -> int:

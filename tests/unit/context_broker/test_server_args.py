@@ -47,3 +47,15 @@ def test_main_refuses_a_remote_host_before_touching_the_data_dir(tmp_path: Path,
 def test_fsync_is_off_unless_asked() -> None:
     assert parse_args(["--data-dir", "d"]).fsync is False
     assert parse_args(["--data-dir", "d", "--fsync"]).fsync is True
+
+
+def test_closed_kafkas_are_addresses(tmp_path: Path) -> None:
+    """``--closed-kafka HOST:PORT``: where kafka:// notifications log in as plantkg."""
+    from engine.context_broker.server import read_closed_kafkas  # noqa: PLC0415
+    args = parse_args(["--data-dir", "d", "--open", "--closed-kafka", "127.0.0.4:9092",
+                       "--closed-kafka", "[0:0::1]:9093"])
+    assert read_closed_kafkas(args) == {("127.0.0.4", 9092), ("::1", 9093)}
+    assert read_closed_kafkas(parse_args(["--data-dir", "d", "--open"])) == frozenset()
+    for bad in ("127.0.0.4", "kafka.local:9092", "127.0.0.4:0"):
+        with pytest.raises(ConfigError, match=f"--closed-kafka '{bad}'"):
+            read_closed_kafkas(parse_args(["--data-dir", "d", "--open", "--closed-kafka", bad]))

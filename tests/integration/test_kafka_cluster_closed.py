@@ -1,0 +1,196 @@
+"""A Kafka cluster closed by default (issue 13): three KRaft nodes from a plant file, on real agents
+and real JVMs, none of which admits an anonymous client.
+
+The plant: a cluster ``plant-kafka`` that says nothing about anonymous clients, its three combined
+nodes on 127.0.0.2-4 (each on its own agent); ``line.energy`` (3 partitions, replication factor
+3, min.insync.replicas 2) and ``plant.kpi``. The PLC publishes ``line.energy``, the MES reads it;
+both have a ``pk:secretRef`` to a throwaway password file. One deployment is shared by the module
+(three JVMs take a minute to come up on two cores); the tests run in file order:
+
+1. ``apply`` forms one closed cluster: every node's listeners are SASL, its users and ACLs were
+   set once (through the lead node) and hold on every node; ``plan`` has no change and no
+   warning, ``status`` says ``users (2)`` for each node;
+2. an anonymous confluent-kafka client and ``kcat -L`` (Debian's, an independent client) are
+   refused by every node;
+3. the PLC produces to ``line.energy`` with acks=all through each node (the replicated topic works
+   with SASL between the nodes) and is refused on ``plant.kpi``; the MES reads what it wrote;
+4. ``apply`` adds a user (the HMI, publishing ``plant.kpi``) while the PLC keeps writing with
+   acks=all: no write fails, the HMI then writes ``plant.kpi`` and only the lead node restarted.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+from confluent_kafka import KafkaException, Producer
+from confluent_kafka.admin import AdminClient
+
+from engine import netutil
+from engine.cli import main
+from engine.model import BrokerStatus
+from tests.integration.agents import AgentFleet, start_agents
+from tests.integration.kafka_clients import password_files, read_topic
+from tests.integration.test_kafka_auth import _as, _produce
+
+pytestmark = pytest.mark.integration
+
+NODES = {"n1": "127.0.0.2", "n2": "127.0.0.3", "n3": "127.0.0.4"}
+USERS = ("plc", "mes", "hmi")
+HMI = """ex:hmi a pk:Resource ; pk:id "hmi" ; pk:name "HMI" ; pk:sendsTo ex:c ; pk:publishes ex:kpi ;
+    pk:secretRef "file:{file}" .
+"""
+
+
+@dataclass
+class Cluster:
+    fleet: AgentFleet
+    plant: Path
+    ports: dict[str, int]
+    passwords: dict[str, str]
+    files: dict[str, Path]
+    capsys: object = None
+
+    def address(self, node: str) -> str:
+        return f"{NODES[node]}:{self.ports[node]}"
+
+    @property
+    def bootstrap(self) -> str:
+        return ",".join(self.address(n) for n in NODES)
+
+    def run(self, *args: object) -> tuple[int, str]:
+        code = main([str(args[0]), str(self.plant), "--agents", str(self.fleet.agents_file),
+                     *(str(a) for a in args[1:])])
+        out = self.capsys.readouterr()  # type: ignore[attr-defined]
+        return code, out.out + out.err
+
+    def user(self, name: str) -> dict[str, str]:
+        return _as(name, self.passwords[name])
+
+
+def _plant(ports: dict[str, int], files: dict[str, Path], extra: str = "") -> str:
+    nodes = "".join(
+        f'ex:{n} a pk:Broker ; pk:id "{n}" ; pk:name "plant-kafka-{n}" ; pk:brokerType "kafka" ; '
+        f'pk:ip "{host}" ; pk:port {ports[n]} ;\n    pk:nodeOf ex:c ; pk:nodeId {n[1:]} ; '
+        f'pk:kafkaRole "broker" , "controller" ; pk:controllerPort {ports[n + ":controller"]} .\n'
+        for n, host in NODES.items())
+    return f"""@prefix pk: <https://w3id.org/plantkg/ontology#> .
+@prefix ex: <http://example.org/kafka-cluster-closed#> .
+ex:c a pk:Broker ; pk:id "plant-kafka" ; pk:name "plant-kafka" ; pk:brokerType "kafka" ;
+    pk:minInsyncReplicas 2 ; pk:hasTopic ex:energy , ex:kpi .
+{nodes}ex:energy a pk:Topic ; pk:id "energy" ; pk:name "line.energy" ; pk:partitions 3 ;
+    pk:replicationFactor 3 ; pk:minInsyncReplicas 2 .
+ex:kpi a pk:Topic ; pk:id "kpi" ; pk:name "plant.kpi" ; pk:partitions 1 ; pk:replicationFactor 3 .
+ex:plc a pk:Resource ; pk:id "plc" ; pk:name "PLC" ; pk:sendsTo ex:c ; pk:publishes ex:energy ;
+    pk:secretRef "file:{files['plc']}" .
+ex:mes a pk:Resource ; pk:id "mes" ; pk:name "MES" ; pk:sendsTo ex:c ; pk:subscribes ex:energy ;
+    pk:secretRef "file:{files['mes']}" .
+{extra}"""
+
+
+@pytest.fixture(scope="module")
+def deployed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Cluster]:
+    tmp = tmp_path_factory.mktemp("kafka-cluster-closed")
+    passwords, files = password_files(tmp, USERS)
+    fleet = start_agents(list(NODES.values()), tmp)
+    try:
+        ports: dict[str, int] = {}
+        for node, host in NODES.items():
+            ports[node], ports[node + ":controller"] = netutil.free_ports(2, host)
+        plant = tmp / "plant.ttl"
+        plant.write_text(_plant(ports, files), encoding="utf-8")
+        yield Cluster(fleet, plant, ports, passwords, files)
+        assert main(["destroy", str(plant), "--agents", str(fleet.agents_file), "--yes"]) == 0
+        assert fleet.brokers() == {}
+    finally:
+        fleet.stop()
+
+
+@pytest.fixture()
+def cluster(deployed: Cluster, capsys: pytest.CaptureFixture[str]) -> Cluster:
+    deployed.capsys = capsys
+    return deployed
+
+
+def test_apply_forms_one_closed_cluster(cluster: Cluster) -> None:
+    code, out = cluster.run("apply", "--yes")
+    assert code == 0, out
+    assert "admits anonymous clients" not in out, out
+    for node, host in NODES.items():
+        props = (cluster.fleet.agents[host].state_dir / "brokers" / node / "server.properties").read_text()
+        assert f"listeners=SASL_PLAINTEXT://{host}:{cluster.ports[node]}," in props, props
+        assert "inter.broker.listener.name=SASL_PLAINTEXT" in props
+        assert "CONTROLLER:SASL_PLAINTEXT" in props
+    code, out = cluster.run("plan", "--detailed-exitcode")
+    assert code == 0 and "No changes." in out and "admits anonymous clients" not in out, out
+    code, out = cluster.run("status")
+    assert code == 0, out
+    for node in NODES:
+        [row] = [line for line in out.splitlines() if line.startswith(f"{node} ")]
+        assert "users (2)" in row, out
+
+
+def test_every_node_refuses_anonymous_clients(cluster: Cluster, tmp_path: Path) -> None:
+    conf = tmp_path / "anonymous.conf"
+    conf.write_text("\n", encoding="utf-8")
+    for node in NODES:
+        with pytest.raises(KafkaException):
+            AdminClient({"bootstrap.servers": cluster.address(node), "log_level": 0}).list_topics(timeout=5)
+        assert _produce(cluster.address(node), "line.energy", {}) != [], node
+        done = subprocess.run(["kcat", "-F", str(conf), "-b", cluster.address(node), "-m", "10", "-L"],
+                              capture_output=True, text=True, timeout=60)
+        assert done.returncode != 0, (node, done.stdout)
+
+
+def test_each_user_does_exactly_what_the_graph_says_through_every_node(cluster: Cluster) -> None:
+    plc, mes = cluster.user("plc"), cluster.user("mes")
+    for node in NODES:  # the users and ACLs set through the lead hold on every node
+        assert _produce(cluster.address(node), "line.energy", plc, 5) == [], node
+        assert _produce(cluster.address(node), "plant.kpi", plc) == ["TOPIC_AUTHORIZATION_FAILED"], node
+    assert _produce(cluster.bootstrap, "line.energy", mes) == ["TOPIC_AUTHORIZATION_FAILED"]
+    got, errors = read_topic(cluster.bootstrap, "line.energy", mes, 15, deadline=60)
+    assert (got, errors) == (15, set())
+    meta = AdminClient({"bootstrap.servers": cluster.bootstrap, **plc}).list_topics(timeout=10)
+    assert all(len(p.isrs) == 3 for p in meta.topics["line.energy"].partitions.values())
+
+
+def test_apply_adds_a_user_while_the_cluster_serves(cluster: Cluster) -> None:
+    before = {n: b.started_at for n, b in cluster.fleet.brokers().items()}  # type: ignore[attr-defined]
+    cluster.plant.write_text(_plant(cluster.ports, cluster.files, HMI.format(file=cluster.files["hmi"])),
+                             encoding="utf-8")
+    assert _produce(cluster.bootstrap, "plant.kpi", cluster.user("hmi")) != []  # not a user yet
+    stop, sent, errors = threading.Event(), [0], []
+
+    def write() -> None:
+        producer = Producer({"bootstrap.servers": cluster.bootstrap, "acks": "all", "enable.idempotence": True,
+                             "delivery.timeout.ms": 180_000, "log_level": 0, **cluster.user("plc")})
+        while not stop.is_set():
+            producer.produce("line.energy", value=b"roll",
+                             on_delivery=lambda err, _m: errors.append(err.name()) if err else None)
+            sent[0] += 1
+            producer.poll(0)
+            time.sleep(0.01)  # a steady stream while apply runs
+        assert producer.flush(240) == 0
+
+    writer = threading.Thread(target=write)
+    writer.start()
+    try:
+        code, out = cluster.run("apply", "--yes")
+    finally:
+        stop.set()
+        writer.join(300)
+    assert code == 0, out
+    assert errors == [] and sent[0] > 50, (errors[:5], sent[0])
+    assert _produce(cluster.bootstrap, "plant.kpi", cluster.user("hmi"), 3) == []
+    assert _produce(cluster.bootstrap, "line.energy", cluster.user("hmi")) == ["TOPIC_AUTHORIZATION_FAILED"]
+    after = cluster.fleet.brokers()
+    assert all(b.status is BrokerStatus.RUNNING for b in after.values())  # type: ignore[attr-defined]
+    # the users are set through the lead node only: it alone restarted
+    assert [n for n in NODES if after[n].started_at != before[n]] == ["n1"]  # type: ignore[attr-defined]
+    code, out = cluster.run("plan", "--detailed-exitcode")
+    assert code == 0 and "No changes." in out, out
