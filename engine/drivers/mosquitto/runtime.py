@@ -301,6 +301,8 @@ class MosquittoUser:
     write: tuple[str, ...] = ()
     read: tuple[str, ...] = ()
     filters: tuple[tuple[str, str], ...] = ()
+    #: may log in with a plant-CA client certificate naming it; such a user may have no password
+    certificate: bool = False
 
     def __post_init__(self) -> None:
         check_user_name(self.name)
