@@ -267,3 +267,37 @@ def test_the_key_is_private_and_only_on_the_device(applied: dict) -> None:
     for path in folder.rglob("*"):
         if path.is_file() and path.stat().st_size < 10_000_000:
             assert body not in path.read_text(errors="replace"), path
+
+
+def test_a_plant_ca_certificate_of_no_user_or_for_a_server_gets_nothing(applied: dict) -> None:
+    """The certificate listener trusts the plant CA, which also signs servers' certificates:
+    a broker's own certificate (serverAuth, not clientAuth) is refused at the handshake, and a
+    client certificate whose common name is no user of the broker may connect (Mosquitto checks
+    no password there) but publishes and reads nothing (the plugin knows no such client)."""
+    folder: Path = applied["folder"]
+    server = client_cert.ClientBundle("cell", folder / "tls-key.pem", folder / "tls-cert.pem",
+                                      applied["ca_file"], applied["bundles"]["cam1"].not_after)
+    as_server = Mqtt(applied["ca_file"], applied["cert_port"], cert=server)
+    assert not as_server.accepted, (as_server.refused, as_server.connack)
+    as_server.close()
+    nobody_bundle = client_cert.write_client_bundle(ca.load_ca(ca.ca_dir()), "nobody", applied["tmp"] / "nobody")
+    hmi = _hmi(applied)
+    nobody = Mqtt(applied["ca_file"], applied["cert_port"], cert=nobody_bundle)
+    cam = Mqtt(applied["ca_file"], applied["cert_port"], cert=applied["bundles"]["cam1"])
+    try:
+        assert nobody.accepted and cam.accepted, (nobody.refused, nobody.connack, cam.connack)
+        nobody.client.subscribe([(POSE, 1), (CMD, 1)])
+        cam.client.subscribe(CMD, qos=1)
+        nobody.publish(POSE, b"pose from nobody")
+        nobody.publish(CMD, b"cmd from nobody")
+        # later messages of the users arrive; nothing of nobody's, and nothing for it
+        process.wait_until(lambda: (hmi.publish(CMD, b"cmd for cam1"), cam.got(b"cmd for cam1"))[1], 30.0, 0.5,
+                           what="the HMI's command at cam1")
+        process.wait_until(lambda: (cam.publish(POSE, b"pose for hmi"), hmi.got(b"pose for hmi"))[1], 30.0, 0.5,
+                           what="cam1's pose at the HMI")
+        assert not hmi.got(b"pose from nobody") and not hmi.got(b"cmd from nobody")
+        assert not cam.got(b"cmd from nobody")
+        assert nobody.messages == []
+    finally:
+        for client in (nobody, cam, hmi):
+            client.close()
