@@ -8,14 +8,15 @@ only through the certificate listener; it publishes ``cell/pose`` and subscribes
 ``robot1`` has both a certificate and a password (both ways in), publishing ``cell/pose``. ``hmi``
 logs in with a password on the TLS port, reading the pose and writing commands. What must hold:
 each certificate client publishes exactly its declared topics and reads exactly its subscribed
-ones; no certificate, a certificate of another CA, a password alone on the certificate listener and
-a password for the certificate-only user are refused; password clients keep working on the TLS
+ones; no certificate, a certificate of another CA, an expired one, a password alone on the
+certificate listener and a password for the certificate-only user are refused; password clients keep working on the TLS
 port; the key stays 0600 on the device and in no broker file; plan shows "certificate", never a
 secret; status shows the certificate listener. One plant for the module.
 """
 
 from __future__ import annotations
 
+import datetime as dt
 import json
 import secrets
 import shutil
@@ -240,7 +241,11 @@ def test_mosquitto_pub_and_sub_with_the_issued_certificate(applied: dict) -> Non
 
 def test_only_the_plant_ca_certificate_gets_in_and_passwords_keep_their_listener(applied: dict) -> None:
     ca_file, port, cert_port, pw = applied["ca_file"], applied["port"], applied["cert_port"], applied["passwords"]
+    long_ago = dt.datetime.now(dt.timezone.utc) - dt.timedelta(days=client_cert.LIFETIME_DAYS + 1)
+    expired = client_cert.write_client_bundle(ca.load_ca(ca.ca_dir()), "cam1", applied["tmp"] / "expired",
+                                              now=long_ago)  # not re-issued in time
     refused = {
+        "an expired certificate": Mqtt(ca_file, cert_port, cert=expired),
         "no certificate": Mqtt(ca_file, cert_port),
         "another CA": Mqtt(ca_file, cert_port, cert=applied["stranger"]),
         "a password alone on the certificate listener": Mqtt(ca_file, cert_port, user="hmi", password=pw["hmi"]),
