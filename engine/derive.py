@@ -6,8 +6,9 @@ run), only what the ontology concluded:
 - a :class:`BrokerSpec` for every ``pk:DeployedBroker`` (kind = ``pk:brokerType``, host =
   ``pk:ip``, port = ``pk:port``; ``allow_anonymous`` = ``pk:allowAnonymous``, false on a
   ``pk:ContextBroker`` or a Mosquitto that does not say (closed by default: engine.derived.access), so
-  a plan shows who may connect; users from ``pk:secretRef`` and the bridges' principals;
-  ``tls`` = ``pk:tls`` (a TLS-only listener, Mosquitto or a Kafka broker of its own);
+  a plan shows who may connect; users from ``pk:secretRef`` / ``pk:clientCertificate`` and the
+  bridges' principals; ``tls`` = ``pk:tls`` (a TLS-only listener, Mosquitto or a Kafka broker of
+  its own); ``certificate_port`` = ``pk:certificatePort`` (a TLS Mosquitto's certificate listener);
   ``mqtt_port`` = ``pk:mqttPort``, the MQTT listener of a broker type that speaks MQTT beside its
   own protocol, which bridges from MQTT brokers connect to). A broker
   marked ``pk:external`` runs outside plantkg: it is left out of the brokers (and topics) to
@@ -75,13 +76,13 @@ _INTEGERS = {str(XSD[t]) for t in ("integer", "int", "long", "short", "byte", "n
                                     "unsignedByte", "negativeInteger", "nonPositiveInteger")}
 
 BROKERS = """
-SELECT ?b ?id ?name ?kind ?ip ?port ?mqtt ?persist ?anonymous ?external ?tls WHERE {
+SELECT ?b ?id ?name ?kind ?ip ?port ?mqtt ?persist ?anonymous ?external ?tls ?cport WHERE {
     ?b a pk:DeployedBroker .
     FILTER NOT EXISTS { ?b a pk:KafkaCluster }
     OPTIONAL { ?b pk:id ?id } OPTIONAL { ?b pk:name ?name } OPTIONAL { ?b pk:brokerType ?kind }
     OPTIONAL { ?b pk:ip ?ip } OPTIONAL { ?b pk:port ?port } OPTIONAL { ?b pk:persistEvery ?persist }
     OPTIONAL { ?b pk:allowAnonymous ?anonymous } OPTIONAL { ?b pk:external ?external }
-    OPTIONAL { ?b pk:mqttPort ?mqtt } OPTIONAL { ?b pk:tls ?tls }
+    OPTIONAL { ?b pk:mqttPort ?mqtt } OPTIONAL { ?b pk:tls ?tls } OPTIONAL { ?b pk:certificatePort ?cport }
 }"""
 
 ANONYMOUS_SAID = """SELECT ?b WHERE { ?b a pk:DeployedBroker ; pk:allowAnonymous ?any }"""
@@ -441,7 +442,7 @@ def _brokers(plant: PlantGraph, rows: Iterable[ox.QuerySolution],
     values: dict[ox.NamedNode, dict[str, set[object]]] = defaultdict(lambda: defaultdict(set))
     for row in rows:
         slot = values[row["b"]]
-        for var in ("id", "name", "kind", "ip", "port", "mqtt", "persist", "anonymous", "external", "tls"):
+        for var in ("id", "name", "kind", "ip", "port", "mqtt", "persist", "anonymous", "external", "tls", "cport"):
             if row[var] is not None:
                 slot[var].add(row[var])
     out = []
@@ -459,9 +460,12 @@ def _brokers(plant: PlantGraph, rows: Iterable[ox.QuerySolution],
         if slot["external"] and _boolean(plant, node, "external", _one(plant, node, "external", slot["external"])):
             external.add(node.value)
         tls = bool(slot["tls"]) and _boolean(plant, node, "tls", _one(plant, node, "tls", slot["tls"]))
+        cport = (_integer(plant, node, "certificatePort", _one(plant, node, "certificatePort", slot["cport"]))
+                 if slot["cport"] else None)
         out.append(BrokerSpec(id=got["id"].value, iri=node.value, name=got["name"].value,
                               kind=got["kind"].value, host=got["ip"].value, port=port,
-                              persist_every=persist, allow_anonymous=anonymous, mqtt_port=mqtt, tls=tls))
+                              persist_every=persist, allow_anonymous=anonymous, mqtt_port=mqtt, tls=tls,
+                              certificate_port=cport))
     return _unique(out, "broker"), external
 
 

@@ -42,17 +42,20 @@ class Action(str, enum.Enum):
 @dataclass(frozen=True)
 class BrokerUser:
     """A client the broker admits, with what it may do: a resource of the plant that sends to the
-    broker and has a ``pk:secretRef`` (derive). ``secret_ref`` says where its password is on the
-    broker's machine — ``env:NAME`` or ``file:/absolute/path`` — never the password itself; the
-    broker's agent reads it when it renders the broker's files. ``write``/``read``: the topic names
-    it may publish / subscribe to on this broker (``pk:mayWrite``/``pk:mayRead``, which
-    ``pk:publishes``/``pk:subscribes`` imply), sorted; on a context broker, the entity ids of
-    those topics."""
+    broker and has a ``pk:secretRef``, a ``pk:clientCertificate true``, or both (derive).
+    ``secret_ref`` says where its password is on the broker's machine — ``env:NAME`` or
+    ``file:/absolute/path`` — never the password itself; the broker's agent reads it when it
+    renders the broker's files. None: no password, it logs in only with a plant-CA client
+    certificate (``certificate``) on the broker's certificate listener (``certificate_port``).
+    ``write``/``read``: the topic names it may publish / subscribe to on this broker
+    (``pk:mayWrite``/``pk:mayRead``, which ``pk:publishes``/``pk:subscribes`` imply), sorted; on
+    a context broker, the entity ids of those topics."""
 
     name: str                     # the resource's pk:id: its user name on the broker
-    secret_ref: str
+    secret_ref: str | None = None  # None: a certificate user without a password
     write: tuple[str, ...] = ()
     read: tuple[str, ...] = ()
+    certificate: bool = False     # pk:clientCertificate: may log in with a plant-CA client certificate
 
 
 @dataclass(frozen=True)
@@ -105,6 +108,8 @@ class BrokerSpec:
                                         # broker with users is closed to anonymous clients unless
                                         # the plant says pk:allowAnonymous true
     tls: bool = False       # pk:tls — the listener speaks TLS only (a plant-CA certificate)
+    certificate_port: int | None = None  # pk:certificatePort — a Mosquitto's second TLS listener,
+                                         # for clients with a plant-CA client certificate
     kafka: KafkaNode | None = None  # a node of a multi-node Kafka cluster (None: a broker of its own)
     closed_kafkas: tuple[str, ...] = ()  # a context broker: the plant's closed Kafka brokers
                                          # ("host:port", sorted); its kafka:// notifications log in

@@ -79,9 +79,15 @@ _SCHEMAS: dict[str, Any] = {
                           "description": "the MQTT listener of a broker type whose port speaks "
                                          "another protocol (pk:mqttPort); bridges connect to it"},
             "users": {"type": "array", "items": {"$ref": "#/components/schemas/BrokerUser"},
-                      "description": "the clients the broker admits and their ACLs (pk:secretRef); "
+                      "description": "the clients the broker admits and their ACLs (pk:secretRef, "
+                                     "pk:clientCertificate); "
                                      "with users, a broker is closed to anonymous clients unless "
                                      "allow_anonymous is true"},
+            "tls": {"type": "boolean", "description": "the listener speaks TLS only (pk:tls)"},
+            "certificate_port": {"type": ["integer", "null"], "minimum": 1, "maximum": 65535,
+                                 "description": "mosquitto with tls: a second TLS listener that admits "
+                                                "only clients with a plant-CA client certificate, its "
+                                                "common name their user name (pk:certificatePort)"},
             "kafka": {"oneOf": [{"type": "null"}, {"$ref": "#/components/schemas/KafkaNode"}],
                       "description": "kafka: the broker is one node of a multi-node cluster"},
             "closed_kafkas": {"type": "array", "items": {"type": "string"},
@@ -113,12 +119,17 @@ _SCHEMAS: dict[str, Any] = {
     },
     "BrokerUser": {
         "type": "object", "additionalProperties": False,
-        "required": ["name", "secret_ref"],
+        "required": ["name"],
         "properties": {
             "name": {"type": "string", "pattern": "^[A-Za-z0-9_][A-Za-z0-9_.-]{0,127}$"},
-            "secret_ref": {"type": "string", "pattern": "^(env:[A-Za-z_][A-Za-z0-9_]{0,127}|file:/\\S{1,4095})$",
+            "secret_ref": {"type": ["string", "null"],
+                           "pattern": "^(env:[A-Za-z_][A-Za-z0-9_]{0,127}|file:/\\S{1,4095})$",
                            "description": "where the password is on the agent's machine: env:NAME "
-                                          "or file:/absolute/path (never the password)"},
+                                          "or file:/absolute/path (never the password); null or "
+                                          "absent only for a certificate user without a password"},
+            "certificate": {"type": "boolean",
+                            "description": "the user may log in with a plant-CA client certificate "
+                                           "(common name its name) on the broker's certificate_port"},
             "write": {"type": "array", "items": {"type": "string", "minLength": 1},
                       "description": "topic names the user may publish"},
             "read": {"type": "array", "items": {"type": "string", "minLength": 1},

@@ -131,13 +131,35 @@ def broker_spec_from_json(data: Any, where: str = "", *, strict: bool = True) ->
         _checked(where, check_port, "mqtt_port", mqtt_port)
     users = _typed(data, "users", (list,), where, optional=True) or []
     tls = _typed(data, "tls", (bool,), where, optional=True) or False
+    cert_port = _certificate_port(data, where, kind, port, tls)
     kafka = data.get("kafka")
     closed_kafkas = _typed(data, "closed_kafkas", (list,), where, optional=True) or []
+    users_at = _join(where, "users")
+    checked = _users(users, users_at)
+    for i, user in enumerate(checked):
+        if user.certificate and cert_port is None:
+            raise WireError(f"{users_at}[{i}].certificate", "a certificate user needs the broker's "
+                            "certificate_port (the listener that checks client certificates)")
     return BrokerSpec(id=broker_id, iri=iri, name=name, kind=kind, host=host, port=port,
                       persist_every=persist, allow_anonymous=anonymous, mqtt_port=mqtt_port,
-                      users=_users(users, _join(where, "users")), tls=tls,
+                      users=checked, tls=tls, certificate_port=cert_port,
                       kafka=None if kafka is None else _kafka_node(kafka, _join(where, "kafka"), strict),
                       closed_kafkas=_bootstrap(closed_kafkas, _join(where, "closed_kafkas")))
+
+
+def _certificate_port(data: dict[str, Any], where: str, kind: str, port: int, tls: bool) -> int | None:
+    """A Mosquitto's certificate listener (docs/security.md, Client certificates): a port of its
+    own, on a broker whose listener speaks TLS (it uses the broker's TLS files)."""
+    value = _typed(data, "certificate_port", (int,), where, optional=True)
+    if value is None:
+        return None
+    _checked(where, check_port, "certificate_port", value)
+    if kind != "mosquitto" or not tls:
+        raise WireError(_join(where, "certificate_port"), "only a Mosquitto with tls true has a certificate listener")
+    if value == port:
+        raise WireError(_join(where, "certificate_port"), "must differ from port (a listener that requires "
+                        "client certificates refuses password clients)")
+    return value
 
 
 def _kafka_node(data: Any, where: str, strict: bool) -> KafkaNode:
@@ -199,13 +221,19 @@ def _bootstrap(items: list[Any], where: str) -> tuple[str, ...]:
 
 
 def _users(items: list[Any], where: str) -> tuple[BrokerUser, ...]:
-    """A broker's users: names unique, secret references (never secrets), topic-name lists."""
+    """A broker's users: names unique, secret references (never secrets; none for a
+    certificate user without a password), topic-name lists."""
     out = []
     for i, item in enumerate(items):
         at = f"{where}[{i}]"
         data = _fields(item, BrokerUser, at)
         name = _checked(at, check_broker_user, "name", _typed(data, "name", (str,), at))
-        ref = _checked(at, check_secret_ref, "secret_ref", _typed(data, "secret_ref", (str,), at))
+        certificate = _typed(data, "certificate", (bool,), at, optional=True) or False
+        ref = _typed(data, "secret_ref", (str,), at, optional=True)
+        if ref is None and not certificate:
+            raise WireError(_join(at, "secret_ref"), "missing: a user logs in with a password (secret_ref), "
+                            "a client certificate (certificate true), or both")
+        ref = None if ref is None else _checked(at, check_secret_ref, "secret_ref", ref)
         lists = {}
         for field in ("write", "read"):
             topics = _typed(data, field, (list,), at, optional=True) or []
@@ -214,7 +242,7 @@ def _users(items: list[Any], where: str) -> tuple[BrokerUser, ...]:
                     raise WireError(_join(at, f"{field}[{j}]"), "must be a topic name (a string)")
                 _checked(at, check_text, f"{field}[{j}]", topic)
             lists[field] = tuple(topics)
-        out.append(BrokerUser(name=name, secret_ref=ref, **lists))
+        out.append(BrokerUser(name=name, secret_ref=ref, certificate=certificate, **lists))
     names = [u.name for u in out]
     if len(set(names)) != len(names):
         raise WireError(where, "two users with the same name")

@@ -26,6 +26,7 @@ from engine.cli.plugins import Plugin, find_plugins
 BUILTIN_COMMANDS: dict[str, str] = {
     "agent": "engine.cli.agent:agent_command",
     "apply": "engine.cli.apply:apply_command",
+    "cert": "engine.cli.cert:cert_command",
     "check": "engine.cli.check:check_command",
     "demo": "engine.cli.demo:demo_command",
     "destroy": "engine.cli.destroy:destroy_command",

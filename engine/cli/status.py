@@ -259,6 +259,8 @@ def typed_broker_rows(desired: DesiredState, observed: ObservedState, now: float
             "anonymous": None if have is None else _anonymous(have.spec),
             "users": None if have is None else len(have.spec.users),
             "tls": None if have is None else have.spec.tls,
+            # the listener for plant-CA client certificates (None: none, or nothing runs)
+            "certificate_port": None if have is None else have.spec.certificate_port,
         })
     return out
 

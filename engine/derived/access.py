@@ -51,10 +51,15 @@ MQTT_USER_KINDS = mqtt_client.USER_KINDS
 #: their users and plantkg's own principals get in (a Kafka cluster's nodes too).
 CLOSED_BY_DEFAULT = MQTT_USER_KINDS | {"kafka"}
 
+#: A resource that logs in with a password (``pk:secretRef``), a client certificate
+#: (``pk:clientCertificate true``) or both is a user of every broker it sends to.
 USERS = """
-SELECT ?b ?r ?rid ?ref ?t ?mode WHERE {
+SELECT ?b ?r ?rid ?ref ?cert ?t ?mode WHERE {
     ?b a pk:DeployedBroker .
-    ?r pk:sendsTo ?b ; pk:secretRef ?ref ; pk:id ?rid .
+    ?r pk:sendsTo ?b ; pk:id ?rid .
+    OPTIONAL { ?r pk:secretRef ?ref }
+    OPTIONAL { ?r pk:clientCertificate ?cert . FILTER (STR(?cert) IN ("true", "1")) }
+    FILTER (BOUND(?ref) || BOUND(?cert))
     OPTIONAL {
         ?b pk:mustCarry ?t .
         { ?r pk:mayWrite ?t BIND ("write" AS ?mode) } UNION { ?r pk:mayRead ?t BIND ("read" AS ?mode) }
@@ -69,20 +74,23 @@ class AccessNotSupportedError(EngineError):
 def broker_users(select: Callable[[str], Iterable[ox.QuerySolution]],
                  topic_names: Mapping[tuple[str, str], str]) -> dict[str, tuple[BrokerUser, ...]]:
     """Broker IRI -> its users, sorted by name, each with its sorted topic names.
-    ``topic_names`` maps (broker IRI, topic IRI) to the topic's name on that broker."""
-    refs: dict[tuple[str, str], str] = {}
+    ``topic_names`` maps (broker IRI, topic IRI) to the topic's name on that broker. A resource
+    with ``pk:clientCertificate true`` is a certificate user (``certificate``); without a
+    ``pk:secretRef`` it gets no password (``secret_ref`` None): it can log in only with its
+    certificate."""
+    logins: dict[tuple[str, str], tuple[str | None, bool]] = {}
     rights: dict[tuple[str, str], dict[str, set[str]]] = defaultdict(lambda: {"write": set(), "read": set()})
     for row in select(USERS):
         broker, name = row["b"].value, row["rid"].value
-        refs[(broker, name)] = row["ref"].value
+        logins[(broker, name)] = (None if row["ref"] is None else row["ref"].value, row["cert"] is not None)
         rights[(broker, name)]  # a user with no right still exists: it may connect, nothing more
         if row["t"] is not None and (broker, row["t"].value) in topic_names:
             rights[(broker, name)][row["mode"].value].add(topic_names[(broker, row["t"].value)])
     out: dict[str, list[BrokerUser]] = defaultdict(list)
-    for (broker, name), ref in sorted(refs.items()):
+    for (broker, name), (ref, certificate) in sorted(logins.items()):
         got = rights[(broker, name)]
         out[broker].append(BrokerUser(name=name, secret_ref=ref, write=tuple(sorted(got["write"])),
-                                      read=tuple(sorted(got["read"]))))
+                                      read=tuple(sorted(got["read"])), certificate=certificate))
     return {broker: tuple(users) for broker, users in out.items()}
 
 
@@ -191,7 +199,8 @@ def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
                     if principals.is_reserved(u.name) and u.secret_ref != principals.PRINCIPAL_REF]
         if reserved:
             raise AccessNotSupportedError(
-                f"broker {spec.id!r}: the resource with pk:id {reserved[0]!r} has a pk:secretRef, "
+                f"broker {spec.id!r}: the resource with pk:id {reserved[0]!r} has a pk:secretRef or a "
+                "client certificate, "
                 f"but user names starting with {principals.PREFIX!r} are plantkg's own principals",
                 hint="give the resource another pk:id")
     for bridge in bridges:
@@ -212,9 +221,12 @@ def access_label(spec: BrokerSpec) -> str:
     """Who may use the broker, in a word or two (``status``): ``users (N)`` for a closed
     Mosquitto or Kafka (N: the plant's users and the bridges' principals; plantkg's fixed principals not
     counted), ``token`` for a closed context broker without principals (its agent's token only), ``open``
-    (anyone who reaches it) otherwise; ``, TLS`` when its listener speaks TLS only."""
+    (anyone who reaches it) otherwise; ``, TLS`` when its listener speaks TLS only, and
+    ``, certificates :PORT`` when it has a certificate listener."""
     if spec.kind in USER_KINDS:
         tls = ", TLS" if spec.tls else ""
+        if spec.certificate_port is not None:
+            tls += f", certificates :{spec.certificate_port}"
         if spec.allow_anonymous is False:
             return f"users ({len(spec.users)}){tls}"
         return (f"open + users ({len(spec.users)}){tls}" if spec.users else f"open{tls}")

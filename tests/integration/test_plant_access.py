@@ -21,7 +21,7 @@ from engine import netutil, process
 from engine.drivers.mosquitto import dynsec
 from engine.drivers.mosquitto.driver import USERS_FILE
 from engine.agent.local import LocalAgents, start_local_agents
-from engine.cli import main
+from tests.integration.plant_cli import run, secret_files
 
 pytestmark = pytest.mark.integration
 
@@ -67,11 +67,7 @@ class Client:
 def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict]:
     tmp = tmp_path_factory.mktemp("plant-access")
     passwords = {"robot1": secrets.token_urlsafe(12), "hmi": secrets.token_urlsafe(12)}
-    files = {}
-    for name, password in passwords.items():
-        files[name] = tmp / f"{name}.pw"
-        files[name].write_text(password + "\n", encoding="utf-8")
-        files[name].chmod(0o600)
+    files = secret_files(tmp, passwords)
     port = netutil.free_port(HOST)
     plant = tmp / "cell.ttl"
     plant.write_text(PLANT.format(host=HOST, port=port, robot_file=files["robot1"], hmi_file=files["hmi"]),
@@ -85,12 +81,6 @@ def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict]:
             agents.delete_all()
         finally:
             agents.stop()
-
-
-def run(capsys: pytest.CaptureFixture[str], *args: object) -> tuple[int, str]:
-    code = main([str(a) for a in args])
-    out = capsys.readouterr()
-    return code, out.out + out.err
 
 
 def test_plan_shows_the_users_and_no_password(cell: dict, capsys) -> None:

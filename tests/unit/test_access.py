@@ -32,6 +32,12 @@ HMI = """ex:hmi a pk:Resource ; pk:id "hmi" ; pk:name "HMI" ; pk:sendsTo ex:m ; 
 ROBOT_USER = BrokerUser("robot1", "env:ROBOT1_PASSWORD", write=("cell/pose",), read=("cell/cmd",))
 HMI_USER = BrokerUser("hmi", "file:/etc/plantkg/hmi.pw", read=("cell/pose",))
 
+CERT_LISTENER = "ex:m pk:tls true ; pk:certificatePort 8884 .\n"
+CAMERA = """ex:cam a pk:Resource ; pk:id "cam1" ; pk:name "Camera" ; pk:sendsTo ex:m ;
+    pk:publishes ex:pose ; pk:clientCertificate true .
+"""
+CAMERA_USER = BrokerUser("cam1", None, write=("cell/pose",), certificate=True)
+
 # name: (extra Turtle, users of m1, allow_anonymous of m1)
 CASES = {
     "nobody-has-a-secret": ("", (), False),  # closed by default: nobody but plantkg gets in
@@ -42,6 +48,14 @@ CASES = {
     "an-asserted-right": ('ex:w a pk:Resource ; pk:id "watch" ; pk:name "Watcher" ; pk:sendsTo ex:m ; '
                           'pk:mayRead ex:pose ; pk:secretRef "env:W" .',
                           (BrokerUser("watch", "env:W", read=("cell/pose",)),), False),
+    # a certificate user gets no password; one with a secret too keeps it (both ways in);
+    # clientCertificate false is as if absent
+    "a-certificate-user": (CERT_LISTENER + CAMERA, (CAMERA_USER,), False),
+    "a-certificate-and-password-user": (CERT_LISTENER + ROBOT + "ex:robot pk:clientCertificate true .",
+                                        (BrokerUser("robot1", "env:ROBOT1_PASSWORD", write=("cell/pose",),
+                                                    read=("cell/cmd",), certificate=True),), False),
+    "certificate-false-is-no-certificate": (CERT_LISTENER + ROBOT + "ex:robot pk:clientCertificate false . "
+                                            "ex:plc pk:clientCertificate false .", (ROBOT_USER,), False),
     # a right on a topic this broker does not carry is not in its ACL
     "a-right-elsewhere": (ROBOT + 'ex:far a pk:Topic ; pk:id "far" ; pk:name "far/away" . '
                           'ex:robot pk:mayWrite ex:far .', (ROBOT_USER,), False),
@@ -62,6 +76,14 @@ def test_users_and_acls_come_from_the_graph(tmp_path: Path, name: str, engine: s
     extra, users, anonymous = CASES[name]
     [broker] = derived(tmp_path, extra, engine).brokers
     assert (broker.users, broker.allow_anonymous) == (users, anonymous)
+
+
+@pytest.mark.parametrize("engine", ["fast", "owlready2"])
+def test_the_certificate_listener_comes_from_the_graph(tmp_path: Path, engine: str) -> None:
+    [broker] = derived(tmp_path, CERT_LISTENER + CAMERA, engine).brokers
+    assert (broker.tls, broker.certificate_port) == (True, 8884)
+    [plain] = derived(tmp_path, ROBOT, engine).brokers
+    assert plain.certificate_port is None
 
 
 def test_a_kafka_with_users_is_closed_and_its_bridge_worker_allowed(tmp_path: Path) -> None:
@@ -169,6 +191,8 @@ def _spec(**kw):
     (_spec(allow_anonymous=False, users=(ROBOT_USER, HMI_USER)), "users (2)", None),
     (_spec(allow_anonymous=False, users=(ROBOT_USER,), tls=True), "users (1), TLS", None),
     (_spec(allow_anonymous=True, tls=True), "open, TLS", "the plant says pk:allowAnonymous true"),
+    (_spec(allow_anonymous=False, users=(CAMERA_USER,), tls=True, certificate_port=8884),
+     "users (1), TLS, certificates :8884", None),
     (_spec(kind="kafka", port=9092), "open", "its spec does not close it"),
     (_spec(kind="kafka", port=9092, allow_anonymous=False), "users (0)", None),
     (_spec(kind="kafka", port=9092, allow_anonymous=True), "open", "the plant says pk:allowAnonymous true"),

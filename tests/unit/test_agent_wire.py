@@ -151,6 +151,38 @@ def test_two_users_of_one_name_are_refused() -> None:
         broker_spec_from_json({**USER_BASE, "users": [user, user]})
 
 
+# --- client certificates: a certificate listener, users without a password ------------------------
+
+CERT_BASE = {**USER_BASE, "port": 8883, "tls": True, "certificate_port": 8884}
+
+
+def test_a_certificate_listener_and_its_users_round_trip() -> None:
+    body = {**CERT_BASE, "users": [{"name": "cam1", "certificate": True, "write": ["cell/pose"]},
+                                   {"name": "robot1", "secret_ref": "env:R", "certificate": True},
+                                   {"name": "hmi", "secret_ref": "env:H"}]}
+    spec = broker_spec_from_json(body)
+    assert spec.certificate_port == 8884
+    assert [(u.name, u.secret_ref, u.certificate) for u in spec.users] == [
+        ("cam1", None, True), ("robot1", "env:R", True), ("hmi", "env:H", False)]
+    assert broker_spec_from_json(to_dict(spec)) == spec
+
+
+@pytest.mark.parametrize(("changes", "field"), [
+    ({"certificate_port": 8883}, "certificate_port"),                  # the password listener's
+    ({"certificate_port": 0}, "certificate_port"),
+    ({"certificate_port": "8884"}, "certificate_port"),
+    ({"tls": False}, "certificate_port"),                              # it speaks TLS or not at all
+    ({"kind": "kafka"}, "certificate_port"),
+    ({"users": [{"name": "cam1"}]}, "users[0].secret_ref"),            # neither password nor certificate
+    ({"users": [{"name": "cam1", "certificate": "yes"}]}, "users[0].certificate"),
+    ({"certificate_port": None, "users": [{"name": "cam1", "certificate": True}]}, "users[0].certificate"),
+])
+def test_bad_certificate_settings_are_refused_naming_the_field(changes: dict, field: str) -> None:
+    with pytest.raises(WireError) as info:
+        broker_spec_from_json({**CERT_BASE, **changes})
+    assert info.value.field == field
+
+
 def test_a_context_brokers_closed_kafkas_round_trip_and_bad_ones_are_refused() -> None:
     spec = broker_spec_from_json({**to_dict(NGSI), "closed_kafkas": ["127.0.0.4:9092", "[::1]:9093"]})
     assert spec.closed_kafkas == ("127.0.0.4:9092", "[::1]:9093")

@@ -198,3 +198,20 @@ def test_plan_json_round_trips_the_plan() -> None:
     first = data["changes"][0]
     assert first["address"] == "broker.kafka" and first["action"] == "replace"
     assert first["before"]["host"] == "127.0.0.3" and first["after"]["host"] == "127.0.0.4"
+
+
+def test_a_certificate_listener_and_its_users_show_in_the_plan_never_a_secret() -> None:
+    """Opening a certificate listener replaces the broker (its config changes); a certificate user
+    shows ``"certificate": true`` and no secret reference, a password user its reference only."""
+    from engine.model import BrokerUser  # noqa: PLC0415
+    users = (BrokerUser("cam1", None, write=("cell/pose",), certificate=True), BrokerUser("hmi", "env:HMI_PW"))
+    tls = replace(MQ, tls=True, port=8883, allow_anonymous=False)
+    wanted = replace(tls, certificate_port=8884, users=users)
+    result = plan(DesiredState((wanted,)), ObservedState((running(tls),)))
+    [change] = result.changes
+    assert change.action is Action.REPLACE and "certificate_port" in change.reason
+    text = render_plan(result)
+    assert "~ certificate_port: (none) → 8884   # forces replacement" in text
+    assert '{"name": "cam1", "write": ["cell/pose"], "read": [], "certificate": true}' in text
+    assert '"secret_ref": "env:HMI_PW"' in text and '"secret_ref": null' not in text
+    assert plan(DesiredState((wanted,)), ObservedState((running(wanted),))).empty

@@ -107,9 +107,12 @@ class MosquittoDriver:
         closed = is_closed(spec)
         files: dict[str, str] = {}
         if has_users(spec):
-            acl_users = (*(mosquitto_runtime.MosquittoUser(u.name, u.write, u.read) for u in spec.users),
+            acl_users = (*(mosquitto_runtime.MosquittoUser(u.name, u.write, u.read, certificate=u.certificate)
+                           for u in spec.users),
                          *FIXED_PRINCIPALS)  # names and topics checked before any secret
-            passwords = {u.name: resolve_secret(u) for u in spec.users}
+            # a certificate user without a secret_ref gets no password: it logs in only on the
+            # certificate listener, whose certificate names it (use_identity_as_username)
+            passwords = {u.name: resolve_secret(u) for u in spec.users if u.secret_ref is not None}
             passwords.update((p.name, principal_key.password_for(p.name)) for p in FIXED_PRINCIPALS)
             files[USERS_FILE] = dynsec.render_dynsec(acl_users, passwords, _previous(broker_dir / USERS_FILE),
                                                      anonymous=not closed)
@@ -129,6 +132,7 @@ class MosquittoDriver:
             dynsec_plugin=self._plugin() if has_users(spec) else None,
             dynsec_file=broker_dir / USERS_FILE if has_users(spec) else None,
             tls=tls,
+            cert_port=spec.certificate_port,
         )
         return {CONF_FILE: mosquitto_runtime.render_mosquitto_conf(cfg), **files}
 
@@ -204,13 +208,18 @@ class MosquittoDriver:
         return []
 
     def essence(self, spec: BrokerSpec) -> dict[str, Any]:
-        """Address, persistence, whether the broker is closed and its users (JSON values: the
+        """Address, persistence, whether the broker is closed, its users and its certificate
+        listener (JSON values: the
         essence is kept in pid.json). A password's new content is not here: it shows in the
         rendered password file, whose change restarts the broker at the next PUT."""
-        return {**spec_essence(spec), "persist_every": spec.persist_every,
-                "closed": is_closed(spec), "tls": spec.tls,
-                "users": [{"name": u.name, "secret_ref": u.secret_ref, "write": sorted(u.write),
-                           "read": sorted(u.read)} for u in sorted(spec.users, key=lambda u: u.name)]}
+        out = {**spec_essence(spec), "persist_every": spec.persist_every,
+               "closed": is_closed(spec), "tls": spec.tls,
+               "users": [{"name": u.name, "secret_ref": u.secret_ref, "write": sorted(u.write),
+                          "read": sorted(u.read), **({"certificate": True} if u.certificate else {})}
+                         for u in sorted(spec.users, key=lambda u: u.name)]}
+        if spec.certificate_port is not None:  # absent otherwise: essences kept by agents read as before
+            out["certificate_port"] = spec.certificate_port
+        return out
 
     def tls_renewal(self, spec: BrokerSpec, broker_dir: Path) -> str | None:
         """Why the broker's TLS certificate must be issued again (engine.security.ca: none,

@@ -56,8 +56,10 @@ def render_dynsec(users: Sequence[MosquittoUser], passwords: Mapping[str, str], 
                   *, anonymous: bool = False,
                   salt: Callable[[], bytes] = lambda: os.urandom(PW_SALT_BYTES)) -> str:
     """The plugin's JSON for ``users`` (each with its password in ``passwords``), sorted by name.
-    ``previous``: the file rendered last time (its matching hashes are kept). Errors never show a
-    password."""
+    A certificate user (``certificate``) without a password gets a client without one: it can
+    log in only where a client certificate names it (the certificate listener), never with a
+    password. ``previous``: the file rendered last time (its matching hashes are kept). Errors
+    never show a password."""
     names = [u.name for u in users]
     if len(set(names)) != len(names):
         raise ConfigValueError("users", names, "two users with the same name")
@@ -65,12 +67,15 @@ def render_dynsec(users: Sequence[MosquittoUser], passwords: Mapping[str, str], 
     clients, roles = [], []
     for user in sorted(users, key=lambda u: u.name):
         password = passwords.get(user.name)
-        check_password(user.name, password)
-        assert password is not None
-        old = kept.get(user.name)
-        if old is None or not _matches(old, password):
-            old = _hash(password, salt())
-        clients.append({"username": user.name, **old, "roles": [{"rolename": user.name}]})
+        if password is None and user.certificate:
+            stored: dict[str, Any] = {}  # no password: the plugin refuses every password login for it
+        else:
+            check_password(user.name, password)
+            assert password is not None
+            stored = kept.get(user.name) or {}
+            if not stored or not _matches(stored, password):
+                stored = _hash(password, salt())
+        clients.append({"username": user.name, **stored, "roles": [{"rolename": user.name}]})
         roles.append({"rolename": user.name, "acls": _acls(user)})
     data: dict[str, Any] = {"defaultACLAccess": _DEFAULT_ACCESS, "clients": clients, "roles": roles,
                             "groups": []}

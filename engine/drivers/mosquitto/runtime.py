@@ -164,12 +164,21 @@ class MosquittoConfig:
     dynsec_plugin: Path | None = None     # Mosquitto's dynamic security plugin (users and ACLs)
     dynsec_file: Path | None = None       # its file (engine.drivers.mosquitto.dynsec)
     tls: MosquittoTls | None = None       # the listener speaks TLS only (TLS 1.2 or newer)
+    #: A second TLS listener (same host) that admits only clients with a certificate of ``tls``'s
+    #: CA and takes its common name as the user name (docs/security.md, Client certificates);
+    #: a listener that requires certificates refuses password clients, so it cannot be ``port``.
+    cert_port: int | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "host", check_host("host", self.host))
         if self.tls is not None and not isinstance(self.tls, MosquittoTls):
             raise ConfigValueError("tls", self.tls, "must be a MosquittoTls or None")
         check_port("port", self.port)
+        if self.cert_port is not None:
+            check_port("cert_port", self.cert_port)
+            if self.tls is None or self.cert_port == self.port:
+                raise ConfigValueError("cert_port", self.cert_port,
+                                       "needs tls, and a port of its own (not the password listener's)")
         object.__setattr__(self, "log_file", check_path("log_file", self.log_file, forbid="\t"))
         if self.data_dir is not None:
             object.__setattr__(self, "data_dir", check_path("data_dir", self.data_dir, forbid="\t "))
@@ -200,8 +209,7 @@ def render_mosquitto_conf(cfg: MosquittoConfig) -> str:
         "# Rendered by plantkg; edits are overwritten.",
         "per_listener_settings false",
         f"listener {cfg.port} {cfg.host}",
-        *([] if cfg.tls is None else [f"cafile {cfg.tls.cafile}", f"certfile {cfg.tls.certfile}",
-                                      f"keyfile {cfg.tls.keyfile}", "tls_version tlsv1.2"]),
+        *([] if cfg.tls is None else _tls_lines(cfg.tls)),
         f"allow_anonymous {'true' if cfg.allow_anonymous else 'false'}",
         *([] if cfg.dynsec_plugin is None else [f"plugin {cfg.dynsec_plugin}",
                                                 f"plugin_opt_config_file {cfg.dynsec_file}"]),
@@ -217,11 +225,18 @@ def render_mosquitto_conf(cfg: MosquittoConfig) -> str:
         "log_timestamp true",
         "connection_messages true",
     ]
+    if cfg.cert_port is not None and cfg.tls is not None:
+        lines += ["", f"listener {cfg.cert_port} {cfg.host}", *_tls_lines(cfg.tls),
+                  "require_certificate true", "use_identity_as_username true"]
     if cfg.run_as is not None:
         lines.append(f"user {cfg.run_as}")
     for bridge in cfg.bridges:
         lines += ["", *_bridge_lines(bridge)]
     return "\n".join(lines) + "\n"
+
+
+def _tls_lines(tls: MosquittoTls) -> list[str]:
+    return [f"cafile {tls.cafile}", f"certfile {tls.certfile}", f"keyfile {tls.keyfile}", "tls_version tlsv1.2"]
 
 
 def _persistence_lines(data_dir: Path | None, every: int | None) -> list[str]:
@@ -286,6 +301,8 @@ class MosquittoUser:
     write: tuple[str, ...] = ()
     read: tuple[str, ...] = ()
     filters: tuple[tuple[str, str], ...] = ()
+    #: may log in with a plant-CA client certificate naming it; such a user may have no password
+    certificate: bool = False
 
     def __post_init__(self) -> None:
         check_user_name(self.name)
