@@ -53,7 +53,9 @@ def test_processes_under_finds_a_live_process_naming_the_folder(tmp_path: Path) 
     child = process.spawn([sys.executable, "-c", "import sys, time; time.sleep(60)", str(marker)],
                           log_dir=tmp_path, name="sleeper")
     try:
-        assert any(str(child.pid) == line.split(":")[0] for line in processes_under(tmp_path))
+        # the child names the folder once it has exec'd Python, a moment after spawn returns
+        process.wait_until(lambda: any(str(child.pid) == line.split(":")[0] for line in processes_under(tmp_path)),
+                           30.0, what="the sleeper to show under its folder", child=child)
     finally:
         process.stop(child, grace=5)
     assert processes_under(tmp_path) == []
