@@ -13,6 +13,8 @@ the broker's ip.
 from __future__ import annotations
 
 import re
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -79,6 +81,24 @@ def start_agents(hosts: list[str], tmp_path: Path, *, tls: bool = False) -> Agen
     """One agent per host on a free port of that host; the agents file lists them. ``tls``: the
     agents serve HTTPS (certificates of the test run's plant CA)."""
     return AgentFleet(start_local_agents(hosts, tmp_path, tls=tls))
+
+
+@contextmanager
+def deployed_plant(hosts: list[str], tmp_path: Path, plant_text: Callable[[], str]) -> Iterator[tuple[AgentFleet, Path]]:
+    """Agents on ``hosts`` and the plant file ``tmp_path/plant.ttl`` written from ``plant_text()``
+    (called once the agents listen, so the ports it picks free are not theirs), for a module's
+    shared deployment: at the end ``destroy`` leaves no broker, and the agents stop."""
+    from engine.cli import main  # noqa: PLC0415 - the CLI only for the tests that deploy a plant
+
+    fleet = start_agents(hosts, tmp_path)
+    try:
+        plant = tmp_path / "plant.ttl"
+        plant.write_text(plant_text(), encoding="utf-8")
+        yield fleet, plant
+        assert main(["destroy", str(plant), "--agents", str(fleet.agents_file), "--yes"]) == 0
+        assert fleet.brokers() == {}
+    finally:
+        fleet.stop()
 
 
 def plant_copy(example: str, tmp_path: Path, ports: dict[int, list[tuple[str, int]]] | None = None,

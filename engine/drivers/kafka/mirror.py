@@ -23,6 +23,15 @@ Choices (docs/kafka.md "MirrorMaker 2"):
   on the target and the committed offsets of consumer groups idle on the target are synced
   (``sync.group.offsets.enabled``), so a consumer group can move to the target cluster.
 - **Refresh** of topics and groups every 5 s (the default is 10 min), one task.
+- **Closed ends** (docs/security.md, "MirrorMaker 2 at a closed Kafka"): at a Kafka closed to
+  anonymous clients, every client MirrorMaker 2 opens there (its consumer, producer and admin
+  clients, and its Connect worker's on the target) logs in as plantkg's own Kafka principal with
+  SASL/PLAIN, per end (``<cluster>.sasl.jaas.config``); an open end gets no login. The login is a
+  reference, ``${file:<login file>:jaas}``, resolved by Kafka's ``FileConfigProvider`` when a
+  client starts: MirrorMaker 2 stores its connectors' configuration in a topic on the target
+  (``mm2-configs.source.internal``), and a literal password would be written there, into the
+  target's log segments (files others may read) and to any client allowed to read that topic.
+  Only the login file (:func:`render_login_properties`, written 0600) holds the password.
 """
 
 from __future__ import annotations
@@ -34,9 +43,15 @@ from pathlib import Path
 from engine.drivers.kafka import runtime as kafka_runtime
 from engine.errors import ConfigValueError
 from engine.parts import KafkaParts
+from engine.security import kafka_client
 from engine.values import check_path
 
+#: plantkg's password, as engine.security.kafka_client derives it (a JAAS-safe value).
+_PASSWORD = re.compile(r"[0-9a-f]{32,128}")
+
 MAIN_CLASS = "org.apache.kafka.connect.mirror.MirrorMaker"
+#: The name MirrorMaker 2's configuration gives Kafka's FileConfigProvider.
+FILE_PROVIDER = "file"
 SOURCE, TARGET = "source", "target"
 IDENTITY_POLICY = "org.apache.kafka.connect.mirror.IdentityReplicationPolicy"
 DEFAULT_HEAP = "256m"
@@ -47,12 +62,14 @@ _TOPIC = re.compile(r"[A-Za-z0-9._-]{1,249}")
 @dataclass(frozen=True)
 class MirrorConfig:
     """One one-way mirror: the clusters' bootstrap lists, the topics, the target's replication
-    factor for MirrorMaker's own topics."""
+    factor for MirrorMaker's own topics, and which end is closed (plantkg logs in there)."""
 
     source: tuple[str, ...]
     target: tuple[str, ...]
     topics: tuple[str, ...]
     replication: int = 1
+    source_closed: bool = False
+    target_closed: bool = False
 
     def __post_init__(self) -> None:
         for name in ("source", "target"):
@@ -64,6 +81,14 @@ class MirrorConfig:
         if isinstance(self.replication, bool) or not isinstance(self.replication, int) \
                 or not 1 <= self.replication <= 32_767:
             raise ConfigValueError("replication", self.replication, "must be an integer in 1..32767")
+        for name in ("source_closed", "target_closed"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigValueError(name, getattr(self, name), "must be true or false")
+
+    @property
+    def closed(self) -> bool:
+        """Some end authenticates every client: the mirror needs plantkg's password."""
+        return self.source_closed or self.target_closed
 
 
 def topic_pattern(name: str) -> str:
@@ -71,8 +96,38 @@ def topic_pattern(name: str) -> str:
     return name.replace(".", "[.]")
 
 
-def render_mm2_properties(cfg: MirrorConfig) -> str:
-    """The ``mm2.properties`` text (pure)."""
+def render_login_properties(password: str) -> str:
+    """The login file's text (pure): the JAAS line that logs a client in as plantkg."""
+    if not isinstance(password, str) or not _PASSWORD.fullmatch(password):
+        raise ConfigValueError("password", "(not shown)",
+                               "expected 32 to 128 hex digits (engine.security.kafka_client.password)")
+    return ("# Rendered by plantkg (mode 0600): plantkg's Kafka login, read by MirrorMaker 2's clients.\n"
+            "jaas=org.apache.kafka.common.security.plain.PlainLoginModule required "
+            f'username="{kafka_client.USER}" password="{password}";\n')
+
+
+def login_lines(cluster: str, login_file: Path) -> list[str]:
+    """The lines that make every client of ``cluster`` log in as plantkg (SASL/PLAIN), its JAAS
+    line read from ``login_file`` when the client starts (never stored by MirrorMaker 2)."""
+    path = check_path("login_file", login_file, forbid=":{}$")  # nothing the ${file:...} syntax reads
+    return [
+        f"{cluster}.security.protocol=SASL_PLAINTEXT",
+        f"{cluster}.sasl.mechanism=PLAIN",
+        f"{cluster}.sasl.jaas.config=${{{FILE_PROVIDER}:{path}:jaas}}",
+    ]
+
+
+def render_mm2_properties(cfg: MirrorConfig, login_file: Path | None = None) -> str:
+    """The ``mm2.properties`` text (pure). ``login_file``: where plantkg's login is
+    (:func:`render_login_properties`), needed when an end is closed; the text holds no secret."""
+    if cfg.closed and login_file is None:
+        raise ConfigValueError("login_file", None, "a mirror with a closed end needs plantkg's login file")
+    logins = [line for cluster, closed in ((SOURCE, cfg.source_closed), (TARGET, cfg.target_closed))
+              if closed and login_file is not None for line in login_lines(cluster, login_file)]
+    if logins:
+        logins = [f"config.providers={FILE_PROVIDER}",
+                  f"config.providers.{FILE_PROVIDER}.class=org.apache.kafka.common.config.provider.FileConfigProvider",
+                  *logins]
     flow = f"{SOURCE}->{TARGET}"
     rf = cfg.replication
     lines = [
@@ -80,6 +135,7 @@ def render_mm2_properties(cfg: MirrorConfig) -> str:
         f"clusters={SOURCE},{TARGET}",
         f"{SOURCE}.bootstrap.servers={','.join(cfg.source)}",
         f"{TARGET}.bootstrap.servers={','.join(cfg.target)}",
+        *logins,
         f"{flow}.enabled=true",
         f"{TARGET}->{SOURCE}.enabled=false",
         f"{flow}.topics={','.join(topic_pattern(t) for t in sorted(cfg.topics))}",
