@@ -173,8 +173,10 @@ def mirror_config(spec: BridgeSpec, state_dir: Path) -> MirrorWorkerConfig:
         bridge_id=folder_name(spec.local.id, spec.remote.id),
         mirror=MirrorConfig(source=_bootstrap(spec.remote), target=target,
                             topics=tuple(r.topic for r in spec.routes), replication=min(3, len(target)),
-                            source_closed=spec.remote.closed, target_closed=spec.local.closed),
+                            source_closed=spec.remote.closed, target_closed=spec.local.closed,
+                            source_tls=spec.remote.tls, target_tls=spec.local.tls),
         state_dir=state_dir, password_file=state_dir / TOKEN_FILE if closed else None,
+        ca_file=ca.ca_cert_file() if spec.local.tls or spec.remote.tls else None,
     )
 
 

@@ -239,21 +239,13 @@ def open_broker_warnings(brokers: Iterable[BrokerSpec]) -> tuple[str, ...]:
     return tuple(out)
 
 
-def check_kafka_tls_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[BridgeSpec] = ()) -> None:
+def check_kafka_tls_supported(brokers: Iterable[BrokerSpec]) -> None:
     """Refuse, before anything runs, ``pk:tls`` where plantkg would leave a Kafka plain: on a
-    Kafka cluster's node (TLS is built for a Kafka broker of its own), and at either end of a
-    MirrorMaker 2 bridge (it connects without TLS). A bridge worker speaks TLS to a TLS Kafka."""
+    Kafka cluster's node (TLS is built for a Kafka broker of its own). A bridge worker and a
+    MirrorMaker 2 speak TLS to a TLS Kafka."""
     for spec in brokers:
         if spec.kind == "kafka" and spec.tls and spec.kafka is not None:
             raise AccessNotSupportedError(
                 f"broker {spec.id!r} is a node of Kafka cluster {spec.kafka.cluster!r} and says pk:tls "
                 "true: plantkg renders TLS listeners for a Kafka broker of its own only (yet)",
                 hint=f"remove pk:tls from {spec.id!r}, or make it a Kafka broker of its own")
-    for bridge in bridges:
-        tls = [end.id for end in (bridge.local, bridge.remote) if end.tls]
-        if bridge.mechanism is BridgeMechanism.MIRROR and tls:
-            raise AccessNotSupportedError(
-                f"{bridge.address}: Kafka broker {tls[0]!r} speaks TLS (pk:tls true), but a "
-                "MirrorMaker 2 bridge connects to its Kafka brokers without TLS (yet)",
-                hint=f"keep {tls[0]!r} plain while it is mirrored, or route the topics through an "
-                     "MQTT broker (bridge workers speak TLS to Kafka)")

@@ -15,7 +15,10 @@ brokers and a MirrorMaker take a minute to come up on two cores); the tests run 
 4. plantkg's password is in no plan or apply output, no log, and in no file the agents wrote but
    the mirror's login file and its agent's password file, both 0600: not in ``mm2.properties``
    and not in the target's log segments of MirrorMaker 2's config topic (which stores a reference
-   to the login file, resolved by Kafka's FileConfigProvider).
+   to the login file, resolved by Kafka's FileConfigProvider);
+5. ``src`` says ``pk:tls true``: ``plan`` replaces it and updates the mirror (its source end
+   changed), ``apply`` restarts both; the mirror now speaks SASL_SSL to ``src`` (trusting the plant
+   CA) and SASL_PLAINTEXT to ``dst``, and what the PLC produces over TLS arrives on ``dst``.
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ from confluent_kafka.admin import AdminClient
 from engine import netutil, process
 from engine.cli import main
 from engine.model import BridgeStatus
-from engine.security import kafka_client
+from engine.security import ca, kafka_client
 from tests.integration.agents import AgentFleet, deployed_plant
 from tests.integration.kafka_clients import password_files, read_topic
 from tests.integration.test_kafka_auth import _as, _produce
@@ -40,6 +43,7 @@ pytestmark = pytest.mark.integration
 
 SRC, DST = "127.0.0.2", "127.0.0.3"
 MIRRORED = 2_000
+MORE = 500
 
 
 @dataclass
@@ -48,6 +52,7 @@ class Mirror:
     plant: Path
     ports: dict[str, int]
     passwords: dict[str, str]
+    files: dict[str, Path]
     outputs: list[str]
 
     def address(self, broker: str) -> str:
@@ -61,11 +66,11 @@ class Mirror:
         return code, out.out + out.err
 
 
-def _plant(ports: dict[str, int], files: dict[str, Path]) -> str:
+def _plant(ports: dict[str, int], files: dict[str, Path], src_extra: str = "") -> str:
     return f"""@prefix pk: <https://w3id.org/plantkg/ontology#> .
 @prefix ex: <http://example.org/kafka-mirror-closed#> .
 ex:src a pk:Broker ; pk:id "src" ; pk:name "plant-kafka" ; pk:brokerType "kafka" ; pk:ip "{SRC}" ;
-    pk:port {ports['src']} ; pk:hasTopic ex:kpi .
+    pk:port {ports['src']} ; {src_extra} pk:hasTopic ex:kpi .
 ex:dst a pk:Broker ; pk:id "dst" ; pk:name "site-kafka" ; pk:brokerType "kafka" ; pk:ip "{DST}" ;
     pk:port {ports['dst']} ; pk:hasTopic ex:kpi .
 ex:kpi a pk:Topic ; pk:id "kpi" ; pk:name "plant.kpi" ; pk:partitions 2 .
@@ -87,7 +92,7 @@ def mirror(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Mirror]:
         return _plant(ports, files)
 
     with deployed_plant([SRC, DST], tmp, text) as (fleet, plant):
-        yield Mirror(fleet, plant, ports, passwords, [])
+        yield Mirror(fleet, plant, ports, passwords, files, [])
 
 
 def test_apply_deploys_a_mirror_between_two_closed_kafkas(mirror: Mirror, capsys: pytest.CaptureFixture[str]) -> None:
@@ -115,10 +120,14 @@ def test_what_the_plc_produces_on_the_source_arrives_on_the_target(mirror: Mirro
     got, errors = read_topic(mirror.address("dst"), "plant.kpi", mes, MIRRORED, deadline=240)
     assert (got, errors) == (MIRRORED, set())
     assert _produce(mirror.address("dst"), "plant.kpi", mes) == ["TOPIC_AUTHORIZATION_FAILED"]  # the MES reads only
+    _wait_caught_up(mirror, MIRRORED)
 
+
+def _wait_caught_up(mirror: Mirror, records: int) -> None:
+    """Until the mirror reports lag 0 and at least ``records`` copied (60 s at most)."""
     def caught_up() -> object:
         [bridge] = mirror.fleet.client(DST).list_bridges()
-        done = bridge.status is BridgeStatus.RUNNING and bridge.lag == 0 and (bridge.forwarded or 0) >= MIRRORED
+        done = bridge.status is BridgeStatus.RUNNING and bridge.lag == 0 and (bridge.forwarded or 0) >= records
         return bridge if done else None
 
     process.wait_until(caught_up, 60, 0.5, what="the mirror to report every record copied, lag 0")
@@ -146,3 +155,24 @@ def test_plantkgs_password_is_only_in_files_others_cannot_read(mirror: Mirror) -
     assert set(holders) == {*brokers, folder / "mm2-login.properties", folder / "remote.token"}, holders
     assert "${file:" in (folder / "mm2.properties").read_text(encoding="utf-8")
     assert checked > 10 and any((folder / "logs").iterdir())  # the logs were there to be read
+
+
+def test_a_tls_source_is_mirrored_over_sasl_ssl(mirror: Mirror, capsys: pytest.CaptureFixture[str]) -> None:
+    mirror.plant.write_text(_plant(mirror.ports, mirror.files, "pk:tls true ;"), encoding="utf-8")
+    code, out = mirror.run(capsys, "plan", "--detailed-exitcode")
+    assert code == 2 and "bridge.dst.src" in out and "remote changed" in out, out
+    code, out = mirror.run(capsys, "apply", "--yes")
+    assert code == 0, out
+    folder = mirror.fleet.agents[DST].state_dir / "bridges" / "dst--src"
+    lines = (folder / "mm2.properties").read_text(encoding="utf-8").splitlines()
+    assert {"source.security.protocol=SASL_SSL", "target.security.protocol=SASL_PLAINTEXT"} <= set(lines), lines
+    tls = {"security.protocol": "SASL_SSL", "ssl.ca.location": str(ca.ca_cert_file()),
+           "ssl.endpoint.identification.algorithm": "https"}
+    assert _produce(mirror.address("src"), "plant.kpi", _as("plc", mirror.passwords["plc"])) != []  # plain: refused
+    assert _produce(mirror.address("src"), "plant.kpi", {**_as("plc", mirror.passwords["plc"]), **tls}, MORE) == []
+    got, errors = read_topic(mirror.address("dst"), "plant.kpi", _as("mes", mirror.passwords["mes"]),
+                             MIRRORED + MORE, deadline=240)
+    assert (got, errors) == (MIRRORED + MORE, set())
+    _wait_caught_up(mirror, MIRRORED + MORE)
+    code, out = mirror.run(capsys, "plan", "--detailed-exitcode")
+    assert code == 0 and "No changes." in out, out

@@ -148,3 +148,15 @@ def test_the_agent_gives_a_closed_mirror_a_password_file_and_no_password(tmp_pat
         cfg.password()
     (tmp_path / "remote.token").write_text(PASSWORD + "\n", encoding="utf-8")
     assert cfg.password() == PASSWORD
+
+
+def test_a_closed_tls_end_logs_in_over_sasl_ssl() -> None:
+    cfg = MirrorConfig(PLANT, ("127.0.0.5:9092",), ("t",), 1, True, False, True, True)
+    lines = render_mm2_properties(cfg, Path("/s/mm2-login.properties"), Path("/ca/ca.pem")).splitlines()
+    assert {"source.security.protocol=SASL_SSL", "source.sasl.mechanism=PLAIN",
+            "source.ssl.truststore.location=/ca/ca.pem", "target.security.protocol=SSL",
+            "target.ssl.truststore.location=/ca/ca.pem"} <= set(lines)
+    assert not any(line.startswith("target.sasl") for line in lines)
+    with pytest.raises(ConfigValueError) as raised:
+        render_mm2_properties(cfg, Path("/s/mm2-login.properties"), Path("ca.pem"))  # not absolute
+    assert raised.value.field == "ca_file"

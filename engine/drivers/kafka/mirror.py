@@ -32,6 +32,10 @@ Choices (docs/kafka.md "MirrorMaker 2"):
   (``mm2-configs.source.internal``), and a literal password would be written there, into the
   target's log segments (files others may read) and to any client allowed to read that topic.
   Only the login file (:func:`render_login_properties`, written 0600) holds the password.
+- **TLS ends** (``pk:tls true``, docs/security.md, "TLS (Kafka)"): every client of such an end
+  speaks TLS (SSL, or SASL_SSL where it is closed too) and trusts the plant CA only (a PEM
+  truststore, the agent's copy of the CA certificate), the broker's address checked against its
+  certificate, as the driver's AdminClient does.
 """
 
 from __future__ import annotations
@@ -62,7 +66,8 @@ _TOPIC = re.compile(r"[A-Za-z0-9._-]{1,249}")
 @dataclass(frozen=True)
 class MirrorConfig:
     """One one-way mirror: the clusters' bootstrap lists, the topics, the target's replication
-    factor for MirrorMaker's own topics, and which end is closed (plantkg logs in there)."""
+    factor for MirrorMaker's own topics, which end is closed (plantkg logs in there) and which
+    speaks TLS."""
 
     source: tuple[str, ...]
     target: tuple[str, ...]
@@ -70,6 +75,8 @@ class MirrorConfig:
     replication: int = 1
     source_closed: bool = False
     target_closed: bool = False
+    source_tls: bool = False
+    target_tls: bool = False
 
     def __post_init__(self) -> None:
         for name in ("source", "target"):
@@ -81,7 +88,7 @@ class MirrorConfig:
         if isinstance(self.replication, bool) or not isinstance(self.replication, int) \
                 or not 1 <= self.replication <= 32_767:
             raise ConfigValueError("replication", self.replication, "must be an integer in 1..32767")
-        for name in ("source_closed", "target_closed"):
+        for name in ("source_closed", "target_closed", "source_tls", "target_tls"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigValueError(name, getattr(self, name), "must be true or false")
 
@@ -89,6 +96,11 @@ class MirrorConfig:
     def closed(self) -> bool:
         """Some end authenticates every client: the mirror needs plantkg's password."""
         return self.source_closed or self.target_closed
+
+    @property
+    def tls(self) -> bool:
+        """Some end speaks TLS: the mirror needs the plant CA's certificate."""
+        return self.source_tls or self.target_tls
 
 
 def topic_pattern(name: str) -> str:
@@ -106,25 +118,38 @@ def render_login_properties(password: str) -> str:
             f'username="{kafka_client.USER}" password="{password}";\n')
 
 
-def login_lines(cluster: str, login_file: Path) -> list[str]:
-    """The lines that make every client of ``cluster`` log in as plantkg (SASL/PLAIN), its JAAS
-    line read from ``login_file`` when the client starts (never stored by MirrorMaker 2)."""
-    path = check_path("login_file", login_file, forbid=":{}$")  # nothing the ${file:...} syntax reads
-    return [
-        f"{cluster}.security.protocol=SASL_PLAINTEXT",
-        f"{cluster}.sasl.mechanism=PLAIN",
-        f"{cluster}.sasl.jaas.config=${{{FILE_PROVIDER}:{path}:jaas}}",
-    ]
+def end_lines(cluster: str, closed: bool, tls: bool, login_file: Path | None, ca_file: Path | None) -> list[str]:
+    """The lines that make every client of ``cluster`` log in as plantkg (SASL/PLAIN) where it is
+    ``closed``, its JAAS line read from ``login_file`` when the client starts (never stored by
+    MirrorMaker 2), and speak TLS trusting ``ca_file`` only where it speaks ``tls``."""
+    lines = []
+    if closed:
+        # nothing the ${provider:path:key} syntax reads in the path
+        path = check_path("login_file", login_file, forbid=":{}$")
+        lines += [f"{cluster}.sasl.mechanism=PLAIN",
+                  f"{cluster}.sasl.jaas.config=${{{FILE_PROVIDER}:{path}:jaas}}"]
+    if tls:
+        lines += [f"{cluster}.ssl.truststore.type=PEM",
+                  f"{cluster}.ssl.truststore.location={check_path('ca_file', ca_file)}",
+                  f"{cluster}.ssl.endpoint.identification.algorithm=https"]
+    if closed or tls:
+        protocol = ("SASL_SSL" if tls else "SASL_PLAINTEXT") if closed else "SSL"
+        lines.insert(0, f"{cluster}.security.protocol={protocol}")
+    return lines
 
 
-def render_mm2_properties(cfg: MirrorConfig, login_file: Path | None = None) -> str:
+def render_mm2_properties(cfg: MirrorConfig, login_file: Path | None = None, ca_file: Path | None = None) -> str:
     """The ``mm2.properties`` text (pure). ``login_file``: where plantkg's login is
-    (:func:`render_login_properties`), needed when an end is closed; the text holds no secret."""
+    (:func:`render_login_properties`), needed when an end is closed (the text holds no secret);
+    ``ca_file``: the plant CA's certificate, needed when an end speaks TLS."""
     if cfg.closed and login_file is None:
         raise ConfigValueError("login_file", None, "a mirror with a closed end needs plantkg's login file")
-    logins = [line for cluster, closed in ((SOURCE, cfg.source_closed), (TARGET, cfg.target_closed))
-              if closed and login_file is not None for line in login_lines(cluster, login_file)]
-    if logins:
+    if cfg.tls and ca_file is None:
+        raise ConfigValueError("ca_file", None, "a mirror with a TLS end needs the plant CA's certificate")
+    ends = [end_lines(SOURCE, cfg.source_closed, cfg.source_tls, login_file, ca_file),
+            end_lines(TARGET, cfg.target_closed, cfg.target_tls, login_file, ca_file)]
+    logins = [line for lines in ends for line in lines]
+    if cfg.closed:
         logins = [f"config.providers={FILE_PROVIDER}",
                   f"config.providers.{FILE_PROVIDER}.class=org.apache.kafka.common.config.provider.FileConfigProvider",
                   *logins]

@@ -74,6 +74,7 @@ class MirrorWorkerConfig:
     heap: str = DEFAULT_HEAP
     interval: float = 2.0
     password_file: Path | None = None  # plantkg's Kafka password (0600), when an end is closed
+    ca_file: Path | None = None        # the plant CA's certificate, when an end speaks TLS
 
     def to_json(self) -> str:
         return json.dumps({
@@ -81,8 +82,10 @@ class MirrorWorkerConfig:
             "source": list(self.mirror.source), "target": list(self.mirror.target),
             "topics": list(self.mirror.topics), "replication": self.mirror.replication,
             "source_closed": self.mirror.source_closed, "target_closed": self.mirror.target_closed,
+            "source_tls": self.mirror.source_tls, "target_tls": self.mirror.target_tls,
             "state_dir": str(self.state_dir), "heap": self.heap, "interval": self.interval,
             **({"password_file": str(self.password_file)} if self.password_file is not None else {}),
+            **({"ca_file": str(self.ca_file)} if self.ca_file is not None else {}),
         }, indent=2, sort_keys=True) + "\n"
 
     def password(self) -> str | None:
@@ -109,15 +112,17 @@ class MirrorWorkerConfig:
         try:
             mirror = MirrorConfig(tuple(data["source"]), tuple(data["target"]), tuple(data["topics"]),
                                   int(data["replication"]), data.get("source_closed", False),
-                                  data.get("target_closed", False))
+                                  data.get("target_closed", False), data.get("source_tls", False),
+                                  data.get("target_tls", False))
             bridge_id, state_dir = str(data["bridge_id"]), Path(str(data["state_dir"]))
             heap, interval = str(data.get("heap", DEFAULT_HEAP)), float(data.get("interval", 2.0))
             password_file = None if data.get("password_file") is None else Path(str(data["password_file"]))
+            ca_file = None if data.get("ca_file") is None else Path(str(data["ca_file"]))
         except (KeyError, TypeError, ValueError) as exc:
             raise ConfigValueError("worker.json", str(exc), "a mirror worker config field is missing or mistyped") from None
         if not 0.1 <= interval <= 60:
             raise ConfigValueError("interval", interval, "must be in 0.1..60 seconds")
-        return cls(bridge_id, mirror, state_dir, heap, interval, password_file)
+        return cls(bridge_id, mirror, state_dir, heap, interval, password_file, ca_file)
 
 
 def is_mirror_config(text: str) -> bool:
@@ -131,11 +136,13 @@ def is_mirror_config(text: str) -> bool:
 class Offsets:
     """End offsets of the mirrored topics on one cluster (a group-less consumer's watermarks)."""
 
-    def __init__(self, bootstrap: tuple[str, ...], topics: tuple[str, ...], password: str | None = None) -> None:
-        """``password``: plantkg's, to log in at a closed Kafka (None: an open one)."""
+    def __init__(self, bootstrap: tuple[str, ...], topics: tuple[str, ...], password: str | None = None,
+                 ca_file: Path | None = None) -> None:
+        """``password``: plantkg's, to log in at a closed Kafka (None: an open one); ``ca_file``:
+        the plant CA's certificate at a TLS Kafka (None: a plain one)."""
         self.topics = topics
         self.consumer = Consumer({"bootstrap.servers": ",".join(bootstrap), "group.id": "plantkg-mirror-probe",
-                                  "enable.auto.commit": False, "log_level": 0, **login_settings(password, None)})
+                                  "enable.auto.commit": False, "log_level": 0, **login_settings(password, ca_file)})
 
     def ends(self, timeout: float) -> dict[tuple[str, int], int]:
         """(topic, partition) -> end offset; raises KafkaException when the cluster does not answer."""
@@ -179,7 +186,8 @@ class MirrorWorker:
                 write_whole(login, render_login_properties(password), mode=0o600)
             else:
                 login.unlink(missing_ok=True)
-            write_whole(properties, render_mm2_properties(cfg.mirror, login if password else None), mode=0o600)
+            write_whole(properties, render_mm2_properties(cfg.mirror, login if password else None, cfg.ca_file),
+                        mode=0o600)
         except ConfigValueError as exc:
             log.error("cannot render %s: %s", PROPERTIES_FILE, exc)
             return EXIT_BAD_CONFIG
@@ -188,8 +196,9 @@ class MirrorWorker:
                                       preexec_fn=_die_with_parent)
         log.info("MirrorMaker 2 started, pid %d: %s -> %s, topics %s", self.child.pid,
                  ",".join(cfg.mirror.source), ",".join(cfg.mirror.target), ",".join(cfg.mirror.topics))
-        source = Offsets(cfg.mirror.source, cfg.mirror.topics, password if cfg.mirror.source_closed else None)
-        target = Offsets(cfg.mirror.target, cfg.mirror.topics, password if cfg.mirror.target_closed else None)
+        m = cfg.mirror
+        source = Offsets(m.source, m.topics, password if m.source_closed else None, cfg.ca_file if m.source_tls else None)
+        target = Offsets(m.target, m.topics, password if m.target_closed else None, cfg.ca_file if m.target_tls else None)
         try:
             while not self.stop_event.is_set():
                 code = self.child.poll()
