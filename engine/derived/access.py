@@ -113,8 +113,8 @@ def with_bridge_principals(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
     back, as the bridge's notify principal). A broker that admits anonymous clients and has no plant users gets none: it
     has no users file, the bridge's login is not checked there, and a users file would cost its
     anonymous persistent sessions the messages that arrive between a restart and their
-    reconnection (docs/security.md). Only a Mosquitto takes these principals: a worker logs in to
-    a closed Kafka as plantkg's own principal (engine.security.kafka_client). Users stay sorted
+    reconnection (docs/security.md). Only a Mosquitto takes these principals: a worker or a MirrorMaker 2
+    logs in to a closed Kafka as plantkg's own principal (engine.security.kafka_client). Users stay sorted
     by name."""
     extra: dict[str, list[BrokerUser]] = defaultdict(list)
     for bridge in bridges:

@@ -160,3 +160,9 @@ def test_a_closed_tls_end_logs_in_over_sasl_ssl() -> None:
     with pytest.raises(ConfigValueError) as raised:
         render_mm2_properties(cfg, Path("/s/mm2-login.properties"), Path("ca.pem"))  # not absolute
     assert raised.value.field == "ca_file"
+
+
+def test_an_open_plain_mirrors_worker_json_reads_as_before(tmp_path: Path) -> None:
+    """Its config hash is unchanged, so an agent that upgrades does not restart its MirrorMaker."""
+    text = _config_text(SPEC, tmp_path, None)
+    assert not any(flag in text for flag in ("_closed", "_tls", "password_file", "ca_file"))

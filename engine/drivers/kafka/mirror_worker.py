@@ -60,6 +60,7 @@ LOGIN_FILE = "mm2-login.properties"
 MECHANISM = "kafka-mirror"
 EXIT_BAD_CONFIG = 2
 _PR_SET_PDEATHSIG = 1
+_END_FLAGS = ("source_closed", "target_closed", "source_tls", "target_tls")
 
 log = logging.getLogger("engine.drivers.kafka.mirror_worker")
 
@@ -81,9 +82,9 @@ class MirrorWorkerConfig:
             "mechanism": MECHANISM, "bridge_id": self.bridge_id,
             "source": list(self.mirror.source), "target": list(self.mirror.target),
             "topics": list(self.mirror.topics), "replication": self.mirror.replication,
-            "source_closed": self.mirror.source_closed, "target_closed": self.mirror.target_closed,
-            "source_tls": self.mirror.source_tls, "target_tls": self.mirror.target_tls,
             "state_dir": str(self.state_dir), "heap": self.heap, "interval": self.interval,
+            # only what is on: an open, plain mirror's worker.json (and so its config hash) reads as before
+            **{name: True for name in _END_FLAGS if getattr(self.mirror, name)},
             **({"password_file": str(self.password_file)} if self.password_file is not None else {}),
             **({"ca_file": str(self.ca_file)} if self.ca_file is not None else {}),
         }, indent=2, sort_keys=True) + "\n"
@@ -111,9 +112,7 @@ class MirrorWorkerConfig:
                                    f"expected {MECHANISM!r}")
         try:
             mirror = MirrorConfig(tuple(data["source"]), tuple(data["target"]), tuple(data["topics"]),
-                                  int(data["replication"]), data.get("source_closed", False),
-                                  data.get("target_closed", False), data.get("source_tls", False),
-                                  data.get("target_tls", False))
+                                  int(data["replication"]), *(data.get(name, False) for name in _END_FLAGS))
             bridge_id, state_dir = str(data["bridge_id"]), Path(str(data["state_dir"]))
             heap, interval = str(data.get("heap", DEFAULT_HEAP)), float(data.get("interval", 2.0))
             password_file = None if data.get("password_file") is None else Path(str(data["password_file"]))
