@@ -366,8 +366,8 @@ def assemble_from(parts: Parts, previous: Assembled | None = None,
         pairs[pair] = (pairs[pair][0], spec)
     bridges = sorted((spec for _, spec in pairs.values()), key=lambda s: s.address)
     deployed = [b for b in brokers if b.iri not in parts.external]
-    check_access_supported(deployed, bridges)
-    check_kafka_tls_supported(deployed, bridges)
+    check_access_supported(deployed)
+    check_kafka_tls_supported(deployed)
     deployed = with_bridge_principals(deployed, bridges)  # each bridge a user where it logs in
     deployed = with_closed_kafkas(deployed)  # where a context broker's kafka:// notifications log in
     outside = {parts.brokers[iri].id for iri in parts.external}

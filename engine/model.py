@@ -181,7 +181,7 @@ class BridgeEnd:
     port: int
     bootstrap: tuple[str, ...] = ()  # a Kafka cluster: host:port of each of its broker nodes
     tls: bool = False       # the broker's listener speaks TLS: connect with it, verify with the plant CA
-    closed: bool = False    # a Kafka that authenticates every client: a worker logs in as plantkg's principal
+    closed: bool = False    # a Kafka that authenticates every client: a worker or MirrorMaker 2 logs in as plantkg
 
 
 @dataclass(frozen=True)

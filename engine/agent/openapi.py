@@ -195,7 +195,7 @@ _SCHEMAS: dict[str, Any] = {
                                "description": "the broker speaks TLS: connect with it, verify with the plant CA"},
                        "closed": {"type": "boolean",
                                   "description": "a Kafka that authenticates every client: the worker "
-                                                 "logs in as plantkg's principal"}},
+                                                 "or MirrorMaker 2 logs in as plantkg's principal"}},
     },
     "BridgeSpec": {
         "type": "object", "additionalProperties": False,

@@ -9,10 +9,10 @@ A worker bridge lives in ``<state-dir>/bridges/<local>--<remote>/``::
                   engine.bridge_worker.ngsi_config.NgsiWorkerConfig for mechanism mqtt-ngsi, or
                   engine.drivers.kafka.mirror_worker.MirrorWorkerConfig for kafka-mirror)
     remote.token  mqtt-ngsi: the context broker's write token (the token of the agent that runs
-                  it); mqtt-kafka to a closed Kafka: plantkg's password there, derived from the
-                  principal key (engine.security.kafka_client) when the spec's remote end says
-                  the Kafka is ``closed`` (no token travels for it); mode 0600; absent for an
-                  open remote
+                  it); mqtt-kafka to a closed Kafka, kafka-mirror with a closed end: plantkg's
+                  password there, derived from the principal key (engine.security.kafka_client)
+                  when the spec says the Kafka end is ``closed`` (no token travels for it); mode
+                  0600; absent when every Kafka end is open
     pid.json      pid, start time, argv, restarts, config hash (as for brokers)
     stats.json    what the worker reports: readiness, counters, forwarding rate, last error
     logs/bridge.log
@@ -168,11 +168,15 @@ def mirror_config(spec: BridgeSpec, state_dir: Path) -> MirrorWorkerConfig:
     """A MirrorMaker 2's configuration (local: the target Kafka, which carries it; remote: the
     source). Its own topics take the target's replication factor: one per broker, at most 3."""
     target = _bootstrap(spec.local)
+    closed = spec.local.closed or spec.remote.closed  # plantkg logs in there: its password file
     return MirrorWorkerConfig(
         bridge_id=folder_name(spec.local.id, spec.remote.id),
         mirror=MirrorConfig(source=_bootstrap(spec.remote), target=target,
-                            topics=tuple(r.topic for r in spec.routes), replication=min(3, len(target))),
-        state_dir=state_dir,
+                            topics=tuple(r.topic for r in spec.routes), replication=min(3, len(target)),
+                            source_closed=spec.remote.closed, target_closed=spec.local.closed,
+                            source_tls=spec.remote.tls, target_tls=spec.local.tls),
+        state_dir=state_dir, password_file=state_dir / TOKEN_FILE if closed else None,
+        ca_file=ca.ca_cert_file() if spec.local.tls or spec.remote.tls else None,
     )
 
 
@@ -198,6 +202,14 @@ def _config_text(spec: BridgeSpec, folder: Path, remote_token: str | None) -> st
     if spec.remote.closed:  # a closed Kafka: the worker's clients log in as plantkg
         cfg = replace(cfg, kafka_password_file=folder / TOKEN_FILE)
     return cfg.to_json()
+
+
+def _logs_in_to_kafka(spec: BridgeSpec) -> bool:
+    """The bridge's process logs in to a closed Kafka as plantkg: a worker's remote, either end of
+    a mirror."""
+    if spec.mechanism is BridgeMechanism.MIRROR:
+        return spec.local.closed or spec.remote.closed
+    return spec.mechanism is BridgeMechanism.WORKER and spec.remote.closed
 
 
 def _digest(folder: Path) -> str:
@@ -293,7 +305,7 @@ class WorkerManager:
         text = _config_text(spec, folder.path, remote_token)  # refuses bad values before anything changes
         with self._lock:
             w = self._workers.setdefault(key, _Worker(spec, folder))
-        if spec.mechanism is BridgeMechanism.WORKER and spec.remote.closed:
+        if _logs_in_to_kafka(spec):
             remote_token = kafka_client.password()  # plantkg's on a closed Kafka, from the principal key
         with w.op:
             owner = claim(w.record().owner, owner, spec.address)

@@ -16,10 +16,10 @@ of its topics the broker carries. Nothing here decides who may do what: the rule
   entities back, the context broker's notify principal, writing exactly those topics;
 - :func:`check_access_supported` refuses, before anything is deployed, what plantkg cannot run
   yet: users on a broker whose driver renders none (Mosquitto's and Kafka's do, a Kafka
-  cluster's nodes included), a resource whose ``pk:id`` is one of plantkg's principal names, and a
-  MirrorMaker 2 at a closed Kafka (a bridge worker into a closed Kafka authenticates as plantkg's
-  own principal, engine.security.kafka_client; bridges at a closed Mosquitto as their bridge
-  principal);
+  cluster's nodes included) and a resource whose ``pk:id`` is one of plantkg's principal names
+  (a bridge worker into a closed Kafka and a MirrorMaker 2 at each closed end authenticate as
+  plantkg's own principal, engine.security.kafka_client; bridges at a closed Mosquitto as their
+  bridge principal);
 - :func:`with_closed_kafkas` tells each context broker the plant's closed Kafka brokers, where its
   ``kafka://`` notifications log in as plantkg's own principal;
 - :func:`open_broker_warnings` and :func:`access_label` say, in a plan and in ``status``, which
@@ -121,8 +121,8 @@ def with_bridge_principals(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
     back, as the bridge's notify principal). A broker that admits anonymous clients and has no plant users gets none: it
     has no users file, the bridge's login is not checked there, and a users file would cost its
     anonymous persistent sessions the messages that arrive between a restart and their
-    reconnection (docs/security.md). Only a Mosquitto takes these principals: a worker logs in to
-    a closed Kafka as plantkg's own principal (engine.security.kafka_client). Users stay sorted
+    reconnection (docs/security.md). Only a Mosquitto takes these principals: a worker or a MirrorMaker 2
+    logs in to a closed Kafka as plantkg's own principal (engine.security.kafka_client). Users stay sorted
     by name."""
     extra: dict[str, list[BrokerUser]] = defaultdict(list)
     for bridge in bridges:
@@ -170,11 +170,11 @@ def is_closed(spec: BrokerSpec) -> bool:
     return spec.kind in USER_KINDS and spec.allow_anonymous is False
 
 
-def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[BridgeSpec] = ()) -> None:
-    """Refuse users on a broker whose driver renders none, plant users named like plantkg's own principals (``plantkg.``...), principals on a context broker
-    open to anonymous writes, users on a Kafka open to anonymous clients (a Kafka is either SASL
-    or open: it cannot admit both), and a MirrorMaker 2 at a closed Kafka."""
-    bridges = tuple(bridges)
+def check_access_supported(brokers: Iterable[BrokerSpec]) -> None:
+    """Refuse users on a broker whose driver renders none, plant users named like plantkg's own
+    principals (``plantkg.``...), principals on a context broker open to anonymous writes, and
+    users on a Kafka open to anonymous clients (a Kafka is either SASL or open: it cannot admit
+    both)."""
     by_id = {b.id: b for b in brokers}
     for spec in by_id.values():
         if spec.users and spec.kind in TOKEN_KINDS and spec.allow_anonymous:
@@ -203,18 +203,6 @@ def check_access_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
                 "client certificate, "
                 f"but user names starting with {principals.PREFIX!r} are plantkg's own principals",
                 hint="give the resource another pk:id")
-    for bridge in bridges:
-        # a bridge logs in to a closed Mosquitto as its principal, a bridge worker to a closed
-        # Kafka as plantkg's own principal; MirrorMaker 2 has no credentials at a closed Kafka yet
-        closed = [end.id for end in (bridge.local, bridge.remote) if end.id in by_id and is_closed(by_id[end.id])
-                  and by_id[end.id].kind == "kafka" and bridge.mechanism is not BridgeMechanism.WORKER]
-        if closed:
-            raise AccessNotSupportedError(
-                f"{bridge.address}: Kafka broker {closed[0]!r} is closed to anonymous clients (closed "
-                "by default), and a MirrorMaker 2 at a closed Kafka needs plantkg's own credentials "
-                "there, which plantkg does not give it yet",
-                hint=f"say pk:allowAnonymous true on {closed[0]!r} while it is mirrored (it is then open "
-                     "to anyone who reaches it, and plan warns), or route the topics through an MQTT broker")
 
 
 def access_label(spec: BrokerSpec) -> str:
@@ -263,21 +251,13 @@ def open_broker_warnings(brokers: Iterable[BrokerSpec]) -> tuple[str, ...]:
     return tuple(out)
 
 
-def check_kafka_tls_supported(brokers: Iterable[BrokerSpec], bridges: Iterable[BridgeSpec] = ()) -> None:
+def check_kafka_tls_supported(brokers: Iterable[BrokerSpec]) -> None:
     """Refuse, before anything runs, ``pk:tls`` where plantkg would leave a Kafka plain: on a
-    Kafka cluster's node (TLS is built for a Kafka broker of its own), and at either end of a
-    MirrorMaker 2 bridge (it connects without TLS). A bridge worker speaks TLS to a TLS Kafka."""
+    Kafka cluster's node (TLS is built for a Kafka broker of its own). A bridge worker and a
+    MirrorMaker 2 speak TLS to a TLS Kafka."""
     for spec in brokers:
         if spec.kind == "kafka" and spec.tls and spec.kafka is not None:
             raise AccessNotSupportedError(
                 f"broker {spec.id!r} is a node of Kafka cluster {spec.kafka.cluster!r} and says pk:tls "
                 "true: plantkg renders TLS listeners for a Kafka broker of its own only (yet)",
                 hint=f"remove pk:tls from {spec.id!r}, or make it a Kafka broker of its own")
-    for bridge in bridges:
-        tls = [end.id for end in (bridge.local, bridge.remote) if end.tls]
-        if bridge.mechanism is BridgeMechanism.MIRROR and tls:
-            raise AccessNotSupportedError(
-                f"{bridge.address}: Kafka broker {tls[0]!r} speaks TLS (pk:tls true), but a "
-                "MirrorMaker 2 bridge connects to its Kafka brokers without TLS (yet)",
-                hint=f"keep {tls[0]!r} plain while it is mirrored, or route the topics through an "
-                     "MQTT broker (bridge workers speak TLS to Kafka)")

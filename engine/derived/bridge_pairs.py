@@ -232,7 +232,8 @@ def _ipv6(host: str) -> bool:
 def bridge_end(spec: BrokerSpec, classes: Mapping[str, frozenset[str]]) -> BridgeEnd:
     """Where a bridge reaches ``spec``: an MQTT broker at its ``pk:mqttPort`` if it has one (its
     ``pk:port`` speaks another protocol), every other broker at its ``pk:port``; ``closed`` when
-    it is a Kafka closed to anonymous clients (a worker logs in there as plantkg's principal)."""
+    it is a Kafka closed to anonymous clients (a worker or a MirrorMaker 2 logs in there as
+    plantkg's principal)."""
     mqtt = MQTT_CLASS in classes.get(spec.id, frozenset()) and spec.mqtt_port is not None
     return BridgeEnd(id=spec.id, kind=spec.kind, host=spec.host,
                      port=spec.mqtt_port if mqtt else spec.port,  # type: ignore[arg-type]

@@ -46,13 +46,21 @@ def client_settings(closed: bool, tls: bool = False, ca_file: Path | None = None
     """librdkafka settings of one of plantkg's clients of a Kafka: SASL/PLAIN as ``plantkg`` when
     it is ``closed``, TLS trusting the plant CA only (the broker's address checked against its
     certificate) when it speaks TLS; nothing for an open, plain Kafka."""
-    out: dict[str, Any] = {}
-    if closed:
-        out |= {"sasl.mechanism": "PLAIN", "sasl.username": USER, "sasl.password": password()}
-    if tls:
+    if tls and ca_file is None:
         from engine.security import ca  # noqa: PLC0415 - only for TLS: a bridge worker need not load cryptography
-        out |= {"ssl.ca.location": str(ca_file or ca.ca_cert_file()),
-                "ssl.endpoint.identification.algorithm": "https"}
-    if closed or tls:
-        out["security.protocol"] = ("sasl_ssl" if tls else "sasl_plaintext") if closed else "ssl"
+        ca_file = ca.ca_cert_file()
+    return login_settings(password() if closed else None, ca_file if tls else None)
+
+
+def login_settings(secret: str | None, ca_file: Path | None) -> dict[str, Any]:
+    """librdkafka settings given plantkg's password (``secret``; None: the Kafka is open) and the
+    plant CA's certificate file (None: the Kafka is plain), for a process that holds the password
+    but not the principal key (a mirror worker reads it from a 0600 file its agent wrote)."""
+    out: dict[str, Any] = {}
+    if secret is not None:
+        out |= {"sasl.mechanism": "PLAIN", "sasl.username": USER, "sasl.password": secret}
+    if ca_file is not None:
+        out |= {"ssl.ca.location": str(ca_file), "ssl.endpoint.identification.algorithm": "https"}
+    if secret is not None or ca_file is not None:
+        out["security.protocol"] = ("sasl_ssl" if ca_file else "sasl_plaintext") if secret else "ssl"
     return out

@@ -45,3 +45,12 @@ def test_client_settings_by_listener(tmp_path: Path) -> None:
                    "ssl.endpoint.identification.algorithm": "https"}
     both = kafka_client.client_settings(True, True, ca_file)
     assert both["security.protocol"] == "sasl_ssl" and both["sasl.username"] == "plantkg"
+
+
+def test_login_settings_from_a_password_held_without_the_key(tmp_path: Path) -> None:
+    """A mirror worker reads plantkg's password from a file: the same settings, that password."""
+    assert kafka_client.login_settings(None, None) == {}
+    assert kafka_client.login_settings("ab" * 32, None) == {
+        "security.protocol": "sasl_plaintext", "sasl.mechanism": "PLAIN", "sasl.username": "plantkg",
+        "sasl.password": "ab" * 32}
+    assert kafka_client.login_settings("ab" * 32, tmp_path / "ca.pem")["security.protocol"] == "sasl_ssl"

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from engine.agent.workers import mirror_config, _config_text
-from engine.drivers.kafka.mirror import MirrorConfig, render_mm2_properties, topic_pattern
+from engine.drivers.kafka.mirror import MirrorConfig, render_login_properties, render_mm2_properties, topic_pattern
 from engine.drivers.kafka.mirror_worker import MirrorWorkerConfig, is_mirror_config, lag_of
 from engine.errors import ConfigValueError
 from engine.model import BridgeDirection, BridgeEnd, BridgeMechanism, BridgeRoute, BridgeSpec
@@ -93,3 +93,76 @@ def test_lag_counts_what_the_target_lacks_per_partition() -> None:
 def test_mirrormakers_own_topics_are_not_plant_topics(name: str, internal: bool) -> None:
     from engine.drivers.kafka.topics import is_internal
     assert is_internal(name) is internal
+
+
+PASSWORD = "ab" * 32  # the shape of plantkg's Kafka password (engine.security.kafka_client)
+
+
+@pytest.mark.parametrize(("source_closed", "target_closed"), [(True, True), (True, False), (False, True)])
+def test_a_closed_end_logs_in_as_plantkg_and_an_open_one_does_not(source_closed: bool, target_closed: bool) -> None:
+    cfg = MirrorConfig(PLANT, ("127.0.0.5:9092",), ("plant.kpi",), 1, source_closed, target_closed)
+    lines = render_mm2_properties(cfg, Path("/state/bridges/a--b/mm2-login.properties")).splitlines()
+    assert {"config.providers=file",
+            "config.providers.file.class=org.apache.kafka.common.config.provider.FileConfigProvider"} <= set(lines)
+    for cluster, closed in (("source", source_closed), ("target", target_closed)):
+        login = {f"{cluster}.security.protocol=SASL_PLAINTEXT", f"{cluster}.sasl.mechanism=PLAIN",
+                 f"{cluster}.sasl.jaas.config=${{file:/state/bridges/a--b/mm2-login.properties:jaas}}"}
+        assert (login <= set(lines)) is closed
+        assert any(line.startswith(f"{cluster}.sasl") for line in lines) is closed
+
+
+def test_the_login_file_holds_the_password_the_properties_do_not() -> None:
+    assert render_login_properties(PASSWORD).splitlines()[1] == (
+        "jaas=org.apache.kafka.common.security.plain.PlainLoginModule required "
+        f'username="plantkg" password="{PASSWORD}";')
+    text = render_mm2_properties(MirrorConfig(PLANT, PLANT, ("t",), 1, True, True), Path("/s/mm2-login.properties"))
+    assert PASSWORD not in text and "password" not in text
+
+
+def test_a_closed_mirror_needs_a_login_that_cannot_break_the_files() -> None:
+    cfg = MirrorConfig(PLANT, PLANT, ("t",), 1, source_closed=True)
+    with pytest.raises(ConfigValueError, match="needs plantkg's login file"):
+        render_mm2_properties(cfg)
+    with pytest.raises(ConfigValueError) as raised:
+        render_login_properties('x"; user_admin="x')
+    assert raised.value.field == "password" and "user_admin" not in str(raised.value)
+    with pytest.raises(ConfigValueError) as raised:  # the ${file:path:key} syntax would misread it
+        render_mm2_properties(cfg, Path("/s/a:b/mm2-login.properties"))
+    assert raised.value.field == "login_file"
+    with pytest.raises(ConfigValueError, match="true or false"):
+        MirrorConfig(PLANT, PLANT, ("t",), 1, source_closed="yes")  # type: ignore[arg-type]
+    open_both = render_mm2_properties(MirrorConfig(PLANT, PLANT, ("t",)), Path("/s/mm2-login.properties"))
+    assert "sasl" not in open_both and "config.providers" not in open_both  # open: no login at all
+
+
+def test_the_agent_gives_a_closed_mirror_a_password_file_and_no_password(tmp_path: Path) -> None:
+    closed_source = BridgeSpec(SPEC.local, BridgeEnd(**{**SPEC.remote.__dict__, "closed": True}),
+                               SPEC.mechanism, SPEC.routes)
+    cfg = mirror_config(closed_source, tmp_path)
+    assert (cfg.mirror.source_closed, cfg.mirror.target_closed) == (True, False)
+    assert cfg.password_file == tmp_path / "remote.token"
+    text = _config_text(closed_source, tmp_path, None)
+    assert MirrorWorkerConfig.from_json(text) == cfg and "password\"" not in text
+    assert mirror_config(SPEC, tmp_path).password_file is None  # both open: no password at all
+    with pytest.raises(ConfigValueError, match="cannot be read"):
+        cfg.password()
+    (tmp_path / "remote.token").write_text(PASSWORD + "\n", encoding="utf-8")
+    assert cfg.password() == PASSWORD
+
+
+def test_a_closed_tls_end_logs_in_over_sasl_ssl() -> None:
+    cfg = MirrorConfig(PLANT, ("127.0.0.5:9092",), ("t",), 1, True, False, True, True)
+    lines = render_mm2_properties(cfg, Path("/s/mm2-login.properties"), Path("/ca/ca.pem")).splitlines()
+    assert {"source.security.protocol=SASL_SSL", "source.sasl.mechanism=PLAIN",
+            "source.ssl.truststore.location=/ca/ca.pem", "target.security.protocol=SSL",
+            "target.ssl.truststore.location=/ca/ca.pem"} <= set(lines)
+    assert not any(line.startswith("target.sasl") for line in lines)
+    with pytest.raises(ConfigValueError) as raised:
+        render_mm2_properties(cfg, Path("/s/mm2-login.properties"), Path("ca.pem"))  # not absolute
+    assert raised.value.field == "ca_file"
+
+
+def test_an_open_plain_mirrors_worker_json_reads_as_before(tmp_path: Path) -> None:
+    """Its config hash is unchanged, so an agent that upgrades does not restart its MirrorMaker."""
+    text = _config_text(SPEC, tmp_path, None)
+    assert not any(flag in text for flag in ("_closed", "_tls", "password_file", "ca_file"))

@@ -15,10 +15,12 @@ from cryptography import x509
 from engine.derived.access import AccessNotSupportedError, check_kafka_tls_supported
 from engine.security import kafka_client
 from engine.security.kafka_client import internal_password as kafka_internal_password
-from engine.agent.workers import worker_config
+from engine.agent.workers import mirror_config, worker_config
 from engine.bridge_worker.config import WorkerConfig
 from engine.drivers.kafka import tls
 from engine.drivers.kafka.driver import CONTROLLER_PORT_FILE, KafkaDriver
+from engine.drivers.kafka.mirror import render_mm2_properties
+from engine.drivers.kafka.mirror_worker import MirrorWorkerConfig
 from engine.drivers.kafka.runtime import KafkaNodeConfig, KafkaTls, render_server_properties
 from engine.errors import ConfigValueError
 from engine.model import (
@@ -147,12 +149,25 @@ def test_a_bridge_worker_speaks_tls_to_a_tls_kafka(tmp_path: Path) -> None:
         WorkerConfig.from_json(json.dumps({**json.loads(cfg.to_json()), "kafka_ca_file": "relative/ca.pem"}))
 
 
-def test_tls_on_a_cluster_node_or_a_mirrormaker_end_is_refused() -> None:
+def test_tls_on_a_cluster_node_is_refused() -> None:
     node = KafkaNode(cluster="c", node_id=1, roles=("broker", "controller"), controller_port=9093,
                      voters=(), cluster_id="AAAAAAAAAAAAAAAAAAAAAA", replication=1)
     with pytest.raises(AccessNotSupportedError, match="'kf' is a node of Kafka cluster 'c'.*pk:tls"):
         check_kafka_tls_supported([_spec(tls=True, kafka=node)])
-    with pytest.raises(AccessNotSupportedError, match="'kf' speaks TLS.*MirrorMaker 2"):
-        check_kafka_tls_supported([], [_bridge(True, BridgeMechanism.MIRROR)])
-    check_kafka_tls_supported([_spec(tls=True), _spec(kafka=node)],
-                              [_bridge(True), _bridge(False, BridgeMechanism.MIRROR)])
+    check_kafka_tls_supported([_spec(tls=True), _spec(kafka=node)])  # a TLS mirror end is built
+
+
+def test_a_mirror_speaks_tls_to_a_tls_kafka_end(tmp_path: Path) -> None:
+    cfg = mirror_config(_bridge(True, BridgeMechanism.MIRROR), tmp_path)
+    assert cfg.ca_file == ca.ca_cert_file()
+    assert (cfg.mirror.source_tls, cfg.mirror.target_tls) == (True, False)  # kf is the source
+    assert MirrorWorkerConfig.from_json(cfg.to_json()) == cfg
+    lines = render_mm2_properties(cfg.mirror, None, cfg.ca_file).splitlines()
+    assert {"source.security.protocol=SSL", "source.ssl.truststore.type=PEM",
+            f"source.ssl.truststore.location={ca.ca_cert_file()}",
+            "source.ssl.endpoint.identification.algorithm=https"} <= set(lines)
+    assert not any(line.startswith("target.s") for line in lines)  # the plain end: no TLS
+    plain = mirror_config(_bridge(False, BridgeMechanism.MIRROR), tmp_path)
+    assert plain.ca_file is None and "ca_file" not in plain.to_json()
+    with pytest.raises(ConfigValueError, match="needs the plant CA"):
+        render_mm2_properties(cfg.mirror)

@@ -1,7 +1,10 @@
 """``python -m engine.drivers.kafka.mirror_worker <worker.json>``: one MirrorMaker 2, watched.
 
 The agent runs this like a bridge worker (engine.agent.workers: one supervised process per bridge,
-restarted with backoff when it exits). It renders ``mm2.properties`` next to ``worker.json``,
+restarted with backoff when it exits). It renders ``mm2.properties`` next to ``worker.json``
+(and, when an end is closed, ``mm2-login.properties``, mode 0600, the one file of the folder with
+plantkg's password besides the 0600 ``password_file`` the agent wrote; mm2.properties refers to
+it: engine.drivers.kafka.mirror),
 starts MirrorMaker 2 (:mod:`engine.drivers.kafka.mirror`) as its child — in its process group, so
 the agent's stop ends both, and with a parent-death signal, so a killed worker leaves no JVM —
 and every ``interval`` seconds measures the mirror against both clusters into ``stats.json``
@@ -41,13 +44,23 @@ from confluent_kafka import Consumer, KafkaException, TopicPartition
 
 from engine import parts
 from engine.bridge_worker.stats import WorkerStats, write_stats
-from engine.drivers.kafka.mirror import DEFAULT_HEAP, MirrorConfig, mirror_command, render_mm2_properties
+from engine.drivers.kafka.mirror import (
+    DEFAULT_HEAP,
+    MirrorConfig,
+    mirror_command,
+    render_login_properties,
+    render_mm2_properties,
+)
 from engine.errors import ConfigValueError
+from engine.security.kafka_client import login_settings
+from engine.whole_file import write_whole
 
 PROPERTIES_FILE = "mm2.properties"
+LOGIN_FILE = "mm2-login.properties"
 MECHANISM = "kafka-mirror"
 EXIT_BAD_CONFIG = 2
 _PR_SET_PDEATHSIG = 1
+_END_FLAGS = ("source_closed", "target_closed", "source_tls", "target_tls")
 
 log = logging.getLogger("engine.drivers.kafka.mirror_worker")
 
@@ -61,6 +74,8 @@ class MirrorWorkerConfig:
     state_dir: Path
     heap: str = DEFAULT_HEAP
     interval: float = 2.0
+    password_file: Path | None = None  # plantkg's Kafka password (0600), when an end is closed
+    ca_file: Path | None = None        # the plant CA's certificate, when an end speaks TLS
 
     def to_json(self) -> str:
         return json.dumps({
@@ -68,7 +83,23 @@ class MirrorWorkerConfig:
             "source": list(self.mirror.source), "target": list(self.mirror.target),
             "topics": list(self.mirror.topics), "replication": self.mirror.replication,
             "state_dir": str(self.state_dir), "heap": self.heap, "interval": self.interval,
+            # only what is on: an open, plain mirror's worker.json (and so its config hash) reads as before
+            **{name: True for name in _END_FLAGS if getattr(self.mirror, name)},
+            **({"password_file": str(self.password_file)} if self.password_file is not None else {}),
+            **({"ca_file": str(self.ca_file)} if self.ca_file is not None else {}),
         }, indent=2, sort_keys=True) + "\n"
+
+    def password(self) -> str | None:
+        """plantkg's password from ``password_file`` (None when no end is closed)."""
+        if not self.mirror.closed:
+            return None
+        if self.password_file is None:
+            raise ConfigValueError("password_file", None, "a mirror with a closed end needs plantkg's password file")
+        try:
+            return self.password_file.read_text(encoding="utf-8").strip()
+        except OSError as exc:
+            raise ConfigValueError("password_file", str(self.password_file),
+                                   f"cannot be read ({exc.strerror})") from None
 
     @classmethod
     def from_json(cls, text: str) -> MirrorWorkerConfig:
@@ -81,14 +112,16 @@ class MirrorWorkerConfig:
                                    f"expected {MECHANISM!r}")
         try:
             mirror = MirrorConfig(tuple(data["source"]), tuple(data["target"]), tuple(data["topics"]),
-                                  int(data["replication"]))
+                                  int(data["replication"]), *(data.get(name, False) for name in _END_FLAGS))
             bridge_id, state_dir = str(data["bridge_id"]), Path(str(data["state_dir"]))
             heap, interval = str(data.get("heap", DEFAULT_HEAP)), float(data.get("interval", 2.0))
+            password_file = None if data.get("password_file") is None else Path(str(data["password_file"]))
+            ca_file = None if data.get("ca_file") is None else Path(str(data["ca_file"]))
         except (KeyError, TypeError, ValueError) as exc:
             raise ConfigValueError("worker.json", str(exc), "a mirror worker config field is missing or mistyped") from None
         if not 0.1 <= interval <= 60:
             raise ConfigValueError("interval", interval, "must be in 0.1..60 seconds")
-        return cls(bridge_id, mirror, state_dir, heap, interval)
+        return cls(bridge_id, mirror, state_dir, heap, interval, password_file, ca_file)
 
 
 def is_mirror_config(text: str) -> bool:
@@ -102,10 +135,13 @@ def is_mirror_config(text: str) -> bool:
 class Offsets:
     """End offsets of the mirrored topics on one cluster (a group-less consumer's watermarks)."""
 
-    def __init__(self, bootstrap: tuple[str, ...], topics: tuple[str, ...]) -> None:
+    def __init__(self, bootstrap: tuple[str, ...], topics: tuple[str, ...], password: str | None = None,
+                 ca_file: Path | None = None) -> None:
+        """``password``: plantkg's, to log in at a closed Kafka (None: an open one); ``ca_file``:
+        the plant CA's certificate at a TLS Kafka (None: a plain one)."""
         self.topics = topics
         self.consumer = Consumer({"bootstrap.servers": ",".join(bootstrap), "group.id": "plantkg-mirror-probe",
-                                  "enable.auto.commit": False, "log_level": 0})
+                                  "enable.auto.commit": False, "log_level": 0, **login_settings(password, ca_file)})
 
     def ends(self, timeout: float) -> dict[tuple[str, int], int]:
         """(topic, partition) -> end offset; raises KafkaException when the cluster does not answer."""
@@ -142,14 +178,26 @@ class MirrorWorker:
     def run(self) -> int:
         cfg = self.cfg
         properties = cfg.state_dir / PROPERTIES_FILE
-        properties.write_text(render_mm2_properties(cfg.mirror), encoding="utf-8")
+        login = cfg.state_dir / LOGIN_FILE
+        try:
+            password = cfg.password()
+            if password is not None:
+                write_whole(login, render_login_properties(password), mode=0o600)
+            else:
+                login.unlink(missing_ok=True)
+            write_whole(properties, render_mm2_properties(cfg.mirror, login if password else None, cfg.ca_file),
+                        mode=0o600)
+        except ConfigValueError as exc:
+            log.error("cannot render %s: %s", PROPERTIES_FILE, exc)
+            return EXIT_BAD_CONFIG
         argv = mirror_command(parts.kafka_parts(), parts.java_binary(), properties, cfg.state_dir / "logs", cfg.heap)
         self.child = subprocess.Popen(argv, stdin=subprocess.DEVNULL, cwd=cfg.state_dir,  # noqa: S603 - argv list
                                       preexec_fn=_die_with_parent)
         log.info("MirrorMaker 2 started, pid %d: %s -> %s, topics %s", self.child.pid,
                  ",".join(cfg.mirror.source), ",".join(cfg.mirror.target), ",".join(cfg.mirror.topics))
-        source = Offsets(cfg.mirror.source, cfg.mirror.topics)
-        target = Offsets(cfg.mirror.target, cfg.mirror.topics)
+        m = cfg.mirror
+        source = Offsets(m.source, m.topics, password if m.source_closed else None, cfg.ca_file if m.source_tls else None)
+        target = Offsets(m.target, m.topics, password if m.target_closed else None, cfg.ca_file if m.target_tls else None)
         try:
             while not self.stop_event.is_set():
                 code = self.child.poll()
