@@ -15,7 +15,6 @@ to openssl; the id is checked against the pattern of ``pk:id`` before anything i
 from __future__ import annotations
 
 import datetime as dt
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,13 +24,14 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from engine.errors import EngineError
+from engine.values import BROKER_USER
 from engine.security.ca import CA_CERT, Ca, ca_pem
 from engine.whole_file import write_whole
 
 #: Days a client certificate is valid (as the brokers' server certificates).
 LIFETIME_DAYS = 90
 #: The pattern of ``pk:id`` (shape ``pks:PlantElement-idValue``): a certificate names a resource.
-ID_PATTERN = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,127}")
+ID_PATTERN = BROKER_USER  # the certificate's common name is the broker user name
 #: plantkg's own principals' names: a resource may not take one (docs/security.md).
 RESERVED_PREFIX = "plantkg."
 #: The longest common name X.509 allows (RFC 5280 ub-common-name).
