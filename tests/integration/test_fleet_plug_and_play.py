@@ -227,7 +227,8 @@ def test_an_unknown_sdk_vehicle_is_discovered_applied_ordered_and_marked_unavail
     with capsys.disabled():
         print(f"\nplug and play, 1 vehicle: ONLINE -> applied {got['ready']:.3f} s (manager), "
               f"{got['wall']:.3f} s from connect() to the status file (test)")
-    assert got["wall"] < 2.0, got
+    # the time is printed, not asserted (a test asserts no timing): benchmarks/bench_fleet_join.py
+    # measures the join against a bare VDA 5050 master in the same run
     row = got["row"]
     assert row["connectionState"] == "ONLINE" and row["interface"] == "vda5050" and "pick" in row["skills"]
 
