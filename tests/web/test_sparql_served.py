@@ -94,8 +94,10 @@ def _closed_agents(directory: Path) -> Path:
     return path
 
 
-@pytest.fixture
-def server(tmp_path: Path) -> Iterator[Server]:
+@pytest.fixture(scope="module")
+def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
+    """One server for the module (its start is most of a test's setup)."""
+    tmp_path = tmp_path_factory.mktemp("served")
     token = tmp_path / "web-token"
     token.write_text("served-sparql-test-token-0123456789\n")
     os.chmod(token, 0o600)
@@ -111,6 +113,15 @@ def server(tmp_path: Path) -> Iterator[Server]:
         yield served
     finally:
         process.stop(child)
+
+
+@pytest.fixture
+def server(served: Server) -> Server:
+    """The module's server once no query of an earlier test still runs (a failed test's slow
+    queries end at their timeout): each test starts with every slot free, as on a fresh server."""
+    process.wait_until(lambda: not any("R" in states for states in served.workers().values()), TIMEOUT_S + 30, 0.1,
+                       what="the earlier tests' queries to end", child=served.child)
+    return served
 
 
 def test_twenty_slow_queries_from_one_client_do_not_stop_another(server: Server) -> None:
