@@ -17,6 +17,8 @@ Mosquitto bridge A -> B:
   started again on the same folder: acknowledged messages never received, duplicates, whether a
   persistent session made before the stream was still there; once with B's subscriber connected,
   once with it offline during the stream (what B holds for it lives in memory until B saves).
+  The run is over when every acknowledged message arrived or a marker published on A after the
+  stream's last PUBACK did (the bridge forwards in order: what is still missing then is lost).
 
 Part 2, with the default policy, a stream through each plantkg path with one fault mid-stream
 (the faulty process SIGKILLed and started again, as its agent would):
@@ -35,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import signal
+import subprocess
 import tempfile
 import threading
 import time
@@ -134,6 +137,27 @@ def session_present(port: int, client_id: str) -> bool:
         client.loop_stop()
         client.disconnect()
     return flags[0]
+
+
+def publish_marker(port: int) -> bytes:
+    """Publish one QoS 1 message on :data:`TOPIC` that no receiver counts (no index in it), once
+    the broker acknowledged it; returns its payload. Sent to a bridge's source after the stream's
+    last PUBACK, it queues behind every message of the stream, and the bridge forwards in order:
+    when it reached the receiver, whatever of the stream has not is not coming."""
+    payload = f"drained-{uuid.uuid4().hex}"
+    # mosquitto_pub exits once its QoS 1 message is acknowledged
+    subprocess.run([load.need("mosquitto_pub"), "-h", "127.0.0.1", "-p", str(port), "-t", TOPIC, "-q", "1",
+                    "-m", payload], check=True, capture_output=True, timeout=30)
+    return payload.encode()
+
+
+def received(arrivals: load.Arrivals, payload: bytes) -> bool:
+    """Whether the receiver's file holds ``payload`` (a marker: :class:`bridge_load.Arrivals`
+    skips it)."""
+    try:
+        return payload in arrivals.path.read_bytes()
+    except FileNotFoundError:
+        return False
 
 
 # --- one stream -------------------------------------------------------------------------------
@@ -297,7 +321,11 @@ def policy_target_killed(work: Path, policy: Policy, count: int, rate: float,
         else:
             stops.append(receiver_stop)
         acked = load.read_acked(acked_file)
-        until_done_or_idle(arrivals, lambda: acked <= set(arrivals.first))
+        # Over when every acknowledged message arrived, or the marker sent after them did (what
+        # B lost is not coming); without the marker a loss meant waiting IDLE seconds for nothing.
+        marker = publish_marker(source.port)
+        until_done_or_idle(arrivals, lambda: acked <= set(arrivals.first) or received(arrivals, marker))
+        arrivals.read()
         return {"sent": count, "acked": len(acked), "missing": len(acked - set(arrivals.first)),
                 "duplicates": arrivals.duplicates,
                 "session_present": session_present(target.port, "probe-session")}

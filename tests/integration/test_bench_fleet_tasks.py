@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -72,10 +73,19 @@ def test_the_sim_clock_is_read_from_its_log(tmp_path: Path) -> None:
     assert bench.sim_clock(log) == {"ticks": 2400, "late": 17}
 
 
+#: Vehicle limits for the runs here (``run_fleet``'s keywords): what is checked (every order carried,
+#: the figures and plots made from the run, nothing beating the ideal) holds at any speed; at the
+#: benchmark's defaults (2 m/s, 1 m/s², 1 rad/s, 1 rad/s²) most of a run is simulated driving and
+#: turning in real time.
+FAST = {"v_max": 4.0, "a_max": 4.0, "omega_max": 4.0, "alpha_max": 8.0}
+FAST_FLAGS = ["--vmax", "4", "--amax", "4", "--omega-max", "4", "--alpha-max", "8"]
+
+
 @pytest.mark.integration  # real agents, Mosquitto, context broker, fleet manager, planner, simulated AGVs
 def test_fleet_tasks_benchmark_runs_tiny(tmp_path: Path) -> None:
-    assert bench.main(["--tiny", "--out", str(tmp_path)]) == 0
+    assert bench.main(["--tiny", *FAST_FLAGS, "--out", str(tmp_path)]) == 0
     data = json.loads((tmp_path / "fleet_tasks.json").read_text())
+    assert [data[k] for k in FAST] == list(FAST.values())  # the flags reached the run
     assert (data["orders"], data["vehicles"], data["finished"], data["failed"]) == (6, 2, 6, 0)
     assert data["assign"]["n"] >= 6 and data["assign"]["p99"] > 0
     assert data["makespan_s"] > data["ideal"]["makespan_s"] > 0  # nothing beats the ideal
@@ -104,8 +114,15 @@ def test_fleet_tasks_benchmark_runs_tiny(tmp_path: Path) -> None:
 
 @pytest.mark.integration
 def test_fleet_notebook_runs_a_small_fleet_and_plots_its_tasks(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """notebooks/03-fleet.ipynb in a real kernel (the notebook tests' runner: no process may be left)."""
-    nb = execute("03-fleet.ipynb", tmp_path, monkeypatch)
+    """notebooks/03-fleet.ipynb in a real kernel (the notebook tests' runner: no process may be left),
+    its vehicles at the FAST limits (the run cell's only change)."""
+    call = "run_fleet(work, n_orders=ORDERS, n_vehicles=VEHICLES)"
+
+    def faster(nb: Any) -> None:
+        run = cell(nb, "run")
+        assert call in run.source, run.source  # the notebook's own call, only given the limits
+        run.source = run.source.replace(call, call[:-1] + "".join(f", {k}={v}" for k, v in FAST.items()) + ")")
+    nb = execute("03-fleet.ipynb", tmp_path, monkeypatch, edit=faster)
     assert text(nb, "program").count("\n    Transport\n") == 3  # three Task blocks
     ran = text(nb, "run")
     assert "finished 3/3 orders" in ran

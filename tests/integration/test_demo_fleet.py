@@ -20,7 +20,8 @@ pytestmark = pytest.mark.integration
 def test_fleet_demo_runs_end_to_end_and_leaves_nothing(tmp_path: Path) -> None:
     work = tmp_path / "work"
     proc = subprocess.run(
-        [sys.executable, "-m", "engine.cli", "fleet", "demo", "--vehicles", "2", "--work-dir", str(work)],
+        # --speed 4: the vehicles' drives and turns (most of the run at the default speed) take a quarter of the time
+        [sys.executable, "-m", "engine.cli", "fleet", "demo", "--vehicles", "2", "--speed", "4", "--work-dir", str(work)],
         capture_output=True, text=True, cwd=ROOT, timeout=600,
     )
     out = proc.stdout

@@ -167,9 +167,12 @@ def write_map(path: Path, parking: list[dict[str, float]]) -> Path:
 
 def spawn_sim(rig: Rig, prefix: str, map_file: Path, count: int, name: str, *extra: str,
               vmax: str = "2") -> process.Child:
+    """Simulated vehicles that accelerate and turn briskly (the simulator's default turn, 1 rad/s at
+    1 rad/s², takes 4 s for a half turn): what the tests check does not depend on the limits."""
     return process.spawn([sys.executable, "-m", "fleet.sim", "--broker", f"{MQTT_HOST}:{rig.mqtt_port}",
                           "--count", str(count), "--manufacturer", "plan", "--serial-prefix", prefix,
-                          "--map", map_file, "--vmax", vmax, "--amax", "1", "--state-interval", "1", *extra],
+                          "--map", map_file, "--vmax", vmax, "--amax", "2", "--omega-max", "4", "--alpha-max", "8",
+                          "--state-interval", "1", *extra],
                          log_dir=rig.tmp / "logs", name=name, cwd=ROOT)
 
 
