@@ -72,6 +72,7 @@ DATA_PROPERTIES = {  # name: (domain or None for all classes, range or None for 
     "port": ("Broker", ns.XSD.integer, True),
     "mqttPort": ("Broker", ns.XSD.integer, True),
     "secretRef": ("Resource", ns.XSD.string, True),
+    "principalName": ("ResourceType", ns.XSD.string, True),
     "persistEvery": ("Broker", ns.XSD.integer, True),
     "allowAnonymous": ("Broker", ns.XSD.boolean, True),
     "tls": ("Broker", ns.XSD.boolean, True),
