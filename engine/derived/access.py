@@ -14,6 +14,9 @@ of its topics the broker carries. Nothing here decides who may do what: the rule
   logs in to (engine.security.principals): a Mosquitto bridge on its remote, a worker on its MQTT
   broker, with exactly the topics it forwards there; and, for an MQTT <-> NGSI bridge that brings
   entities back, the context broker's notify principal, writing exactly those topics;
+- :func:`run_principals` and :func:`with_run_principals` make a resource plantkg runs itself (its
+  type says ``pk:principalName``: the fleet manager, ``plantkg.fleet``) that principal on each
+  Mosquitto with a users file it sends to, with the rights the rules gave the resource;
 - :func:`check_access_supported` refuses, before anything is deployed, what plantkg cannot run
   yet: users on a broker whose driver renders none (Mosquitto's and Kafka's do, a Kafka
   cluster's nodes included), a resource whose ``pk:id`` is one of plantkg's principal names, and a
