@@ -47,8 +47,10 @@ from engine.derived.access import (
     check_access_supported,
     check_kafka_tls_supported,
     close_brokers,
+    run_principals,
     with_bridge_principals,
     with_closed_kafkas,
+    with_run_principals,
 )
 from engine.errors import ConfigValueError, EngineError
 from engine.derived.bridge_cycles import check_no_cycles
@@ -250,6 +252,7 @@ def derive_parts(plant: PlantGraph, only: frozenset[str] | None = None, known: P
     open_nodes = frozenset(row["b"].value for row in select(OPEN_CLUSTER_NODES))
     brokers = [replace(b, allow_anonymous=True) if b.iri in open_nodes else b for b in brokers]
     brokers = close_brokers(brokers, users, said | open_nodes)
+    brokers = with_run_principals(brokers, run_principals(select, carried))  # the fleet manager's
     by_iri = {b.iri: b for b in brokers}
     by_iri |= {cluster: by_iri[lead.iri] for cluster, lead in leads.items()}
     iri_of = {b.id: b.iri for b in brokers}

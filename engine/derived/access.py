@@ -14,6 +14,9 @@ of its topics the broker carries. Nothing here decides who may do what: the rule
   logs in to (engine.security.principals): a Mosquitto bridge on its remote, a worker on its MQTT
   broker, with exactly the topics it forwards there; and, for an MQTT <-> NGSI bridge that brings
   entities back, the context broker's notify principal, writing exactly those topics;
+- :func:`run_principals` and :func:`with_run_principals` make a resource plantkg runs itself (its
+  type says ``pk:principalName``: the fleet manager, ``plantkg.fleet``) that principal on each
+  Mosquitto with a users file it sends to, with the rights the rules gave the resource;
 - :func:`check_access_supported` refuses, before anything is deployed, what plantkg cannot run
   yet: users on a broker whose driver renders none (Mosquitto's and Kafka's do, a Kafka
   cluster's nodes included) and a resource whose ``pk:id`` is one of plantkg's principal names
@@ -67,6 +70,20 @@ SELECT ?b ?r ?rid ?ref ?cert ?t ?mode WHERE {
 }"""
 
 
+#: Resources plantkg runs itself (their type says ``pk:principalName``: the fleet manager): each
+#: logs in as that principal of plantkg's own, with the rights the rules gave the resource.
+RUN_PRINCIPALS = """
+SELECT ?b ?name ?t ?mode WHERE {
+    ?b a pk:DeployedBroker .
+    ?r pk:sendsTo ?b ; pk:isType ?type .
+    ?type pk:principalName ?name .
+    OPTIONAL {
+        ?b pk:mustCarry ?t .
+        { ?r pk:mayWrite ?t BIND ("write" AS ?mode) } UNION { ?r pk:mayRead ?t BIND ("read" AS ?mode) }
+    }
+}"""
+
+
 class AccessNotSupportedError(EngineError):
     """The plant asks for access control plantkg cannot render yet."""
 
@@ -92,6 +109,47 @@ def broker_users(select: Callable[[str], Iterable[ox.QuerySolution]],
         out[broker].append(BrokerUser(name=name, secret_ref=ref, write=tuple(sorted(got["write"])),
                                       read=tuple(sorted(got["read"])), certificate=certificate))
     return {broker: tuple(users) for broker, users in out.items()}
+
+
+def run_principals(select: Callable[[str], Iterable[ox.QuerySolution]],
+                   topic_names: Mapping[tuple[str, str], str]) -> dict[str, tuple[BrokerUser, ...]]:
+    """Broker IRI -> the principals of plantkg's own that resources of the plant run as there
+    (``pk:principalName`` of their type, e.g. ``plantkg.fleet``), each with the topics its
+    resources may write and read that the broker carries (two resources of one such type on one
+    broker: one principal with the union of their rights). Their ``secret_ref`` is the principal
+    key's: nobody configures their password. A name that is not one of plantkg's (``plantkg.``)
+    is refused."""
+    rights: dict[tuple[str, str], dict[str, set[str]]] = defaultdict(lambda: {"write": set(), "read": set()})
+    for row in select(RUN_PRINCIPALS):
+        broker, name = row["b"].value, row["name"].value
+        if not principals.is_reserved(name) or name in principals.FIXED:
+            raise AccessNotSupportedError(
+                f"pk:principalName {name!r}: a resource type's principal is one of plantkg's own, "
+                f"named {principals.PREFIX}<something> and not one of {', '.join(sorted(principals.FIXED))}",
+                hint=f"name it {principals.PREFIX}<what runs it>, e.g. plantkg.fleet")
+        got = rights[(broker, name)]
+        if row["t"] is not None and (broker, row["t"].value) in topic_names:
+            got[row["mode"].value].add(topic_names[(broker, row["t"].value)])
+    out: dict[str, list[BrokerUser]] = defaultdict(list)
+    for (broker, name), got in sorted(rights.items()):
+        out[broker].append(BrokerUser(name=name, secret_ref=principals.PRINCIPAL_REF,
+                                      write=tuple(sorted(got["write"])), read=tuple(sorted(got["read"]))))
+    return {broker: tuple(users) for broker, users in out.items()}
+
+
+def with_run_principals(brokers: Iterable[BrokerSpec],
+                        users: Mapping[str, tuple[BrokerUser, ...]]) -> list[BrokerSpec]:
+    """The specs with the principals of :func:`run_principals` added where they log in: a
+    Mosquitto with a users file (closed, or given users by the plant). As for a bridge's
+    principal, an open Mosquitto without plant users gets none (its login is not checked there,
+    and a users file would cost its anonymous persistent sessions messages at a restart)."""
+    out = []
+    for spec in brokers:
+        extra = users.get(spec.iri, ())
+        if extra and spec.kind in MQTT_USER_KINDS and (is_closed(spec) or spec.users):
+            spec = replace(spec, users=tuple(sorted((*spec.users, *extra), key=lambda u: u.name)))
+        out.append(spec)
+    return out
 
 
 def close_brokers(brokers: Iterable[BrokerSpec], users: Mapping[str, tuple[BrokerUser, ...]],

@@ -13,9 +13,11 @@ in a spec, a plan or a request.
 | ``plantkg.check`` | ``plantkg check``'s probes | write every topic (``#``) |
 | ``plantkg.bridge.<local>.<remote>`` | a bridge, on the broker it connects to | exactly the topics it forwards there |
 | ``plantkg.notify.<local>.<remote>`` | the context broker's notifications of an MQTT <-> NGSI bridge | write the topics the bridge brings back |
+| ``plantkg.fleet`` (a type's ``pk:principalName``) | a resource plantkg runs: the fleet manager | what the rules let the resource write and read |
 
 The first three are the same on every broker (its driver adds them); a bridge's principal is
-derived from the bridge (engine.derived.access) and shows in the plan like a plant user.
+derived from the bridge (engine.derived.access) and shows in the plan like a plant user; so is
+the principal of a resource whose type names one (``pk:principalName``).
 """
 
 from __future__ import annotations
@@ -24,6 +26,8 @@ PREFIX = "plantkg."
 AGENT = "plantkg.agent"
 OBSERVER = "plantkg.observer"
 CHECK = "plantkg.check"
+#: The principals every users file of a Mosquitto holds (its driver adds them).
+FIXED = frozenset({AGENT, OBSERVER, CHECK})
 #: The ``secret_ref`` of a principal whose password is derived from the principal key.
 PRINCIPAL_REF = "plantkg:principal-key"
 

@@ -6,6 +6,12 @@ full the oldest ``state`` messages are the ones that suffer, counted in ``droppe
 reconnects by itself (paho's back-off, 0.1 to 2 s) and subscribes again on every connect, so the
 broker's retained ``connection`` messages are read again after a broker restart.
 
+It logs in as plantkg's principal ``plantkg.fleet`` (the ``pk:principalName`` of
+``fleet:fleet-manager`` in ontology/plantkg-fleet.ttl): on a closed Mosquitto the engine gave that
+user exactly what the rules let the fleet manager read and write (docs/security.md); its password
+is derived from the plant's principal key on this machine, as for plantkg's other principals. An
+open broker without a users file does not check the login.
+
 Outgoing messages get their VDA 5050 header from one ``HeaderCounter`` per vehicle (headerId
 counted per topic), under a lock: the HTTP API and the main loop both send.
 """
@@ -24,12 +30,16 @@ from typing import Any
 from paho.mqtt import client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
+from engine.security import mqtt_client
 from fleet.discovery.inbox import SUBSCRIPTIONS
 from fleet.vda5050 import schemas, topics
 from fleet.vda5050.headers import HeaderCounter
 from fleet.vda5050.messages import Action, ActionParameter, BlockingType, InstantActions
 
 log = logging.getLogger("fleet.manager")
+
+#: The principal the fleet manager logs in as (fleet:fleet-manager's pk:principalName).
+PRINCIPAL = "plantkg.fleet"
 
 
 @dataclass(frozen=True)
@@ -41,7 +51,8 @@ class Received:
 
 
 class MqttLink:
-    def __init__(self, host: str, port: int, *, client_id: str | None = None, queue_size: int = 100_000) -> None:
+    def __init__(self, host: str, port: int, *, client_id: str | None = None, queue_size: int = 100_000,
+                 login: mqtt_client.MqttLogin | None = None) -> None:
         self.host, self.port = host, port
         self.inbox: queue.Queue[Received] = queue.Queue(maxsize=queue_size)
         self.dropped = 0
@@ -52,6 +63,7 @@ class MqttLink:
         self.client = mqtt.Client(CallbackAPIVersion.VERSION2,
                                   client_id=client_id or f"plantkg-fleet-manager-{os.getpid()}")
         self.client.reconnect_delay_set(0.1, 2)
+        mqtt_client.apply_login(self.client, login or mqtt_client.principal_login("mosquitto", PRINCIPAL))
         self.client.on_connect = self._on_connect
         self.client.on_disconnect = self._on_disconnect
         self.client.on_message = self._on_message
@@ -66,7 +78,9 @@ class MqttLink:
 
     def _on_connect(self, client: mqtt.Client, _u: Any, _f: Any, reason: Any, _p: Any = None) -> None:
         if getattr(reason, "is_failure", False):
-            log.warning("MQTT %s:%d refused the connection: %s", self.host, self.port, reason)
+            log.warning("MQTT %s:%d refused the connection as %s: %s (on a closed broker the plant's "
+                        "fleet manager resource must send to it, and this machine hold the plant's principal key)",
+                        self.host, self.port, PRINCIPAL, reason)
             return
         client.subscribe([(t, 1) for t in SUBSCRIPTIONS])
         self.connected.set()

@@ -7,6 +7,11 @@
 (``<serial>/motion_channel`` ..., :mod:`fleet.sim.paper_adapter`); ``--rate`` is then the movement
 rate and ``--state-interval`` the status heartbeat.
 
+On a closed broker each vehicle logs in as its own user: ``--username agv-{serial}`` and
+``--secret-ref file:/dir/{serial}`` (``{serial}`` is replaced by the vehicle's serial; a
+reference ``env:NAME`` or ``file:/absolute/path`` as a plant's ``pk:secretRef``, read here, never
+a password on the command line).
+
 Vehicle i (1-based) is ``<prefix><i:04d>`` and starts on the map's i-th parking spot. Exit codes:
 0 after a clean stop (SIGTERM/SIGINT: OFFLINE published for each vehicle), 2 for unusable
 arguments (the message names the option and the value).
@@ -18,6 +23,7 @@ import argparse
 import logging
 import signal
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from fleet.sim import map as site_map
@@ -28,6 +34,7 @@ from fleet.sim.runner import FleetRunner
 from fleet.sim.vda5050_adapter import MAX_STATE_INTERVAL, LinkConfig, Vda5050Link
 from fleet.sim.vehicle import SimVehicle, VehicleSpec
 from fleet.vda5050 import topics
+from engine.security.secrets import read_secret
 from fleet.vda5050.errors import TopicError
 from kg.errors import PlantKGError
 
@@ -65,6 +72,11 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--rate", type=_positive(float, "--rate"), default=1.0, help="visualization messages per second per vehicle")
     p.add_argument("--state-interval", type=_positive(float, "--state-interval"), default=MAX_STATE_INTERVAL,
                    help=f"periodic state every S seconds besides the event-driven ones (at most {MAX_STATE_INTERVAL:g})")
+    p.add_argument("--username", default=None,
+                   help="log in to the broker as this user; {serial} is replaced by each vehicle's serial (e.g. agv-{serial}, "
+                        "the pk:id plug and play gives it)")
+    p.add_argument("--secret-ref", default=None,
+                   help="where each vehicle's password is: env:NAME or file:/absolute/path, {serial} replaced (needs --username)")
     p.add_argument("--tick", type=_positive(float, "--tick"), default=0.05, help="physics tick in seconds")
     p.add_argument("--vmax", type=_positive(float, "--vmax"), default=1.0, help="m/s")
     p.add_argument("--amax", type=_positive(float, "--amax"), default=0.5, help="m/s²")
@@ -87,14 +99,28 @@ def build(args: argparse.Namespace) -> FleetRunner:
                             status_interval=args.state_interval)
     pump = MqttPump()
     links: list[Vda5050Link | PaperLink] = []
+    if (args.username is None) != (args.secret_ref is None):
+        raise PlantKGError("--username and --secret-ref go together: a vehicle logs in with both or anonymously",
+                           hint="give both (a closed broker), or neither (a broker open to anonymous clients)")
     for i in range(args.count):
         serial = topics.check_serial(f"{args.serial_prefix}{i + 1:04d}")
         spec = VehicleSpec(args.manufacturer, serial, site, spots[i], limits)
+        login = _login(args, serial)
         if args.interface == "paper":
-            links.append(PaperLink(SimVehicle(spec), paper, pump))
+            links.append(PaperLink(SimVehicle(spec), replace(paper, **login), pump))
         else:
-            links.append(Vda5050Link(SimVehicle(spec), config, pump))
+            links.append(Vda5050Link(SimVehicle(spec), replace(config, **login), pump))
     return FleetRunner(links, pump, tick=args.tick)
+
+
+def _login(args: argparse.Namespace, serial: str) -> dict[str, str]:
+    """The user name and password of vehicle ``serial`` (none: it connects anonymously). The
+    password is read from its reference here, on the vehicle's machine; errors name the option
+    and the reference, never the secret."""
+    if args.username is None:
+        return {}
+    return {"username": args.username.replace("{serial}", serial),
+            "password": read_secret("--secret-ref", args.secret_ref.replace("{serial}", serial))}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -42,7 +42,7 @@ ex:hmi a pk:Resource ; pk:id "hmi" ; pk:name "HMI" ; pk:sendsTo ex:m ; pk:subscr
 class Client:
     """A paho client on a background loop recording its CONNACK and the messages it gets."""
 
-    def __init__(self, port: int, user: str | None = None, password: str | None = None) -> None:
+    def __init__(self, port: int, user: str | None = None, password: str | None = None, host: str = HOST) -> None:
         self.client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"t-{uuid.uuid4().hex[:8]}")
         if user is not None:
             self.client.username_pw_set(user, password)
@@ -50,7 +50,7 @@ class Client:
         self.messages: list[bytes] = []
         self.client.on_connect = lambda _c, _u, _f, reason, _p: self.connack.append(str(reason))
         self.client.on_message = lambda _c, _u, msg: self.messages.append(msg.payload)
-        self.client.connect(HOST, port, keepalive=10)
+        self.client.connect(host, port, keepalive=10)
         self.client.loop_start()
         process.wait_until(lambda: self.connack, 10.0, what="a CONNACK")
 

@@ -74,6 +74,7 @@ DATA_PROPERTIES = {  # name: (domain or None for all classes, range or None for 
     "secretRef": ("Resource", ns.XSD.string, True),
     "clientCertificate": ("Resource", ns.XSD.boolean, True),
     "certificatePort": ("Broker", ns.XSD.integer, True),
+    "principalName": ("ResourceType", ns.XSD.string, True),
     "persistEvery": ("Broker", ns.XSD.integer, True),
     "allowAnonymous": ("Broker", ns.XSD.boolean, True),
     "tls": ("Broker", ns.XSD.boolean, True),

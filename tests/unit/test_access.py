@@ -151,6 +151,40 @@ def test_a_bridge_logs_in_to_its_remote_as_its_own_principal(tmp_path: Path, eng
     assert m2.allow_anonymous is False
 
 
+# a resource plantkg runs itself: its type names the principal it logs in as (pk:principalName)
+TOOL = """ex:runner a pk:ResourceType ; pk:id "runner" ; pk:name "Run by plantkg" ; pk:principalName "plantkg.tool" .
+ex:tool a pk:Resource ; pk:id "tool" ; pk:name "Tool" ; pk:isType ex:runner ; pk:sendsTo ex:m ;
+    pk:publishes ex:cmd ; pk:subscribes ex:pose .
+"""
+TOOL_USER = BrokerUser("plantkg.tool", "plantkg:principal-key", write=("cell/cmd",), read=("cell/pose",))
+RUN_CASES = {
+    "closed": ("", (TOOL_USER,), False),
+    "closed-with-plant-users": (ROBOT, (TOOL_USER, ROBOT_USER), False),
+    # open and no plant user: no users file, so no principal (its login is not checked there)
+    "open-without-users": ("ex:m pk:allowAnonymous true .", (), True),
+    "open-with-users": (ROBOT + "ex:m pk:allowAnonymous true .", (TOOL_USER, ROBOT_USER), True),
+    # a second resource of the type on the broker: one principal, the union of their rights
+    "two-of-a-type": ('ex:tool2 a pk:Resource ; pk:id "tool2" ; pk:name "Tool 2" ; pk:isType ex:runner ; '
+                      'pk:sendsTo ex:m ; pk:subscribes ex:cmd .',
+                      (BrokerUser("plantkg.tool", "plantkg:principal-key", write=("cell/cmd",),
+                                  read=("cell/cmd", "cell/pose")),), False),
+}
+
+
+@pytest.mark.parametrize("engine", ["fast", "owlready2"])
+@pytest.mark.parametrize("name", sorted(RUN_CASES))
+def test_a_resource_plantkg_runs_logs_in_as_its_types_principal(tmp_path: Path, name: str, engine: str) -> None:
+    extra, users, anonymous = RUN_CASES[name]
+    [broker] = derived(tmp_path, TOOL + extra, engine).brokers
+    assert (broker.users, broker.allow_anonymous) == (users, anonymous)
+
+
+@pytest.mark.parametrize("name", ["tool", "plantkg.observer", "plantkg.agent"])
+def test_a_types_principal_is_one_of_plantkgs_own_and_not_a_fixed_one(tmp_path: Path, name: str) -> None:
+    with pytest.raises(AccessNotSupportedError, match=f"pk:principalName '{name}'"):
+        derived(tmp_path, TOOL.replace('"plantkg.tool"', f'"{name}"'))
+
+
 def test_a_resource_may_not_take_a_principals_name(tmp_path: Path) -> None:
     with pytest.raises(AccessNotSupportedError, match="'plantkg.agent' has a pk:secretRef"):
         derived(tmp_path, ROBOT.replace('pk:id "robot1"', 'pk:id "plantkg.agent"'))

@@ -541,6 +541,12 @@ CASES: list[Case] = [
     Case("resourcetype-attribute-language-tagged", "an attribute with a language tag",
          edits=[('pk:attribute "6-axis" , "collaborative" .', 'pk:attribute "6-axis" , "collaborative"@en .')],
          expected=[R("ex:industrialRobot", "attribute", "collaborative", "ResourceType-attribute", "Datatype")]),
+    Case("resourcetype-principalName-twice", "two principal names",
+         add='ex:industrialRobot pk:principalName "plantkg.a" , "plantkg.b" .',
+         expected=[R("ex:industrialRobot", "principalName", None, "ResourceType-principalName", "MaxCount")]),
+    Case("resourcetype-principalName-number", "a principal name that is a number",
+         add="ex:industrialRobot pk:principalName 7 .",
+         expected=[R("ex:industrialRobot", "principalName", "7", "ResourceType-principalName", "Datatype")]),
     # --- Property ---
     Case("property-value-missing", "a property without pk:value",
          edits=[('    pk:value "SN-42" ;\n', "")],

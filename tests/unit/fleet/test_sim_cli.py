@@ -38,6 +38,29 @@ def test_build_names_and_places_vehicles() -> None:
     assert isinstance(links[0], Vda5050Link) and (links[0].config.host, links[0].config.port) == ("::1", 1884)
 
 
+def test_each_vehicle_logs_in_as_its_own_user_with_the_password_its_reference_points_to(tmp_path) -> None:
+    for serial, password in (("x.0001", "pw-one"), ("x.0002", "pw-two")):
+        (tmp_path / serial).write_text(password + "\n", encoding="utf-8")
+    for interface in ("vda5050", "paper"):
+        runner = cli.build(cli.parser().parse_args(
+            ["--count", "2", "--serial-prefix", "x.", "--interface", interface,
+             "--username", "agv-{serial}", "--secret-ref", f"file:{tmp_path}/{{serial}}"]))
+        assert [(link.config.username, link.config.password) for link in runner.links] == [
+            ("agv-x.0001", "pw-one"), ("agv-x.0002", "pw-two")]
+
+
+@pytest.mark.parametrize(("argv", "fragment"), [
+    (["--username", "agv-{serial}"], "--username and --secret-ref go together"),
+    (["--username", "u", "--secret-ref", "env:PLANTKG_TEST_UNSET_VEHICLE_PASSWORD"],
+     "PLANTKG_TEST_UNSET_VEHICLE_PASSWORD is not set"),
+    (["--username", "u", "--secret-ref", "hunter2"], "--secret-ref"),
+])
+def test_a_login_without_a_usable_secret_exits_2_naming_the_option(argv: list[str], fragment: str, capsys) -> None:
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert fragment in err and "hunter2" not in err
+
+
 def test_periodic_schedule_keeps_its_grid_and_never_bursts() -> None:
     assert _next_due(1.0, 1.04, 0.1, False) == pytest.approx(1.1)  # on the grid despite jitter
     assert _next_due(1.0, 1.5, 0.1, False) == pytest.approx(1.6)  # far behind: restart, no burst
