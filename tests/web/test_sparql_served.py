@@ -181,5 +181,5 @@ def test_a_timed_out_query_frees_its_slot_for_the_next(server: Server) -> None:
             t.join(timeout=TIMEOUT_S + 60)
         assert [r.status for r in pair] == [503, 503], pair
         after = server.query(CHEAP, SLOW_CLIENT)
-        assert after.status == 200 and after.seconds < 3.0, after
+        assert after.status == 200 and after.body.split() == ["b", KAFKA], after  # not 429: the slots are free
     assert len(server.workers()) <= 4
