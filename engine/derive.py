@@ -480,15 +480,16 @@ def _boolean(plant: PlantGraph, node: object, prop: str, literal: ox.Literal) ->
 
 def _topics(plant: PlantGraph, rows: Iterable[ox.QuerySolution], settings: Iterable[ox.QuerySolution],
             brokers: dict[str, BrokerSpec]) -> list[TopicSpec]:
-    names: dict[tuple[str, ox.NamedNode], set[object]] = defaultdict(set)
-    for row in rows:
-        key = (row["b"].value, row["t"])
-        names[key]  # noqa: B018 - a topic without a name still gets a (failing) entry
-        if row["name"] is not None:
-            names[key].add(row["name"])
+    # Rows unpacked by position (TOPICS: ?b ?t ?name; SETTINGS: ?b ?t ?setting ?value): a lookup
+    # by variable name costs about as much again as the row, 0.4 s at 100k topics.
+    names: dict[tuple[str, ox.NamedNode], set[object]] = {}
+    for b, t, name in rows:
+        found = names.setdefault((b.value, t), set())  # a topic without a name: a (failing) entry
+        if name is not None:
+            found.add(name)
     values: dict[tuple[str, str], dict[str, set[object]]] = defaultdict(lambda: defaultdict(set))
-    for row in settings:
-        values[(row["b"].value, row["t"].value)][_field(row["setting"].value)].add(row["value"])
+    for b, t, setting, value in settings:
+        values[(b.value, t.value)][_field(setting.value)].add(value)
     out = []
     for (broker, topic), found in names.items():
         name = _one(plant, topic, "name", found)
