@@ -112,6 +112,7 @@ class BrokerSpec:
                                          # for clients with a plant-CA client certificate
     kafka: KafkaNode | None = None  # a node of a multi-node Kafka cluster (None: a broker of its own)
     closed_kafkas: tuple[str, ...] = ()  # a context broker: the plant's closed Kafka brokers
+    tls_kafkas: tuple[str, ...] = ()  # a context broker: the plant's Kafka brokers that speak TLS
                                          # ("host:port", sorted); its kafka:// notifications log in
                                          # there as plantkg's own principal (engine.derived.access)
 

@@ -79,7 +79,7 @@ from engine.model import (
 #: Broker fields whose change needs a new broker process (the agent restarts it): Terraform's
 #: "forces replacement". Every other BrokerSpec field is changed in place.
 REPLACE_FIELDS: tuple[str, ...] = ("kind", "host", "port", "persist_every", "allow_anonymous", "mqtt_port",
-                                   "users", "tls", "certificate_port", "kafka", "closed_kafkas")
+                                   "users", "tls", "certificate_port", "kafka", "closed_kafkas", "tls_kafkas")
 #: Fields of a cluster node's ``kafka`` that are not rendered into its config: a change of only
 #: these (the cluster gained a broker, the lead moved) is made in place.
 KAFKA_IN_PLACE: tuple[str, ...] = ("lead", "bootstrap")
@@ -116,13 +116,13 @@ _DELETE_ORDER = {"bridge": 0, "topic": 1, "broker": 2}
 def broker_essence(spec: BrokerSpec) -> dict[str, Any]:
     """The fields of a broker the plan compares (all of BrokerSpec), as JSON-able values; no
     ``users`` key for a broker without users, no ``tls`` key for a plain one, no ``kafka``
-    key for a broker that is not a cluster's node, no ``closed_kafkas`` key for a broker told
-    none and no ``certificate_port`` key for a broker without a certificate listener, so plans of
+    key for a broker that is not a cluster's node, no ``closed_kafkas`` or ``tls_kafkas`` key for
+    a broker told none and no ``certificate_port`` key for a broker without a certificate listener, so plans of
     other brokers read as before. A user shows its secret reference, never a secret (the plan has
     none), and ``"certificate": true`` when it may log in with a client certificate (a
     certificate user without a password shows no ``secret_ref``)."""
     out = {f.name: getattr(spec, f.name) for f in fields(spec)
-           if f.name not in ("users", "tls", "certificate_port", "kafka", "closed_kafkas")}
+           if f.name not in ("users", "tls", "certificate_port", "kafka", "closed_kafkas", "tls_kafkas")}
     if spec.users:
         out["users"] = [user_essence(u) for u in spec.users]
     if spec.tls:
@@ -133,6 +133,8 @@ def broker_essence(spec: BrokerSpec) -> dict[str, Any]:
         out["kafka"] = to_dict(spec.kafka)
     if spec.closed_kafkas:  # a context broker whose kafka:// notifications log in there
         out["closed_kafkas"] = list(spec.closed_kafkas)
+    if spec.tls_kafkas:  # ... and reach over TLS
+        out["tls_kafkas"] = list(spec.tls_kafkas)
     return out
 
 

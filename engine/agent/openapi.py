@@ -93,6 +93,9 @@ _SCHEMAS: dict[str, Any] = {
             "closed_kafkas": {"type": "array", "items": {"type": "string"},
                               "description": "ngsi-v2: the plant's closed Kafka brokers ('host:port'), "
                                              "where its kafka:// notifications log in as plantkg"},
+            "tls_kafkas": {"type": "array", "items": {"type": "string"},
+                           "description": "ngsi-v2: the plant's Kafka brokers that speak TLS ('host:port'), "
+                                          "where its kafka:// notifications use TLS, trusting the plant CA"},
         },
     },
     "KafkaNode": {

@@ -134,6 +134,7 @@ def broker_spec_from_json(data: Any, where: str = "", *, strict: bool = True) ->
     cert_port = _certificate_port(data, where, kind, port, tls)
     kafka = data.get("kafka")
     closed_kafkas = _typed(data, "closed_kafkas", (list,), where, optional=True) or []
+    tls_kafkas = _typed(data, "tls_kafkas", (list,), where, optional=True) or []
     users_at = _join(where, "users")
     checked = _users(users, users_at)
     for i, user in enumerate(checked):
@@ -144,7 +145,8 @@ def broker_spec_from_json(data: Any, where: str = "", *, strict: bool = True) ->
                       persist_every=persist, allow_anonymous=anonymous, mqtt_port=mqtt_port,
                       users=checked, tls=tls, certificate_port=cert_port,
                       kafka=None if kafka is None else _kafka_node(kafka, _join(where, "kafka"), strict),
-                      closed_kafkas=_bootstrap(closed_kafkas, _join(where, "closed_kafkas")))
+                      closed_kafkas=_bootstrap(closed_kafkas, _join(where, "closed_kafkas")),
+                      tls_kafkas=_bootstrap(tls_kafkas, _join(where, "tls_kafkas")))
 
 
 def _certificate_port(data: dict[str, Any], where: str, kind: str, port: int, tls: bool) -> int | None:

@@ -1,7 +1,7 @@
 """The context broker as a process: arguments, token, store, subscriptions, WSGI server, signals.
 
 ``python -m engine.context_broker --host H --port P --data-dir D [--token-file F | --open]
-[--principals P] [--closed-kafka HOST:PORT ...] [--log-file L] [--allow-remote] [--threads N] [--fsync]``
+[--principals P] [--closed-kafka HOST:PORT ...] [--tls-kafka HOST:PORT ...] [--log-file L] [--allow-remote] [--threads N] [--fsync]``
 
 - Binds loopback unless ``--allow-remote`` (a non-loopback ``--host`` is refused otherwise).
 - Writes need ``Authorization: Bearer <token>`` (the first line of ``--token-file``) unless
@@ -10,6 +10,8 @@
 - ``--closed-kafka HOST:PORT`` (repeated; the NGSI driver renders them from the plant): the
   plant's closed Kafka brokers, where ``kafka://`` notifications log in as plantkg's own Kafka
   principal (:mod:`.subscriptions.kafka`); any other Kafka gets no credentials.
+- ``--tls-kafka HOST:PORT`` (repeated, likewise): the plant's Kafka brokers that speak TLS, which
+  ``kafka://`` notifications reach over TLS, trusting only the plant CA (``$PLANTKG_CA_DIR``).
 - The store lives in ``D/oxigraph`` and its write-ahead log in ``D/context.wal`` (``D/context.lock``
   keeps a second process out, with a clear message and exit code 2); subscriptions in
   ``D/subscriptions``. An answered write survives kill -9; ``--fsync`` also makes it survive a
@@ -33,6 +35,7 @@ from engine.context_broker.access import Gate
 from engine.security.ngsi_principals import PrincipalsFileError, load_principals
 from engine.context_broker.app import MAX_BODY, create_app
 from engine.context_broker.store import ContextStore, StoreLocked
+from engine.context_broker.subscriptions.model import PlantKafkas
 from engine.errors import ConfigValueError
 from engine.values import check_address
 
@@ -57,6 +60,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--closed-kafka", action="append", default=[], metavar="HOST:PORT",
                         help="a closed Kafka of the plant: kafka:// notifications log in there as "
                              "plantkg's own principal (its password from the principal key)")
+    parser.add_argument("--tls-kafka", action="append", default=[], metavar="HOST:PORT",
+                        help="a Kafka of the plant that speaks TLS: kafka:// notifications use TLS "
+                             "there, trusting the plant CA only")
     parser.add_argument("--log-file", type=Path)
     parser.add_argument("--allow-remote", action="store_true", help="allow a non-loopback --host")
     parser.add_argument("--threads", type=int, default=DEFAULT_THREADS)
@@ -109,12 +115,23 @@ def read_gate(args: argparse.Namespace, token: str | None) -> Gate | None:
 
 
 def read_closed_kafkas(args: argparse.Namespace) -> frozenset[tuple[str, int]]:
+    """The addresses of ``--closed-kafka``."""
+    return _addresses("--closed-kafka", args.closed_kafka)
+
+
+def read_plant_kafkas(args: argparse.Namespace) -> PlantKafkas:
+    """The plant's Kafka brokers ``kafka://`` notifications treat as the plant's:
+    ``--closed-kafka`` (log in as plantkg) and ``--tls-kafka`` (TLS, the plant CA)."""
+    return PlantKafkas(closed=read_closed_kafkas(args), tls=_addresses("--tls-kafka", args.tls_kafka))
+
+
+def _addresses(option: str, given: list[str]) -> frozenset[tuple[str, int]]:
     out = set()
-    for address in args.closed_kafka:
+    for address in given:
         try:
-            out.add(check_address("--closed-kafka", address))
+            out.add(check_address(option, address))
         except ConfigValueError as err:
-            raise ConfigError(f"--closed-kafka {address!r}: {err.problem}") from None
+            raise ConfigError(f"{option} {address!r}: {err.problem}") from None
     return frozenset(out)
 
 
@@ -136,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
         check_host(args.host, args.allow_remote)
         token = read_token(args)
         gate = read_gate(args, token)
-        closed_kafkas = read_closed_kafkas(args)
+        kafkas = read_plant_kafkas(args)
         _logging(args.log_file)
     except ConfigError as err:
         print(f"error: {err}", file=sys.stderr)
@@ -151,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
     from engine.context_broker.subscriptions import SubscriptionService
 
     subscriptions = SubscriptionService(args.data_dir / "subscriptions", fsync=args.fsync,
-                                        closed_kafkas=closed_kafkas)
+                                        kafkas=kafkas)
     subscriptions.start()
     try:
         app = create_app(store, token=token, gate=gate, listeners=[subscriptions],

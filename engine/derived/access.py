@@ -221,11 +221,13 @@ def with_closed_kafkas(brokers: Iterable[BrokerSpec]) -> list[BrokerSpec]:
     """The specs with each context broker told the plant's closed Kafka brokers of their own
     (``closed_kafkas``, ``host:port`` sorted): its ``kafka://`` notifications log in there as
     plantkg's own Kafka principal (engine.security.kafka_client), and only there, so plantkg's
-    password never goes to a Kafka a subscription names that is not the plant's."""
+    password never goes to a Kafka a subscription names that is not the plant's; and those that
+    speak TLS (``tls_kafkas``): its notifications reach them over TLS, trusting the plant CA only."""
     brokers = list(brokers)
-    closed = tuple(sorted(f"{host_in_url(b.host)}:{b.port}" for b in brokers
-                          if kafka_client.is_closed(b) and b.kafka is None))
-    return [replace(b, closed_kafkas=closed) if b.kind in TOKEN_KINDS else b for b in brokers]
+    own = [b for b in brokers if b.kind == "kafka" and b.kafka is None]
+    closed = tuple(sorted(f"{host_in_url(b.host)}:{b.port}" for b in own if kafka_client.is_closed(b)))
+    tls = tuple(sorted(f"{host_in_url(b.host)}:{b.port}" for b in own if b.tls))
+    return [replace(b, closed_kafkas=closed, tls_kafkas=tls) if b.kind in TOKEN_KINDS else b for b in brokers]
 
 
 def is_closed(spec: BrokerSpec) -> bool:

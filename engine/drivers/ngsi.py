@@ -8,7 +8,8 @@ own agent (so the engine, which reads every agent's token file from agents.toml,
 principal's (``principals.json``, rendered always: empty when no client has a ``pk:secretRef``),
 unless the plant says ``pk:allowAnonymous true`` (``--open``: reads and writes without a token).
 Its ``kafka://`` notifications log in as plantkg's own Kafka principal at the plant's closed Kafka
-brokers the engine names in ``closed_kafkas`` (``--closed-kafka HOST:PORT``), and nowhere else.
+brokers the engine names in ``closed_kafkas`` (``--closed-kafka HOST:PORT``), and nowhere else,
+and speak TLS (trusting the plant CA only) to those it names in ``tls_kafkas`` (``--tls-kafka``).
 
 A context broker holds entities, not topics: a topic it carries is one entity (``entity_id``,
 ``entity_type``, filled by derive), which needs no creation. So topics are implicit, as on MQTT:
@@ -88,6 +89,8 @@ class NgsiDriver:
                                    "does not apply to a context broker (it saves every write)")
         for i, address in enumerate(spec.closed_kafkas):
             check_address(f"closed_kafkas[{i}]", address)
+        for i, address in enumerate(spec.tls_kafkas):
+            check_address(f"tls_kafkas[{i}]", address)
 
     def render_config(self, spec: BrokerSpec, broker_dir: Path,
                       bridges: tuple[BridgeSpec, ...] = ()) -> dict[str, str]:
@@ -119,6 +122,8 @@ class NgsiDriver:
                 "--data-dir", str(broker_dir / DATA_DIR), "--log-file", str(log_file(broker_dir, self.kind))]
         for address in spec.closed_kafkas:  # its kafka:// notifications log in there as plantkg
             argv += ["--closed-kafka", address]
+        for address in spec.tls_kafkas:  # ... and speak TLS there, trusting the plant CA
+            argv += ["--tls-kafka", address]
         if spec.allow_anonymous:
             return [*argv, "--open"]
         token = check_path("token_file", self.token_file(broker_dir))
@@ -177,6 +182,8 @@ class NgsiDriver:
         out = {**spec_essence(spec), "allow_anonymous": bool(spec.allow_anonymous)}
         if spec.closed_kafkas:
             out["closed_kafkas"] = list(spec.closed_kafkas)
+        if spec.tls_kafkas:
+            out["tls_kafkas"] = list(spec.tls_kafkas)
         if spec.users:  # principals: who they are and their entities (their tokens are not in it)
             out["users"] = [{"name": u.name, "secret_ref": u.secret_ref, "write": sorted(u.write),
                              "read": sorted(u.read)} for u in sorted(spec.users, key=lambda u: u.name)]

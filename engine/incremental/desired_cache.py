@@ -40,8 +40,8 @@ from kg import resources, shape_plugins
 from kg.validate import ValidationReport, ValidationResult
 from engine.whole_file import write_whole
 
-FORMAT = 5  # 2: the desired state holds its owner; 3: closed Mosquittos, bridge principals, tls;
-#            4: a context broker's closed_kafkas; 5: closed Kafka bridge ends
+FORMAT = 6  # 2: the desired state holds its owner; 3: closed Mosquittos, bridge principals, tls;
+#            4: a context broker's closed_kafkas; 5: closed Kafka bridge ends; 6: its tls_kafkas
 
 
 def default_dir() -> Path:
@@ -107,7 +107,8 @@ def desired_from_dict(data: dict) -> DesiredState:
                                                                             "read": tuple(u["read"])})
                                                          for u in b.get("users", ())),
                                     "kafka": _kafka_node(b.get("kafka")),
-                                    "closed_kafkas": tuple(b.get("closed_kafkas", ()))})
+                                    "closed_kafkas": tuple(b.get("closed_kafkas", ())),
+                                    "tls_kafkas": tuple(b.get("tls_kafkas", ()))})
                       for b in data["brokers"]),
         topics=tuple(TopicSpec(**t) for t in data["topics"]),
         bridges=tuple(bridge_from_dict(b) for b in data["bridges"]),

@@ -3,6 +3,7 @@ secret files for the plant's ``pk:secretRef "file:..."`` and the CLI run in this
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 
 import pytest
@@ -26,3 +27,19 @@ def run(capsys: pytest.CaptureFixture[str], *args: object) -> tuple[int, str]:
     code = main([str(a) for a in args])
     out = capsys.readouterr()
     return code, out.out + out.err
+
+
+def files_holding(folders: Iterable[Path], secret: str) -> tuple[list[Path], int]:
+    """The files under ``folders`` that hold ``secret``, each checked to be readable by its owner
+    only and not a log; and how many files were read (a test asserts that it read some)."""
+    holders, checked = [], 0
+    for folder in folders:
+        for path in folder.rglob("*"):
+            if not path.is_file():
+                continue
+            checked += 1
+            if secret in path.read_bytes().decode("utf-8", "replace"):
+                holders.append(path)
+                assert path.stat().st_mode & 0o077 == 0, f"{path} holds the password and others may read it"
+                assert "logs" not in path.parts and not path.name.endswith(".log"), path
+    return holders, checked

@@ -75,11 +75,12 @@ def write_updates(url: str, token: str, entity_id: str, count: int) -> None:
         assert answer.status_code in (201, 204), answer.text
 
 
-def notifications(bootstrap: str, entity_id: str, want: int, deadline: float) -> list[Any]:
+def notifications(bootstrap: str, entity_id: str, want: int, deadline: float, tls: bool = False) -> list[Any]:
     """The ``seq`` of each notification of ``entity_id`` in the topic (read from its beginning as
-    plantkg), until ``want`` of them or ``deadline`` seconds."""
+    plantkg; ``tls``: over TLS), until ``want`` of them or ``deadline`` seconds."""
     consumer = Consumer({"bootstrap.servers": bootstrap, "group.id": f"t-{uuid.uuid4().hex[:8]}",
-                         "auto.offset.reset": "earliest", "log_level": 0, **kafka_client.client_settings(True)})
+                         "auto.offset.reset": "earliest", "log_level": 0,
+                         **kafka_client.client_settings(True, tls=tls)})
     seqs: list[Any] = []
     end = time.monotonic() + deadline
     try:
@@ -117,14 +118,21 @@ def test_the_context_broker_is_told_the_closed_kafka_and_the_plan_is_settled(
     assert code == 0 and "No changes." in out, out
 
 
-def test_notifications_arrive_in_the_closed_kafka(dep: Deployment) -> None:
+def notifications_arrive(dep: Deployment, tls: bool = False) -> None:
+    """A subscription of the context broker ``cb`` to a new entity, ``UPDATES`` writes of it: each
+    notification arrives in Kafka ``kf`` in order (read as plantkg, over TLS with ``tls``), and
+    the subscription shows them all sent, no failure."""
     url, token = f"http://{CB}:{dep.ports['cb']}", dep.fleet.agents[CB].token
     entity_id = f"urn:ngsi-ld:AgvState:{uuid.uuid4().hex[:8]}"
     sub_id = subscribe(url, token, dep.address("kf"), entity_id)
     write_updates(url, token, entity_id, UPDATES)
-    assert notifications(dep.address("kf"), entity_id, UPDATES, deadline=90) == list(range(UPDATES))
+    assert notifications(dep.address("kf"), entity_id, UPDATES, deadline=90, tls=tls) == list(range(UPDATES))
     shown = shown_when(url, token, sub_id, lambda s: s["notification"].get("timesSent") == UPDATES)
     assert shown["notification"].get("timesSent") == UPDATES and "lastFailure" not in shown["notification"], shown
+
+
+def test_notifications_arrive_in_the_closed_kafka(dep: Deployment) -> None:
+    notifications_arrive(dep)
 
 
 def test_the_anonymous_path_stays_refused(dep: Deployment, tmp_path: Path) -> None:

@@ -37,6 +37,7 @@ from engine.model import BridgeStatus
 from engine.security import ca, kafka_client
 from tests.integration.agents import AgentFleet, deployment
 from tests.integration.kafka_clients import password_files, read_topic
+from tests.integration.plant_cli import files_holding
 from tests.integration.test_kafka_auth import _as, _produce
 
 pytestmark = pytest.mark.integration
@@ -130,16 +131,7 @@ def _wait_caught_up(mirror: Mirror, records: int) -> None:
 def test_plantkgs_password_is_only_in_files_others_cannot_read(mirror: Mirror) -> None:
     secret = kafka_client.password()
     assert mirror.outputs and not any(secret in out for out in mirror.outputs)
-    holders, checked = [], 0
-    for agent in mirror.fleet.agents.values():
-        for path in agent.state_dir.rglob("*"):
-            if not path.is_file():
-                continue
-            checked += 1
-            if secret in path.read_bytes().decode("utf-8", "replace"):
-                holders.append(path)
-                assert path.stat().st_mode & 0o077 == 0, f"{path} holds the password and others may read it"
-                assert "logs" not in path.parts and not path.name.endswith(".log"), path
+    holders, checked = files_holding((agent.state_dir for agent in mirror.fleet.agents.values()), secret)
     folder = mirror.fleet.agents[DST].state_dir / "bridges" / "dst--src"
     # each broker's server.properties (its JAAS user), the login file and the agent's password
     # file only: not mm2.properties, and not the target's log segments of MirrorMaker 2's config

@@ -156,7 +156,7 @@ def test_the_spec_is_reported_as_given(client: FlaskClient) -> None:
     body = spec(host="0:0:0:0:0:0:0:1", port=netutil.free_port("::1"))
     answer = put(client, url("m1"), body)
     assert answer.status_code == 200, answer.get_json()
-    assert answer.get_json()["spec"] == {**body, "persist_every": None, "allow_anonymous": None, "mqtt_port": None, "users": [], "tls": False, "certificate_port": None, "kafka": None, "closed_kafkas": []}  # optional, reported
+    assert answer.get_json()["spec"] == {**body, "persist_every": None, "allow_anonymous": None, "mqtt_port": None, "users": [], "tls": False, "certificate_port": None, "kafka": None, "closed_kafkas": [], "tls_kafkas": []}  # optional, reported
 
 
 def test_a_bad_id_in_the_url_is_refused(client: FlaskClient) -> None:
@@ -209,7 +209,7 @@ def test_mosquitto_life_cycle(client: FlaskClient, state: AgentState, tmp_path: 
     running = first.get_json()
     assert running["status"] == "running" and running["restarts"] == 0
     assert running["spec"] == {**body, "persist_every": None, "allow_anonymous": None, "mqtt_port": None, "users": [],
-                               "tls": False, "certificate_port": None, "kafka": None, "closed_kafkas": []} and running["topics"] == []
+                               "tls": False, "certificate_port": None, "kafka": None, "closed_kafkas": [], "tls_kafkas": []} and running["topics"] == []
     pid = running["pid"]
     assert proc_info(pid) is not None and netutil.port_open("127.0.0.1", body["port"])
 

@@ -192,3 +192,13 @@ def test_a_context_brokers_closed_kafkas_round_trip_and_bad_ones_are_refused() -
         with pytest.raises(WireError) as info:
             broker_spec_from_json({**to_dict(NGSI), "closed_kafkas": bad})
         assert info.value.field == field, (bad, info.value)
+
+
+def test_a_context_brokers_tls_kafkas_round_trip_and_bad_ones_are_refused() -> None:
+    spec = broker_spec_from_json({**to_dict(NGSI), "tls_kafkas": ["127.0.0.4:9092"]})
+    assert spec.tls_kafkas == ("127.0.0.4:9092",) and spec.closed_kafkas == ()
+    assert broker_spec_from_json(to_dict(spec)) == spec
+    for bad, field in ((["kafka.local:9092"], "tls_kafkas[0].host"), ("127.0.0.4:9092", "tls_kafkas")):
+        with pytest.raises(WireError) as info:
+            broker_spec_from_json({**to_dict(NGSI), "tls_kafkas": bad})
+        assert info.value.field == field, (bad, info.value)

@@ -118,6 +118,7 @@ def test_bridges_are_not_native() -> None:
     ({"closed_kafkas": ("127.0.0.4:9092", "kafka.local:9092")}, "closed_kafkas[1]"),
     ({"closed_kafkas": ("127.0.0.4:9092\n--open",)}, "closed_kafkas[0]"),
     ({"closed_kafkas": ("::1:9092",)}, "closed_kafkas[0]"),
+    ({"tls_kafkas": ("127.0.0.4:9092\n--open",)}, "tls_kafkas[0]"),
 ])
 def test_bad_broker_values_are_refused(changes: dict, field: str) -> None:
     with pytest.raises(ConfigValueError) as info:
@@ -181,6 +182,15 @@ def test_the_plants_closed_kafkas_are_on_the_command_line(broker_dir: Path, monk
     assert "--closed-kafka" not in NgsiDriver().command(cb_spec(), broker_dir)
 
 
+def test_the_plants_tls_kafkas_are_on_the_command_line(broker_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The context broker's kafka:// notifications speak TLS there, trusting the plant CA."""
+    monkeypatch.delenv(TOKEN_FILE_ENV, raising=False)
+    argv = NgsiDriver().command(cb_spec(closed_kafkas=("127.0.0.4:9092",), tls_kafkas=("127.0.0.4:9092",)), broker_dir)
+    at = argv.index("--tls-kafka")
+    assert argv[at:at + 2] == ["--tls-kafka", "127.0.0.4:9092"] and argv.count("--tls-kafka") == 1
+    assert "--tls-kafka" not in NgsiDriver().command(cb_spec(closed_kafkas=("127.0.0.4:9092",)), broker_dir)
+
+
 # --- essence --------------------------------------------------------------------------------
 
 def test_essence_is_the_listener_and_the_write_policy() -> None:
@@ -193,6 +203,8 @@ def test_essence_is_the_listener_and_the_write_policy() -> None:
     assert driver.essence(cb_spec(port=11027)) != driver.essence(spec)
     closed = cb_spec(closed_kafkas=("127.0.0.4:9092",))  # on the command line: a change restarts it
     assert driver.essence(closed) == {**driver.essence(spec), "closed_kafkas": ["127.0.0.4:9092"]}
+    tls = cb_spec(tls_kafkas=("127.0.0.4:9092",))
+    assert driver.essence(tls) == {**driver.essence(spec), "tls_kafkas": ["127.0.0.4:9092"]}
 
 
 # --- health ---------------------------------------------------------------------------------

@@ -16,6 +16,11 @@ the password derived from the principal key its agent exports
 them. Any other Kafka a subscription names gets no credentials: plantkg's password (sent in clear
 by PLAIN) goes only where the plant deployed a closed Kafka. A key that cannot be read makes each
 notification a temporary failure, named in ``lastFailureReason``.
+
+A Kafka of the plant that speaks TLS (``pk:tls true``: ``--tls-kafka``) is reached over TLS
+(SASL_SSL where it is also closed, SSL otherwise), trusting only the plant CA (the agent exports
+``$PLANTKG_CA_DIR``) and checking the broker's address against its certificate. A CA that cannot
+be read is a temporary failure too.
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ from typing import Any
 
 from confluent_kafka import KafkaError, KafkaException, Producer
 
-from engine.context_broker.subscriptions.model import KafkaTarget
+from engine.context_broker.subscriptions.model import KafkaTarget, PlantKafkas
 from engine.context_broker.subscriptions.render import Outgoing
 from engine.context_broker.subscriptions.result import Result
 from engine.errors import EngineError
@@ -53,20 +58,24 @@ def bootstrap_addresses(bootstrap: str) -> frozenset[tuple[str, int]]:
 
 
 class KafkaSender:
-    def __init__(self, closed_kafkas: frozenset[tuple[str, int]] = frozenset()) -> None:
-        """``closed_kafkas``: the plant's closed Kafka brokers (address, port): a target naming
-        one of them is sent to logged in as plantkg's own principal."""
+    def __init__(self, kafkas: PlantKafkas = PlantKafkas()) -> None:
+        """``kafkas``: the plant's closed Kafka brokers (a target naming one of them is sent to
+        logged in as plantkg's own principal) and those that speak TLS (sent to over TLS)."""
         self._lock = threading.Lock()
         self._producers: dict[str, Producer] = {}
-        self._closed = closed_kafkas
+        self._kafkas = kafkas
 
     def logs_in(self, bootstrap: str) -> bool:
         """True when ``bootstrap`` names one of the plant's closed Kafka brokers."""
-        return bool(bootstrap_addresses(bootstrap) & self._closed)
+        return bool(bootstrap_addresses(bootstrap) & self._kafkas.closed)
+
+    def speaks_tls(self, bootstrap: str) -> bool:
+        """True when ``bootstrap`` names one of the plant's Kafka brokers that speak TLS."""
+        return bool(bootstrap_addresses(bootstrap) & self._kafkas.tls)
 
     def _producer(self, bootstrap: str) -> Producer:
         """The producer of ``bootstrap``; raises EngineError when plantkg's password cannot be
-        derived (the principal key unreadable)."""
+        derived (the principal key unreadable) or the plant CA cannot be read."""
         with self._lock:
             producer = self._producers.get(bootstrap)
             if producer is None:
@@ -77,7 +86,8 @@ class KafkaSender:
                     "message.timeout.ms": int(DELIVERY_TIMEOUT * 1000),
                     "client.id": "plantkg-context-broker",
                 }
-                producer = Producer(config | kafka_client.client_settings(self.logs_in(bootstrap)))
+                login = kafka_client.client_settings(self.logs_in(bootstrap), tls=self.speaks_tls(bootstrap))
+                producer = Producer(config | login)
                 self._producers[bootstrap] = producer
             return producer
 
@@ -88,8 +98,8 @@ class KafkaSender:
     def send(self, target: KafkaTarget, msg: Outgoing) -> Result:
         try:
             producer = self._producer(target.bootstrap)
-        except EngineError as err:  # the principal key, for a closed Kafka
-            return Result.temporary(f"Kafka {target.bootstrap}: cannot log in as plantkg: {err}")
+        except EngineError as err:  # the principal key (a closed Kafka), the plant CA (a TLS one)
+            return Result.temporary(f"Kafka {target.bootstrap}: cannot connect as plantkg: {err}")
         done = threading.Event()
         outcome: list[KafkaError | None] = []
 

@@ -102,6 +102,17 @@ class KafkaTarget:
     key: str | None = None
 
 
+@dataclass(frozen=True)
+class PlantKafkas:
+    """The plant's Kafka brokers of their own, as (address, port), that ``kafka://``
+    notifications treat as the plant's (the NGSI driver renders them from the plant): ``closed``
+    ones are logged in to as plantkg's own principal, ``tls`` ones reached over TLS trusting only
+    the plant CA. A Kafka in neither gets a plain, anonymous producer."""
+
+    closed: frozenset[tuple[str, int]] = frozenset()
+    tls: frozenset[tuple[str, int]] = frozenset()
+
+
 Target = HttpTarget | MqttTarget | KafkaTarget
 
 

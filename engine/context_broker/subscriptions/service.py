@@ -23,7 +23,7 @@ from engine.context_broker.subscriptions import matcher, render
 from engine.context_broker.subscriptions.delivery import DEFAULT_BOUND, Delivery, Sender, backoff_delay
 from engine.context_broker.subscriptions.http import HttpSender
 from engine.context_broker.subscriptions.model import (
-    DeliveryStatus, HttpTarget, KafkaTarget, MqttTarget, Status, Subscription, Target,
+    DeliveryStatus, HttpTarget, KafkaTarget, MqttTarget, PlantKafkas, Status, Subscription, Target,
 )
 from engine.context_broker.subscriptions.outbox import Outbox
 from engine.context_broker.subscriptions.parse import QParser
@@ -46,11 +46,11 @@ class SubscriptionService:
                  backoff: Callable[[int], float] = backoff_delay,
                  status_flush_interval: float = STATUS_FLUSH_INTERVAL,
                  senders: dict[type, Sender] | None = None, fsync: bool = False,
-                 closed_kafkas: frozenset[tuple[str, int]] = frozenset()) -> None:
-        """``closed_kafkas``: the plant's closed Kafka brokers (address, port), where ``kafka://``
-        notifications log in as plantkg's own principal (:mod:`.kafka`)."""
+                 kafkas: PlantKafkas = PlantKafkas()) -> None:
+        """``kafkas``: the plant's closed Kafka brokers, where ``kafka://`` notifications log in as
+        plantkg's own principal, and those that speak TLS (:mod:`.kafka`)."""
         self.clock = clock
-        self._closed_kafkas = closed_kafkas
+        self._kafkas = kafkas
         self._parse_q = parse_q or _default_parse_q
         self.registry = Registry(Path(data_dir), self._parse_q)
         self._queries: dict[tuple[str, bool], Any] = {}
@@ -184,7 +184,7 @@ class SubscriptionService:
         with self._sender_lock:
             sender = self._senders.get(kind)
             if sender is None:
-                sender = self._senders[kind] = _new_sender(kind, self._closed_kafkas)
+                sender = self._senders[kind] = _new_sender(kind, self._kafkas)
             return sender
 
     def attempted(self, sub_id: str, result: Result) -> bool:
@@ -206,7 +206,7 @@ class SubscriptionService:
             self.registry.record_dropped(sub_id, count)
 
 
-def _new_sender(kind: type, closed_kafkas: frozenset[tuple[str, int]]) -> Sender:
+def _new_sender(kind: type, kafkas: PlantKafkas) -> Sender:
     if kind is HttpTarget:
         return HttpSender()
     if kind is MqttTarget:
@@ -216,5 +216,5 @@ def _new_sender(kind: type, closed_kafkas: frozenset[tuple[str, int]]) -> Sender
     if kind is KafkaTarget:
         from engine.context_broker.subscriptions.kafka import KafkaSender
 
-        return KafkaSender(closed_kafkas)
+        return KafkaSender(kafkas)
     raise TypeError(f"no sender for {kind.__name__}")

@@ -59,3 +59,13 @@ def test_closed_kafkas_are_addresses(tmp_path: Path) -> None:
     for bad in ("127.0.0.4", "kafka.local:9092", "127.0.0.4:0"):
         with pytest.raises(ConfigError, match=f"--closed-kafka '{bad}'"):
             read_closed_kafkas(parse_args(["--data-dir", "d", "--open", "--closed-kafka", bad]))
+
+
+def test_tls_kafkas_are_addresses(tmp_path: Path) -> None:
+    """``--tls-kafka HOST:PORT``: where kafka:// notifications speak TLS (the plant CA)."""
+    from engine.context_broker.server import read_plant_kafkas  # noqa: PLC0415
+    kafkas = read_plant_kafkas(parse_args(["--data-dir", "d", "--open", "--tls-kafka", "127.0.0.4:9093",
+                                           "--closed-kafka", "127.0.0.4:9093", "--closed-kafka", "127.0.0.5:9092"]))
+    assert kafkas.tls == {("127.0.0.4", 9093)} and kafkas.closed == {("127.0.0.4", 9093), ("127.0.0.5", 9092)}
+    with pytest.raises(ConfigError, match="--tls-kafka 'kafka.local:9093'"):
+        read_plant_kafkas(parse_args(["--data-dir", "d", "--open", "--tls-kafka", "kafka.local:9093"]))
