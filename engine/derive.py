@@ -49,7 +49,7 @@ from engine.derived.access import (
     close_brokers,
     run_principals,
     with_bridge_principals,
-    with_closed_kafkas,
+    with_plant_kafkas,
     with_run_principals,
 )
 from engine.errors import ConfigValueError, EngineError
@@ -372,7 +372,7 @@ def assemble_from(parts: Parts, previous: Assembled | None = None,
     check_access_supported(deployed)
     check_kafka_tls_supported(deployed)
     deployed = with_bridge_principals(deployed, bridges)  # each bridge a user where it logs in
-    deployed = with_closed_kafkas(deployed)  # where a context broker's kafka:// notifications log in
+    deployed = with_plant_kafkas(deployed)  # where a context broker's kafka:// notifications log in, and use TLS
     outside = {parts.brokers[iri].id for iri in parts.external}
     ids = {b.iri: b.id for b in brokers}
     if previous is None:

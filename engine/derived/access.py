@@ -23,8 +23,8 @@ of its topics the broker carries. Nothing here decides who may do what: the rule
   (a bridge worker into a closed Kafka and a MirrorMaker 2 at each closed end authenticate as
   plantkg's own principal, engine.security.kafka_client; bridges at a closed Mosquitto as their
   bridge principal);
-- :func:`with_closed_kafkas` tells each context broker the plant's closed Kafka brokers, where its
-  ``kafka://`` notifications log in as plantkg's own principal;
+- :func:`with_plant_kafkas` tells each context broker the plant's closed Kafka brokers, where its
+  ``kafka://`` notifications log in as plantkg's own principal, and those that speak TLS;
 - :func:`open_broker_warnings` and :func:`access_label` say, in a plan and in ``status``, which
   brokers anyone on the network may use.
 """
@@ -217,7 +217,7 @@ def with_bridge_principals(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
     return out
 
 
-def with_closed_kafkas(brokers: Iterable[BrokerSpec]) -> list[BrokerSpec]:
+def with_plant_kafkas(brokers: Iterable[BrokerSpec]) -> list[BrokerSpec]:
     """The specs with each context broker told the plant's closed Kafka brokers of their own
     (``closed_kafkas``, ``host:port`` sorted): its ``kafka://`` notifications log in there as
     plantkg's own Kafka principal (engine.security.kafka_client), and only there, so plantkg's

@@ -292,11 +292,11 @@ def test_a_context_broker_is_told_the_plants_closed_kafkas(tmp_path: Path, kafka
 
 
 def test_closed_kafkas_name_ipv6_addresses_in_brackets_and_skip_cluster_nodes() -> None:
-    from engine.derived.access import with_closed_kafkas  # noqa: PLC0415
+    from engine.derived.access import with_plant_kafkas  # noqa: PLC0415
     from engine.model import KafkaNode  # noqa: PLC0415
     node = _spec(id="n1", kind="kafka", host="127.0.0.7", port=9092, allow_anonymous=True,
                  kafka=KafkaNode("plant", "A" * 22, 1, ("broker", "controller"), ()))
-    specs = with_closed_kafkas([_spec(id="k6", kind="kafka", host="::1", port=9092, allow_anonymous=False),
+    specs = with_plant_kafkas([_spec(id="k6", kind="kafka", host="::1", port=9092, allow_anonymous=False),
                                 _spec(id="k4", kind="kafka", host="127.0.0.4", port=9094, allow_anonymous=False),
                                 _spec(id="open", kind="kafka", host="127.0.0.6", port=9092, allow_anonymous=True),
                                 node, _spec(id="cb", kind="ngsi-v2", allow_anonymous=False)])
@@ -305,11 +305,11 @@ def test_closed_kafkas_name_ipv6_addresses_in_brackets_and_skip_cluster_nodes() 
 
 def test_a_context_broker_is_told_the_plants_kafkas_that_speak_tls() -> None:
     """Its kafka:// notifications reach them over TLS; closed or open, a cluster's node never."""
-    from engine.derived.access import with_closed_kafkas  # noqa: PLC0415
+    from engine.derived.access import with_plant_kafkas  # noqa: PLC0415
     from engine.model import KafkaNode  # noqa: PLC0415
     node = _spec(id="n1", kind="kafka", host="127.0.0.7", port=9092, allow_anonymous=True, tls=True,
                  kafka=KafkaNode("plant", "A" * 22, 1, ("broker", "controller"), ()))
-    specs = with_closed_kafkas([_spec(id="kt", kind="kafka", host="127.0.0.4", port=9093, allow_anonymous=False, tls=True),
+    specs = with_plant_kafkas([_spec(id="kt", kind="kafka", host="127.0.0.4", port=9093, allow_anonymous=False, tls=True),
                                 _spec(id="ot", kind="kafka", host="::1", port=9094, allow_anonymous=True, tls=True),
                                 _spec(id="kp", kind="kafka", host="127.0.0.5", port=9092, allow_anonymous=False),
                                 _spec(id="m", kind="mosquitto", host="127.0.0.6", port=8883, tls=True),
