@@ -34,7 +34,7 @@ from pathlib import Path
 
 from benchmarks import bridge_load as load
 from benchmarks import bridge_rig as rig
-from benchmarks.common import RESULTS, command_line, machine, percentile, write_results
+from benchmarks.common import RESULTS, command_line, cpu_seconds, machine, percentile, write_results
 from engine import process
 from engine.bridge_worker.config import Direction, Route, WorkerConfig
 from engine.drivers.mosquitto.runtime import MosquittoBridge, MosquittoBridgeTopic
@@ -58,7 +58,7 @@ class BenchPath:
 def run(path: BenchPath, n: int, rate: float | None) -> dict[str, object]:
     """Send ``n`` messages (at ``rate`` per second, or as fast as the sender takes them); wait
     until all arrived or none came for IDLE_LIMIT s; measure."""
-    cpu_before = {name: load.cpu_seconds(pid) for name, pid in path.cpu.items()}
+    cpu_before = {name: cpu_seconds(pid) for name, pid in path.cpu.items()}
     path.arrivals.read()
     duplicates_before = path.arrivals.duplicates
     first, start_ns, _ = path.feeder.send(n, rate)
@@ -73,7 +73,7 @@ def run(path: BenchPath, n: int, rate: float | None) -> dict[str, object]:
 
     process.wait_until(finished, 900.0, 0.02, what="the run to end")
     got = [path.arrivals.first[i] for i in range(first, first + n) if i in path.arrivals.first]
-    cpu = {name: load.cpu_seconds(pid) - cpu_before[name] for name, pid in path.cpu.items()}
+    cpu = {name: cpu_seconds(pid) - cpu_before[name] for name, pid in path.cpu.items()}
     latencies = sorted((r - s) / 1e6 for s, r in got)
     elapsed = (max(r for _, r in got) - start_ns) / 1e9 if got else float("nan")
     return {"messages": n, "offered_rate": rate, "msgs_per_s": len(got) / elapsed if got else 0.0,

@@ -40,7 +40,7 @@ from typing import Any
 import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
-from benchmarks.common import RESULTS, ROOT, command_line, machine, summarize, write_results
+from benchmarks.common import RESULTS, ROOT, command_line, cpu_seconds, machine, summarize, write_results
 from engine import process
 from engine.demo.local_plant import LocalPlant, copy_on_free_ports
 from fleet.vda5050 import topics
@@ -50,14 +50,8 @@ from fleet.vda5050.messages import Action, BlockingType, InstantActions
 EXAMPLE = ROOT / "ontology" / "examples" / "agv-fleet.ttl"
 MQTT_BROKER_ID = "fleet-mqtt"
 MQTT_HOST = "127.0.0.2"  # the example's Mosquitto machine
-CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
 PAGE = os.sysconf("SC_PAGE_SIZE")
 
-
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU seconds of a live process, from /proc."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
 
 
 def rss_mib(pid: int) -> float:

@@ -51,8 +51,8 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks import plots
-from benchmarks.common import RESULTS, ROOT, command_line, machine, summarize, write_results
-from benchmarks.bench_fleet_join import EXAMPLE, MQTT_HOST, cpu_seconds, read_status, rss_mib
+from benchmarks.common import RESULTS, ROOT, command_line, cpu_seconds, machine, summarize, write_results
+from benchmarks.bench_fleet_join import EXAMPLE, MQTT_HOST, read_status, rss_mib
 from benchmarks.fleet_ideal import Limits, executed, loaded_only, path_length, trapezoid_seconds
 from engine import process
 from engine.demo.local_plant import LocalPlant, copy_on_free_ports

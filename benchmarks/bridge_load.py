@@ -221,14 +221,6 @@ class Arrivals:
         return new
 
 
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU of a process (all its threads) so far, from /proc."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except OSError:
-        return float("nan")
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
 
 def _kafka_read(bootstrap: str, topic: str, partitions: int, out: Path) -> int:
     from confluent_kafka import Consumer, TopicPartition  # noqa: PLC0415 - only in this process

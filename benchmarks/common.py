@@ -44,6 +44,16 @@ def commit() -> str:
     return f"{head or 'unknown'}{'+changes' if dirty else ''}"
 
 
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds of a process (all its threads) so far, from /proc; NaN once it
+    is gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return float("nan")
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def summarize(seconds: list[float]) -> dict[str, float]:
     """n, min, max, mean, standard deviation, p50 and p99 of ``seconds``, in milliseconds."""
     ms = sorted(x * 1000 for x in seconds)
