@@ -10,6 +10,7 @@
 | ``plantkg fleet pin VEHICLE [--unpin]`` | keep a vehicle as it is even if it sends another factsheet |
 | ``plantkg fleet rename VEHICLE NAME`` | set its ``pk:name`` |
 | ``plantkg fleet remove VEHICLE`` | forget it (its file and record); it is discovered again when it comes back online |
+| ``plantkg fleet admit SERIAL PLANT... --manufacturer M --secret-file F`` | admit a vehicle to a closed broker before it connects (``fleet/discovery/admission.py``) |
 | ``plantkg fleet order SERIAL NODE...`` | send a VDA 5050 order through the running manager's API |
 | ``plantkg fleet hmi ...`` | serve the operators' screens (the options of ``python -m fleet.hmi``) |
 | ``plantkg fleet planner ...`` | run the task planner (the options of ``python -m fleet.planner``), restarted when it crashes (``fleet/supervise.py``) |
@@ -131,6 +132,7 @@ def vehicles_command(data_dir: Path, fmt: str) -> int:
     data = _data(data_dir)
     rows = [{"vehicle": r.label, "interface": r.interface, "name": r.name or r.description.get("name"),
              "connectionState": r.connection_state, "pinned": r.pinned, "discoveredAt": r.discovered_at,
+             "admitted": r.secret_ref is not None, "heard": not r.awaiting_description,
              "skills": list(r.description.get("skills", ())), "file": str(data.turtle_path(r))}
             for r in data.records()]
     refused = data.refused_list()
@@ -140,7 +142,8 @@ def vehicles_command(data_dir: Path, fmt: str) -> int:
     if not rows:
         click.echo("no discovered vehicles")
     for r in rows:
-        flag = " pinned" if r["pinned"] else ""
+        flag = (" pinned" if r["pinned"] else "") + (" admitted" if r["admitted"] else "") \
+            + ("" if r["heard"] else " (not heard yet)")
         click.echo(f"{r['vehicle']:<32} {r['connectionState']:<16} {r['interface']:<14} "
                    f"{r['name']!s:<20}{flag}  skills: {', '.join(r['skills'])}")
     for r in refused:
@@ -214,6 +217,31 @@ def remove_command(vehicle: str, data_dir: Path) -> int:
         record = data.find(vehicle)
         data.remove(record)
     click.echo(f"{record.label}: removed")
+    return 0
+
+
+@fleet_group.command("admit")
+@click.argument("serial")
+@click.argument("plant", nargs=-1, required=True, type=click.Path(path_type=Path, dir_okay=False, exists=True))
+@click.option("--manufacturer", required=True,
+              help="the vehicle's manufacturer, as in its topics (uagv/v2/MANUFACTURER/SERIAL/...) and factsheet")
+@click.option("--interface", type=click.Choice(["vda5050", "paper-channels"]), default="vda5050", show_default=True)
+@click.option("--secret-file", type=click.Path(path_type=Path, dir_okay=False), required=True,
+              help="where its new password goes (created 0600, never written over): give it to the vehicle")
+@data_dir_option
+def admit_command(serial: str, plant: tuple[Path, ...], manufacturer: str, interface: str, secret_file: Path,
+                  data_dir: Path) -> int:
+    """Admit vehicle SERIAL to the fleet's closed broker before it connects (PLANT: the plant's
+    files, as the manager is given them). A new password goes to --secret-file; the running
+    manager's next reconcile makes the vehicle's user. `plantkg fleet remove` takes it back."""
+    from fleet.discovery import model_api
+    from fleet.discovery.admission import admit
+
+    data_dir.mkdir(parents=True, exist_ok=True)
+    binding = model_api.binding_to_json(model_api.plant_binding(list(plant)))
+    done = admit(_data(data_dir), binding, interface, manufacturer, serial, secret_file)
+    click.echo(f"{done.record.label}: admitted as user {done.user}; its password is in {done.secret_file} "
+               f"(0600, give it to the vehicle); the vehicle: {done.turtle}")
     return 0
 
 

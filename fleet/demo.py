@@ -5,10 +5,13 @@ The steps a plant would take, each with its real part:
 1. the fleet plant (``ontology/examples/agv-fleet.ttl``: Mosquitto for the vehicles, the NGSI-v2
    context broker for the task planner and screens) copied onto free ports, an agent per machine,
    ``apply``;
-2. the fleet manager starts (``python -m fleet.manager``), then simulated AGVs of two interfaces
-   connect — VDA 5050 vehicles and one speaking the paper's channels — and join **by plug and
-   play**: each is asked for its factsheet (or announces its description), becomes triples in the
-   graph, is validated, reasoned over, planned and applied; the time each took is printed;
+2. the fleet manager starts (``python -m fleet.manager``); the vehicles are admitted to the
+   fleet's Mosquitto, which the demo closes (the example opens it as a lab broker): ``plantkg fleet
+   admit`` gives each a password file (0600) and its user; then simulated AGVs of two interfaces
+   log in and connect — VDA 5050 vehicles and one speaking the paper's channels — and join **by
+   plug and play**: each is asked for its factsheet (or announces its description), becomes
+   triples in the graph, is validated, reasoned over, planned and applied; the time each took is
+   printed;
 3. one SPARQL query over the plant and the discovered vehicles shows who can do what;
 4. the task planner (``python -m fleet.planner``) takes the LoTLan jobs (``fleet/examples/jobs.tl``),
    assigns each transport to a vehicle by a SPARQL query, sends VDA 5050 orders (or the paper's
@@ -39,7 +42,11 @@ import click
 from engine import process
 from engine.cli.progress import result_lines
 from engine.demo.local_plant import LocalPlant, copy_on_free_ports, processes_under
+from fleet.discovery import model_api
+from fleet.discovery.admission import admit
+from fleet.discovery.records import DataDir, now_iso
 from fleet.sim.kinematics import Limits
+from kg.errors import PlantKGError
 from kg.load import load_plant
 from kg.query import run_query
 
@@ -53,6 +60,43 @@ SELECT ?vehicle ?interface (GROUP_CONCAT(DISTINCT ?skill; separator=" ") AS ?ski
     ?v pk:isType fleet:agv ; pk:id ?vehicle ; fleet:interface ?interface ; fleet:discovered true ;
        pk:executes/pk:id ?skill .
 } GROUP BY ?vehicle ?interface ORDER BY ?vehicle"""
+
+
+#: what the example says of its open lab broker, and what the demo's closed copy says instead
+OPENED = (("    pk:allowAnonymous true ;\n", ""),
+          ("Open to anonymous clients on purpose (a lab broker): plug and play means a vehicle the plant does "
+           "not know yet announces itself here, before it has a user (plan warns).",
+           "Closed (the demo's copy of the example): a vehicle the plant does not know is admitted "
+           "(plantkg fleet admit) before it connects."))
+PAPER_MANUFACTURER = "plantkg"  # what python -m fleet.sim --interface paper says by default
+
+
+def close_fleet_broker(plant_file: Path) -> None:
+    """Close the fleet's Mosquitto in the demo's copy of the example (the example keeps it open)."""
+    text = plant_file.read_text(encoding="utf-8")
+    for old, new in OPENED:
+        if text.count(old) != 1:
+            raise PlantKGError(f"{plant_file}: expected {old.strip()[:60]!r} once, to close the fleet's broker",
+                               hint=f"keep {PLANT.name}'s fleet-mqtt as it is, or update fleet/demo.py with it")
+        text = text.replace(old, new)
+    plant_file.write_text(text, encoding="utf-8")
+
+
+def admit_vehicles(plant_file: Path, data_dir: Path, secret_dir: Path,
+                   vehicles: list[tuple[str, str, str]]) -> None:
+    """``plantkg fleet admit`` each (interface, manufacturer, serial): its password in
+    ``secret_dir/<serial>.pw`` (0600), its record in the manager's data directory."""
+    secret_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
+    data = DataDir(data_dir, _render)
+    binding = model_api.binding_to_json(model_api.plant_binding([plant_file]))
+    for interface, manufacturer, serial in vehicles:
+        admit(data, binding, interface, manufacturer, serial, secret_dir / f"{serial}.pw")
+
+
+def _render(record: Any) -> str:
+    from fleet.manager.service import render_record
+
+    return render_record(record)
 
 
 @dataclass(frozen=True)
@@ -112,8 +156,9 @@ def run_fleet_demo(*, vehicles: int, work_dir: Path | None, deadline: float, kee
     logs, manager_data, planner_data = base / "logs", base / "fleet-manager", base / "planner"
     plant_file = base / "agv-fleet.ttl"
     ports = copy_on_free_ports(PLANT, plant_file)
+    close_fleet_broker(plant_file)
     mqtt = f"127.0.0.2:{ports[MQTT_ID]}"
-    click.secho(f"1. the fleet plant ({PLANT.name}) on free ports: Mosquitto {mqtt}, "
+    click.secho(f"1. the fleet plant ({PLANT.name}) on free ports, its Mosquitto closed: Mosquitto {mqtt}, "
                 f"context broker 127.0.0.3:{ports[CONTEXT_ID]}; agents, apply", bold=True)
     with ExitStack() as stack:
         plant = stack.enter_context(LocalPlant.start([plant_file], base / "plant"))
@@ -124,17 +169,35 @@ def run_fleet_demo(*, vehicles: int, work_dir: Path | None, deadline: float, kee
             click.secho("   the plant did not apply; see the agents' logs under " + str(base), fg="red")
             return 1
 
-        click.secho(f"\n2. the fleet manager, then {vehicles} VDA 5050 vehicles and 1 on the paper's "
-                    "channels join by plug and play", bold=True)
+        click.secho(f"\n2. the fleet manager; {vehicles} VDA 5050 vehicles and 1 on the paper's channels "
+                    "admitted, then they join by plug and play", bold=True)
         manager = _spawn(stack, ["-m", "fleet.manager", plant_file, "--data-dir", manager_data,
                                  "--agents", plant.agents.agents_file], logs, "fleet-manager")
         process.wait_until(lambda: (_manager_status(manager_data).get("lastReconcile") or {}).get("ok"),
                            120, 0.1, what="the fleet manager to start", child=manager)
+        secret_dir = base / "secrets"
+        admitted = [("vda5050", "plantkg-sim", f"demo-{i:04d}") for i in range(1, vehicles + 1)]
+        admitted.append(("paper-channels", PAPER_MANUFACTURER, "paper-0001"))
+        since = now_iso()
+        admit_vehicles(plant_file, manager_data, secret_dir, admitted)
+        serials = {serial for _, _, serial in admitted}
+
+        def users_made() -> bool:
+            status = _manager_status(manager_data)
+            last = status.get("lastReconcile") or {}
+            listed = {v.get("serial") for v in status.get("vehicles", [])}
+            return bool(last.get("ok")) and str(last.get("at", "")) > since and serials <= listed
+        process.wait_until(users_made, 120, 0.1, what="the manager to make the admitted vehicles' users",
+                           child=manager)
+        click.echo(f"   admitted {len(admitted)} vehicles (plantkg fleet admit): passwords under {secret_dir} (0600), "
+                   "users made by the manager's reconcile; anonymous clients are refused")
+        login = ["--username", "agv-{serial}", "--secret-ref", f"file:{secret_dir}/{{serial}}.pw"]
         _spawn(stack, ["-m", "fleet.sim", "--broker", mqtt, "--count", str(vehicles),
-                       "--manufacturer", "plantkg-sim", "--serial-prefix", "demo-", *limit_flags(speed)],
+                       "--manufacturer", "plantkg-sim", "--serial-prefix", "demo-", *login, *limit_flags(speed)],
                logs, "vda5050-vehicles")
         _spawn(stack, ["-m", "fleet.sim", "--interface", "paper", "--broker", mqtt, "--count", "1",
-                       "--serial-prefix", "paper-", *limit_flags(speed)], logs, "paper-vehicle")
+                       "--manufacturer", PAPER_MANUFACTURER, "--serial-prefix", "paper-", *login,
+                       *limit_flags(speed)], logs, "paper-vehicle")
         expected = vehicles + 1
 
         def joined() -> list[dict[str, Any]] | None:

@@ -44,10 +44,29 @@ def plant_binding(files: Iterable[Path | str]) -> Any:
     return fleet_binding([Path(f) for f in files])
 
 
-def render(description: Any, binding: Any, *, connection_state: str, pinned: bool) -> str:
+def render(description: Any, binding: Any, *, connection_state: str, pinned: bool,
+           secret_ref: str | None = None, discovered: bool = True) -> str:
     from fleet.model.graph import agv_turtle
 
-    return agv_turtle(description, binding, connection_state=connection_state, pinned=pinned)
+    return agv_turtle(description, binding, connection_state=connection_state, pinned=pinned,
+                      secret_ref=secret_ref, discovered=discovered)
+
+
+def resource_id(serial: str) -> str:
+    """The vehicle's ``pk:id`` (``agv-<serial>``, made safe): its user name on a closed broker."""
+    from fleet.model.graph import agv_id
+
+    return f"agv-{agv_id(serial)}"
+
+
+def admitted_description(interface: str, manufacturer: str, serial: str) -> dict[str, Any]:
+    """The description of a vehicle a person admitted before it was heard: its identity only (no
+    skills, no properties), named ``<manufacturer> <serial>``; its factsheet replaces it."""
+    from fleet.model import description as module
+
+    desc = module.check(module.AgvDescription(serial=serial, manufacturer=manufacturer, interface=interface,
+                                              name=f"{manufacturer} {serial}", skills=(), properties=()))
+    return description_to_json(desc)
 
 
 def description_to_json(description: Any) -> dict[str, Any]:

@@ -7,6 +7,10 @@
     <data-dir>/refused/<manufacturer>--<serial>.{ttl,json} a refused vehicle, with .reason.txt beside it
     <data-dir>/status.json                                 the manager's status (fleet.manager.status)
 
+A vehicle a person admitted (``plantkg fleet admit``, :mod:`fleet.discovery.admission`) has a
+record before it is heard: its identity, its ``secret_ref`` and ``awaiting_description``; its first
+description fills it in and keeps the ``secret_ref``.
+
 The record keeps what a person decided (``pinned``, ``name``) and the last connection state, plus
 the description and the plant binding it was rendered with, so the Turtle can be rendered again
 (``plantkg fleet rename``) without the plant. Every write is atomic (``files.atomic_write``);
@@ -39,6 +43,10 @@ class VehicleRecord:
     pinned: bool = False
     name: str | None = None   # a person's rename (pk:name), None: the vehicle's own
     discovered_at: str = ""
+    #: where its password is (pk:secretRef): a vehicle a person admitted to a closed broker
+    secret_ref: str | None = None
+    #: admitted, its own description not heard yet: ``description`` is its identity only
+    awaiting_description: bool = False
 
     @property
     def stem(self) -> str:

@@ -6,7 +6,8 @@ is a unit test:
 
 - an unknown vehicle that says ONLINE is asked for its factsheet (:class:`AskFactsheet`), at
   most once per ``ask_every`` seconds however many ONLINE messages it sends (a flood makes no
-  duplicates);
+  duplicates); so is a vehicle a person admitted whose description was not heard yet
+  (``Known.awaiting``), and its first description joins it as new;
 - a description (factsheet or paper description) of an unknown vehicle joins it (:class:`Join`);
   the same description again changes nothing; a different one updates it (:class:`Join` again),
   unless a person pinned the vehicle (:class:`Note`, nothing changes);
@@ -46,6 +47,7 @@ class Known:
     description: dict[str, Any]
     connection_state: str
     pinned: bool = False
+    awaiting: bool = False  # admitted by a person; its own description not heard yet
 
 
 # ----------------------------------------------------------------------------- effects
@@ -154,14 +156,21 @@ class Registry:
             self._forget_oldest_unknown()
         known = self.known.get(key)
         if known is not None:
-            if known.connection_state == state:
-                return []
-            self.known[key] = Known(known.description, state, known.pinned)
-            return [SetConnection(key, state)]
+            changed = known.connection_state != state
+            if changed:
+                self.known[key] = Known(known.description, state, known.pinned, known.awaiting)
+            out: list[Effect] = [SetConnection(key, state)] if changed else []
+            if known.awaiting and state == "ONLINE" and key.interface is Interface.VDA5050:
+                out += self._ask(key, now)
+            return out
         if state != "ONLINE" or key.interface is not Interface.VDA5050:
             return []  # a paper vehicle describes itself on description_channel
         if before != "ONLINE":
             self.refused.pop(key, None)  # it came (back) online: give it another chance
+        return self._ask(key, now)
+
+    def _ask(self, key: VehicleKey, now: float) -> list[Effect]:
+        """Ask for the factsheet, at most once per ``ask_every`` seconds."""
         last = self.asked.get(key)
         if last is not None and now - last < self.ask_every:
             return []
@@ -174,7 +183,7 @@ class Registry:
         if event.payload is None:  # the paper's "removed": unavailable, never deleted
             if known is None or known.connection_state == "OFFLINE":
                 return []
-            self.known[key] = Known(known.description, "OFFLINE", known.pinned)
+            self.known[key] = Known(known.description, "OFFLINE", known.pinned, known.awaiting)
             return [SetConnection(key, "OFFLINE")]
         fingerprint = _fingerprint(event.payload)
         if self.refused.get(key) == fingerprint:
@@ -187,6 +196,9 @@ class Registry:
         self.refused.pop(key, None)
         self.asked.pop(key, None)
         self.described[key] = fingerprint
+        if known is not None and known.awaiting:  # admitted: its first own description
+            self.known[key] = Known(description, known.connection_state, known.pinned)
+            return [Join(key, description, known.connection_state, new=True)]
         if known is not None:
             if known.description == description:
                 return []

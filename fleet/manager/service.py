@@ -56,7 +56,8 @@ class ManagerConfig:
 def render_record(record: VehicleRecord) -> str:
     desc = model_api.renamed(model_api.description_from_json(record.description), record.name)
     return model_api.render(desc, model_api.binding_from_json(record.binding),
-                            connection_state=record.connection_state, pinned=record.pinned)
+                            connection_state=record.connection_state, pinned=record.pinned,
+                            secret_ref=record.secret_ref, discovered=not record.awaiting_description)
 
 
 def describe(key: VehicleKey, payload: dict[str, Any]) -> dict[str, Any]:
@@ -176,7 +177,8 @@ class FleetManager:
         key = event.key
         first_sign = isinstance(event, DescriptionSeen) or (
             isinstance(event, ConnectionSeen) and event.state == "ONLINE")
-        if first_sign and key not in self.records and key not in self.joining and len(self.joining) < 10_000:
+        unheard = key not in self.records or self.records[key].awaiting_description  # unknown, or admitted
+        if first_sign and unheard and key not in self.joining and len(self.joining) < 10_000:
             self.joining[key] = item.at
         for effect in self.registry.handle(event, item.at):
             if isinstance(effect, AskFactsheet):
@@ -201,10 +203,14 @@ class FleetManager:
             interface=key.interface.value, manufacturer=str(desc["manufacturer"]), serial=key.serial,
             topic_manufacturer=key.manufacturer, description=desc, binding=self.config.binding,
             connection_state=effect.connection_state, pinned=old.pinned if old else False,
-            name=old.name if old else None, discovered_at=old.discovered_at if old else now_iso())
+            name=old.name if old else None,
+            discovered_at=old.discovered_at if old and not old.awaiting_description else now_iso(),
+            secret_ref=old.secret_ref if old else None)
         try:
             with self.data.lock():
                 person = self._person_changed()
+                if old is not None and old.stem != record.stem:  # admitted under another manufacturer
+                    self.data.remove(old)
                 self.data.save(record)
                 for stale in self.data.refused.glob(f"{record.stem}.*") if self.data.refused.is_dir() else ():
                     stale.unlink()
@@ -331,7 +337,8 @@ class FleetManager:
             self._fingerprint = self._dir_fingerprint()
         before = set(self.records)
         self.records = {key_of(r): r for r in records}
-        self.registry.load({k: Known(r.description, r.connection_state, r.pinned) for k, r in self.records.items()})
+        self.registry.load({k: Known(r.description, r.connection_state, r.pinned, r.awaiting_description)
+                            for k, r in self.records.items()})
         for key in before - set(self.records):  # removed by a person: forgotten until it comes back
             self.registry.forget(key)
             self.ready.pop(key, None)

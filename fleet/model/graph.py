@@ -101,9 +101,17 @@ def agv_iri(desc: AgvDescription, binding: FleetBinding) -> str:
 
 
 def agv_graph(desc: AgvDescription, binding: FleetBinding, *, connection_state: str = "ONLINE",
-              pinned: bool = False) -> Graph:
-    """The vehicle's triples (see the module docstring); checks everything first."""
+              pinned: bool = False, secret_ref: str | None = None, discovered: bool = True) -> Graph:
+    """The vehicle's triples (see the module docstring); checks everything first.
+
+    ``secret_ref``: the vehicle's ``pk:secretRef`` (where its password is), for a vehicle a person
+    admitted to a closed broker (``plantkg fleet admit``); ``discovered`` false: admitted, its
+    description not heard yet (``fleet:discovered false``, no skills or properties)."""
     check(desc)
+    if secret_ref is not None and not (isinstance(secret_ref, str) and secret_ref.startswith(("file:", "env:"))):
+        raise DescriptionError("secret_ref", secret_ref, "must be a file: or env: reference")
+    if not isinstance(discovered, bool):
+        raise DescriptionError("discovered", discovered, "must be true or false")
     if not isinstance(binding, FleetBinding):
         raise DescriptionError("binding", binding, "must be a FleetBinding (fleet.model.binding.fleet_binding)")
     if connection_state not in CONNECTION_STATES:
@@ -129,9 +137,11 @@ def agv_graph(desc: AgvDescription, binding: FleetBinding, *, connection_state: 
     individual(agv, PK.Resource, local, desc.name)
     for p, o in ((PK.brand, Literal(desc.manufacturer)), (PK.isType, FLEET.agv), (PK.sendsTo, mqtt),
                  (FLEET.interface, Literal(desc.interface)), (FLEET.manufacturer, Literal(desc.manufacturer)),
-                 (FLEET.serialNumber, Literal(desc.serial)), (FLEET.discovered, Literal(True)),
+                 (FLEET.serialNumber, Literal(desc.serial)), (FLEET.discovered, Literal(discovered)),
                  (FLEET.connectionState, Literal(connection_state)), (FLEET.pinned, Literal(pinned))):
         g.add((agv, p, o))
+    if secret_ref is not None:
+        g.add((agv, PK.secretRef, Literal(secret_ref)))
     for channel in CHANNELS[desc.interface]:
         topic = base[f"{local}-{channel.name}"]
         individual(topic, PK.Topic, f"{local}-{channel.name}", topic_name(desc, channel.name))
@@ -159,8 +169,9 @@ def agv_graph(desc: AgvDescription, binding: FleetBinding, *, connection_state: 
 
 
 def agv_turtle(desc: AgvDescription, binding: FleetBinding, *, connection_state: str = "ONLINE",
-               pinned: bool = False) -> str:
+               pinned: bool = False, secret_ref: str | None = None, discovered: bool = True) -> str:
     """The vehicle's triples as a whole Turtle document (prefixes included)."""
-    graph = agv_graph(desc, binding, connection_state=connection_state, pinned=pinned)
+    graph = agv_graph(desc, binding, connection_state=connection_state, pinned=pinned,
+                      secret_ref=secret_ref, discovered=discovered)
     header = (f"# AGV {desc.serial} ({desc.interface}, {desc.manufacturer}), written by fleet.model.graph.\n")
     return header + graph.serialize(format="turtle")

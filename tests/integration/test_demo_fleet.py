@@ -1,6 +1,6 @@
-"""``plantkg fleet demo``: the AGV fleet end to end — plug and play, SPARQL, the task planner,
-Task entities — with real agents, brokers, fleet manager, planner and simulated vehicles, and
-nothing left running afterwards."""
+"""``plantkg fleet demo``: the AGV fleet end to end — its Mosquitto closed and the vehicles
+admitted, plug and play, SPARQL, the task planner, Task entities — with real agents, brokers, fleet
+manager, planner and simulated vehicles, and nothing left running afterwards."""
 
 from __future__ import annotations
 
@@ -37,3 +37,11 @@ def test_fleet_demo_runs_end_to_end_and_leaves_nothing(tmp_path: Path) -> None:
     assert len(finished) == 2, out  # both jobs, as the context broker has them
     assert "nothing left running" in out
     assert processes_under(work) == []
+    # closed by default: the vehicles were admitted (a 0600 password each, never printed) and the
+    # fleet's Mosquitto admitted nobody else
+    passwords = sorted((work / "secrets").glob("*.pw"))
+    assert [p.name for p in passwords] == ["demo-0001.pw", "demo-0002.pw", "paper-0001.pw"]
+    assert all(p.stat().st_mode & 0o077 == 0 for p in passwords)
+    assert not [p for p in passwords if p.read_text().strip() in out + proc.stderr]
+    [conf] = (work / "plant").glob("agent-*/removed/fleet-mqtt.*/mosquitto.conf")
+    assert "allow_anonymous false" in conf.read_text().splitlines()

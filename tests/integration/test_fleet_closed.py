@@ -11,7 +11,9 @@ password. What must hold:
   asked, written, applied) and executes an order sent through the manager;
 - an anonymous client is refused;
 - a vehicle cannot write the other vehicle's topics (its messages are dropped by the broker),
-  while its own arrive.
+  while its own arrive;
+- a vehicle in no plant file, admitted by a person (``plantkg fleet admit``), gets its user from
+  the manager's next reconcile, joins, and loses its user again on ``plantkg fleet remove``.
 """
 
 from __future__ import annotations
@@ -133,3 +135,49 @@ def test_a_vehicle_cannot_write_the_other_vehicles_topics(closed: tuple[Rig, dic
     finally:
         for client in (observer, a, b):
             client.close()
+
+
+def _login(port: int, user: str, password: str) -> str:
+    """The CONNACK reason a login gets from the fleet's Mosquitto."""
+    client = Client(port, user, password, host=MQTT_HOST)
+    try:
+        return client.connack[0]
+    finally:
+        client.close()
+
+
+def test_a_vehicle_the_plant_does_not_know_is_admitted_joins_and_is_taken_back(
+        closed: tuple[Rig, dict[str, str], Path], capsys: pytest.CaptureFixture[str]) -> None:
+    """``plantkg fleet admit``: sim-0002 is in no plant file; admitted while the manager runs, its
+    user exists after the manager's next reconcile, it joins by plug and play (its factsheet fills
+    in the admitted record), and ``plantkg fleet remove`` takes its user away."""
+    rig, _, tmp = closed
+    secret = tmp / "sim-0002.pw"
+    assert not secret.exists()
+    capsys.readouterr()
+    code = main(["fleet", "admit", "sim-0002", str(rig.plant), "--manufacturer", "plantkg-sim",
+                 "--secret-file", str(secret), "--data-dir", str(rig.data)])
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    password = secret.read_text(encoding="utf-8").strip()
+    assert password not in out.out + out.err
+    process.wait_until(lambda: _login(rig.mqtt_port, "agv-sim-0002", password) == "Success", 60.0, 0.2,
+                       what="agv-sim-0002's user made by the manager's reconcile", child=rig.manager)
+    vehicle = process.spawn(
+        [sys.executable, "-m", "fleet.sim", "--broker", f"{MQTT_HOST}:{rig.mqtt_port}", "--manufacturer",
+         "plantkg-sim", "--serial-prefix", "sim-", "--count", "2", "--state-interval", "1",
+         "--username", "agv-{serial}", "--secret-ref", f"file:{tmp}/{{serial}}.pw"],
+        log_dir=tmp / "logs", name="vehicles-2", cwd=ROOT)
+    try:
+        row = rig.wait(lambda: (v := rig.vehicle("sim-0002")) and v.get("readySeconds") is not None
+                       and "pick" in v.get("skills", ()) and v, 60.0, "sim-0002 heard, described and applied")
+        assert row["connectionState"] == "ONLINE", row
+        text = (rig.data / "discovered" / "plantkg-sim--sim-0002.ttl").read_text(encoding="utf-8")
+        assert f'pk:secretRef "file:{secret}"' in text and "fleet:discovered true" in text
+        assert main(["fleet", "remove", "sim-0002", "--data-dir", str(rig.data)]) == 0
+        process.wait_until(lambda: _login(rig.mqtt_port, "agv-sim-0002", password) == "Not authorized", 60.0,
+                           0.2, what="agv-sim-0002's user removed by the manager's next reconcile",
+                           child=rig.manager)
+    finally:
+        process.stop(vehicle, grace=15.0)
+    assert _login(rig.mqtt_port, "agv-sim-0001", closed[1]["agv-sim-0001"]) == "Success"

@@ -150,3 +150,44 @@ def test_a_change_of_the_data_directory_by_a_person_makes_a_run(running: Any) ->
     process.wait_until(lambda: len(runs) == 4 and status(manager).get("vehicles") == [], 10.0,
                        what="a run after the removal")
     assert all(p.name != "acme--p-1.ttl" for p in runs[-1])
+
+
+def test_an_admitted_vehicle_makes_a_run_then_joins_when_heard_keeping_its_secret_ref(running: Any) -> None:
+    """``plantkg fleet admit`` while the manager runs: a run for the admission (its user), the
+    factsheet asked when it says ONLINE, its description joined with the ``pk:secretRef`` kept,
+    and its readiness measured from that ONLINE."""
+    from fleet.discovery.admission import admit
+
+    manager, link, runs = running
+    secret = manager.data.root.parent / "a-1.pw"
+    admit(DataDir(manager.data.root, render_record), manager.config.binding, "vda5050", "acme", "a-1", secret)
+    process.wait_until(lambda: len(runs) == 2, 10.0, what="a run after the admission")
+    assert f'pk:secretRef "file:{secret}"' in runs[1][1].read_text(encoding="utf-8")
+    link.put(d.topic("connection", "acme", "a-1"), d.connection("ONLINE", "acme", "a-1"), retained=True)
+    process.wait_until(lambda: ("acme", "a-1", "factsheetRequest") in link.sent, 10.0, what="its factsheet asked")
+    link.put(d.topic("factsheet", "acme", "a-1"), d.factsheet("acme", "a-1"))
+    row = process.wait_until(lambda: (v := next(iter(status(manager).get("vehicles", [])), None))
+                             and v["readySeconds"] is not None and v, 20.0, what="a-1 ready")
+    assert "pick" in row["skills"] and row["connectionState"] == "ONLINE"
+    text = (manager.data.discovered / "acme--a-1.ttl").read_text(encoding="utf-8")
+    assert f'pk:secretRef "file:{secret}"' in text and "fleet:discovered true" in text
+    [record] = manager.data.records()
+    assert not record.awaiting_description and record.secret_ref == f"file:{secret}"
+
+
+def test_a_paper_vehicle_admitted_under_another_manufacturer_keeps_one_file(running: Any) -> None:
+    """The paper's topics carry no manufacturer: a vehicle admitted as ``other`` that describes
+    itself as ``plantkg-sim`` is one vehicle, one file (the admitted one goes), its secret kept."""
+    from fleet.discovery.admission import admit
+
+    manager, link, runs = running
+    secret = manager.data.root.parent / "agv-7.pw"
+    admit(DataDir(manager.data.root, render_record), manager.config.binding, "paper-channels", "other", "agv-7",
+          secret)
+    process.wait_until(lambda: len(runs) == 2, 10.0, what="a run after the admission")
+    link.put("agv-7/description_channel", d.paper_description(), retained=True)
+    process.wait_until(lambda: manager.last_report and "plantkg-sim--agv-7" in manager.last_report["joined"], 20.0,
+                       what="agv-7 joined")
+    assert [p.name for p in manager.data.turtle_files()] == ["plantkg-sim--agv-7.ttl"]
+    [record] = manager.data.records()
+    assert record.secret_ref == f"file:{secret}" and record.manufacturer == "plantkg-sim"
