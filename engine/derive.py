@@ -7,8 +7,8 @@ run), only what the ontology concluded:
   ``pk:ip``, port = ``pk:port``; ``allow_anonymous`` = ``pk:allowAnonymous``, false on a
   ``pk:ContextBroker`` or a Mosquitto that does not say (closed by default: engine.derived.access), so
   a plan shows who may connect; users from ``pk:secretRef`` / ``pk:clientCertificate`` and the
-  bridges' principals; ``tls`` = ``pk:tls`` (a TLS-only listener, Mosquitto or a Kafka broker of
-  its own); ``certificate_port`` = ``pk:certificatePort`` (a TLS Mosquitto's certificate listener);
+  bridges' principals; ``tls`` = ``pk:tls`` (TLS-only listeners: a Mosquitto, a Kafka broker of
+  its own, every node of a Kafka cluster that says it); ``certificate_port`` = ``pk:certificatePort`` (a TLS Mosquitto's certificate listener);
   ``mqtt_port`` = ``pk:mqttPort``, the MQTT listener of a broker type that speaks MQTT beside its
   own protocol, which bridges from MQTT brokers connect to). A broker
   marked ``pk:external`` runs outside plantkg: it is left out of the brokers (and topics) to
@@ -92,6 +92,12 @@ ANONYMOUS_SAID = """SELECT ?b WHERE { ?b a pk:DeployedBroker ; pk:allowAnonymous
 #: a whole; the shapes require it open, and refuse the setting on a node).
 OPEN_CLUSTER_NODES = """
 SELECT ?b WHERE { ?b a pk:DeployedBroker ; pk:nodeOf ?c . ?c pk:allowAnonymous ?flag . FILTER (STR(?flag) IN ("true", "1")) }"""
+#: The nodes of a Kafka cluster that says ``pk:tls true``: every node's listeners speak TLS (a
+#: cluster speaks TLS as a whole; the shapes refuse the setting on a node, and
+#: engine.derived.access refuses a cluster whose nodes disagree, which only an unvalidated plant
+#: can make).
+TLS_CLUSTER_NODES = """
+SELECT ?b WHERE { ?b a pk:DeployedBroker ; pk:nodeOf ?c . ?c pk:tls ?flag . FILTER (STR(?flag) IN ("true", "1")) }"""
 
 TOPICS = """
 SELECT ?b ?t ?name WHERE {
@@ -251,6 +257,8 @@ def derive_parts(plant: PlantGraph, only: frozenset[str] | None = None, known: P
     said = frozenset(row["b"].value for row in select(ANONYMOUS_SAID))
     open_nodes = frozenset(row["b"].value for row in select(OPEN_CLUSTER_NODES))
     brokers = [replace(b, allow_anonymous=True) if b.iri in open_nodes else b for b in brokers]
+    tls_nodes = frozenset(row["b"].value for row in select(TLS_CLUSTER_NODES))
+    brokers = [replace(b, tls=True) if b.iri in tls_nodes else b for b in brokers]
     brokers = close_brokers(brokers, users, said | open_nodes)
     brokers = with_run_principals(brokers, run_principals(select, carried))  # the fleet manager's
     by_iri = {b.iri: b for b in brokers}

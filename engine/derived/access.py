@@ -23,8 +23,10 @@ of its topics the broker carries. Nothing here decides who may do what: the rule
   (a bridge worker into a closed Kafka and a MirrorMaker 2 at each closed end authenticate as
   plantkg's own principal, engine.security.kafka_client; bridges at a closed Mosquitto as their
   bridge principal);
-- :func:`with_plant_kafkas` tells each context broker the plant's closed Kafka brokers, where its
-  ``kafka://`` notifications log in as plantkg's own principal, and those that speak TLS;
+- :func:`with_plant_kafkas` tells each context broker the plant's closed Kafka brokers (a
+  cluster's nodes included), where its ``kafka://`` notifications log in as plantkg's own
+  principal, and those that speak TLS;
+- :func:`check_kafka_tls_supported` refuses a Kafka cluster whose nodes would not all speak TLS;
 - :func:`open_broker_warnings` and :func:`access_label` say, in a plan and in ``status``, which
   brokers anyone on the network may use.
 """
@@ -218,13 +220,15 @@ def with_bridge_principals(brokers: Iterable[BrokerSpec], bridges: Iterable[Brid
 
 
 def with_plant_kafkas(brokers: Iterable[BrokerSpec]) -> list[BrokerSpec]:
-    """The specs with each context broker told the plant's closed Kafka brokers of their own
+    """The specs with each context broker told the plant's closed Kafka brokers
     (``closed_kafkas``, ``host:port`` sorted): its ``kafka://`` notifications log in there as
     plantkg's own Kafka principal (engine.security.kafka_client), and only there, so plantkg's
     password never goes to a Kafka a subscription names that is not the plant's; and those that
-    speak TLS (``tls_kafkas``): its notifications reach them over TLS, trusting the plant CA only."""
+    speak TLS (``tls_kafkas``): its notifications reach them over TLS, trusting the plant CA only.
+    A Kafka cluster's nodes with the broker role count each (a subscription's bootstrap names one
+    or more of them); a controller-only node serves no client."""
     brokers = list(brokers)
-    own = [b for b in brokers if b.kind == "kafka" and b.kafka is None]
+    own = [b for b in brokers if b.kind == "kafka" and (b.kafka is None or "broker" in b.kafka.roles)]
     closed = tuple(sorted(f"{host_in_url(b.host)}:{b.port}" for b in own if kafka_client.is_closed(b)))
     tls = tuple(sorted(f"{host_in_url(b.host)}:{b.port}" for b in own if b.tls))
     return [replace(b, closed_kafkas=closed, tls_kafkas=tls) if b.kind in TOKEN_KINDS else b for b in brokers]
@@ -317,12 +321,21 @@ def open_broker_warnings(brokers: Iterable[BrokerSpec]) -> tuple[str, ...]:
 
 
 def check_kafka_tls_supported(brokers: Iterable[BrokerSpec]) -> None:
-    """Refuse, before anything runs, ``pk:tls`` where plantkg would leave a Kafka plain: on a
-    Kafka cluster's node (TLS is built for a Kafka broker of its own). A bridge worker and a
-    MirrorMaker 2 speak TLS to a TLS Kafka."""
+    """Refuse, before anything runs, a Kafka cluster whose nodes do not all speak TLS or all speak
+    plain (a node that says ``pk:tls true`` of its own while its cluster does not: the shapes
+    refuse it first). A cluster's nodes talk to each other on the listeners clients use, so a
+    mixed cluster could not form its quorum. A cluster that says ``pk:tls true`` speaks TLS on
+    every node (engine.derive); bridge workers, MirrorMaker 2 and plantkg's other clients speak
+    TLS to it."""
+    by_cluster: dict[str, list[BrokerSpec]] = defaultdict(list)
     for spec in brokers:
-        if spec.kind == "kafka" and spec.tls and spec.kafka is not None:
+        if spec.kind == "kafka" and spec.kafka is not None:
+            by_cluster[spec.kafka.cluster].append(spec)
+    for cluster, nodes in sorted(by_cluster.items()):
+        tls = sorted(n.id for n in nodes if n.tls)
+        if tls and len(tls) != len(nodes):
             raise AccessNotSupportedError(
-                f"broker {spec.id!r} is a node of Kafka cluster {spec.kafka.cluster!r} and says pk:tls "
-                "true: plantkg renders TLS listeners for a Kafka broker of its own only (yet)",
-                hint=f"remove pk:tls from {spec.id!r}, or make it a Kafka broker of its own")
+                f"Kafka cluster {cluster!r}: its nodes {', '.join(tls)} say pk:tls true but not the "
+                "cluster: a cluster's nodes speak TLS all together or none",
+                hint=f"say pk:tls true on cluster {cluster!r} (every node then speaks TLS), and remove "
+                     "pk:tls from its nodes")

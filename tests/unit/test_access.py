@@ -291,20 +291,24 @@ def test_a_context_broker_is_told_the_plants_closed_kafkas(tmp_path: Path, kafka
     assert specs["k1"].closed_kafkas == () and specs["m1"].closed_kafkas == ()  # only context brokers
 
 
-def test_closed_kafkas_name_ipv6_addresses_in_brackets_and_skip_cluster_nodes() -> None:
+def test_closed_kafkas_name_ipv6_addresses_in_brackets_and_count_a_clusters_broker_nodes() -> None:
     from engine.derived.access import with_plant_kafkas  # noqa: PLC0415
     from engine.model import KafkaNode  # noqa: PLC0415
     node = _spec(id="n1", kind="kafka", host="127.0.0.7", port=9092, allow_anonymous=True,
                  kafka=KafkaNode("plant", "A" * 22, 1, ("broker", "controller"), ()))
+    closed = _spec(id="c1", kind="kafka", host="127.0.0.8", port=9092, allow_anonymous=False,
+                   kafka=KafkaNode("site", "B" * 22, 1, ("broker",), ()))
+    voter = _spec(id="c0", kind="kafka", host="127.0.0.8", port=9093, allow_anonymous=False,
+                  kafka=KafkaNode("site", "B" * 22, 0, ("controller",), ()))  # serves no client
     specs = with_plant_kafkas([_spec(id="k6", kind="kafka", host="::1", port=9092, allow_anonymous=False),
                                 _spec(id="k4", kind="kafka", host="127.0.0.4", port=9094, allow_anonymous=False),
                                 _spec(id="open", kind="kafka", host="127.0.0.6", port=9092, allow_anonymous=True),
-                                node, _spec(id="cb", kind="ngsi-v2", allow_anonymous=False)])
-    assert specs[-1].closed_kafkas == ("127.0.0.4:9094", "[::1]:9092")
+                                node, closed, voter, _spec(id="cb", kind="ngsi-v2", allow_anonymous=False)])
+    assert specs[-1].closed_kafkas == ("127.0.0.4:9094", "127.0.0.8:9092", "[::1]:9092")
 
 
 def test_a_context_broker_is_told_the_plants_kafkas_that_speak_tls() -> None:
-    """Its kafka:// notifications reach them over TLS; closed or open, a cluster's node never."""
+    """Its kafka:// notifications reach them over TLS, a TLS cluster's nodes included."""
     from engine.derived.access import with_plant_kafkas  # noqa: PLC0415
     from engine.model import KafkaNode  # noqa: PLC0415
     node = _spec(id="n1", kind="kafka", host="127.0.0.7", port=9092, allow_anonymous=True, tls=True,
@@ -314,6 +318,6 @@ def test_a_context_broker_is_told_the_plants_kafkas_that_speak_tls() -> None:
                                 _spec(id="kp", kind="kafka", host="127.0.0.5", port=9092, allow_anonymous=False),
                                 _spec(id="m", kind="mosquitto", host="127.0.0.6", port=8883, tls=True),
                                 node, _spec(id="cb", kind="ngsi-v2", allow_anonymous=False)])
-    assert specs[-1].tls_kafkas == ("127.0.0.4:9093", "[::1]:9094")
-    assert specs[-1].closed_kafkas == ("127.0.0.4:9093", "127.0.0.5:9092")
+    assert specs[-1].tls_kafkas == ("127.0.0.4:9093", "127.0.0.7:9092", "[::1]:9094")
+    assert specs[-1].closed_kafkas == ("127.0.0.4:9093", "127.0.0.5:9092")  # n1's cluster is open
     assert all(s.tls_kafkas == () for s in specs[:-1])  # only context brokers are told

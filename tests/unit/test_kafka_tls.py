@@ -1,7 +1,8 @@
 """TLS for a Kafka broker of its own (issue 13), the parts without a broker: the listeners and ssl
 lines of server.properties, the PEM keystore the driver renders from the plant CA (kept while
 current, 0600 when the agent writes it), the librdkafka settings of plantkg's clients and of a
-bridge worker, and what is refused before anything runs (a cluster's node, a MirrorMaker 2 end).
+bridge worker and a MirrorMaker 2, and what is refused before anything runs (a cluster whose nodes
+disagree). A cluster's TLS nodes: tests/unit/test_kafka_cluster_tls.py.
 The broker itself: tests/integration/test_kafka_tls.py."""
 
 from __future__ import annotations
@@ -62,10 +63,7 @@ def test_a_tls_kafka_listens_with_tls_only(tmp_path: Path, password: str | None,
     assert "ssl." not in plain and "SSL" not in plain
 
 
-def test_tls_is_refused_on_a_cluster_node_and_a_path_that_breaks_the_file(tmp_path: Path) -> None:
-    with pytest.raises(ConfigValueError, match="broker of its own only"):
-        KafkaNodeConfig("127.0.0.3", 9092, 9093, tmp_path / "data", voters=((1, "127.0.0.3", 9093),),
-                        tls=_tls(tmp_path))
+def test_a_path_that_breaks_the_file_is_refused(tmp_path: Path) -> None:
     with pytest.raises(ConfigValueError, match="tls.keystore"):
         KafkaTls(Path("/tmp/a\nssl.client.auth=none"), tmp_path / "ca.pem")
 
@@ -149,12 +147,16 @@ def test_a_bridge_worker_speaks_tls_to_a_tls_kafka(tmp_path: Path) -> None:
         WorkerConfig.from_json(json.dumps({**json.loads(cfg.to_json()), "kafka_ca_file": "relative/ca.pem"}))
 
 
-def test_tls_on_a_cluster_node_is_refused() -> None:
-    node = KafkaNode(cluster="c", node_id=1, roles=("broker", "controller"), controller_port=9093,
-                     voters=(), cluster_id="AAAAAAAAAAAAAAAAAAAAAA", replication=1)
-    with pytest.raises(AccessNotSupportedError, match="'kf' is a node of Kafka cluster 'c'.*pk:tls"):
-        check_kafka_tls_supported([_spec(tls=True, kafka=node)])
-    check_kafka_tls_supported([_spec(tls=True), _spec(kafka=node)])  # a TLS mirror end is built
+def test_a_cluster_whose_nodes_disagree_on_tls_is_refused() -> None:
+    def node(node_id: int, **kw: object) -> BrokerSpec:
+        kafka = KafkaNode(cluster="c", node_id=node_id, roles=("broker", "controller"), controller_port=9093,
+                          voters=(), cluster_id="AAAAAAAAAAAAAAAAAAAAAA", replication=1)
+        return BrokerSpec(f"k{node_id}", f"urn:k{node_id}", f"k{node_id}", "kafka", f"127.0.0.{node_id}", 9092,
+                          kafka=kafka, **kw)  # type: ignore[arg-type]
+    with pytest.raises(AccessNotSupportedError, match="cluster 'c': its nodes k1 say pk:tls true but not"):
+        check_kafka_tls_supported([node(1, tls=True), node(2)])
+    check_kafka_tls_supported([node(1, tls=True), node(2, tls=True)])  # the cluster said it
+    check_kafka_tls_supported([node(1), node(2), _spec(tls=True)])  # a TLS broker of its own beside a plain cluster
 
 
 def test_a_mirror_speaks_tls_to_a_tls_kafka_end(tmp_path: Path) -> None:

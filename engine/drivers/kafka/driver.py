@@ -83,7 +83,7 @@ class KafkaDriver:
             voters=tuple((v.node_id, v.host, v.port) for v in node.voters),
             replication=node.replication, min_insync=node.min_insync,
             internal_password=access.internal_password() if access.is_closed(spec) else None,
-            tls=tls.node_tls(spec, broker_dir),  # refused: TLS is for a broker of its own only
+            tls=tls.node_tls(spec, broker_dir),  # the cluster says pk:tls: every node's listeners
         )
 
     def validate(self, spec: BrokerSpec) -> None:

@@ -45,7 +45,8 @@ AUTHORIZER = "org.apache.kafka.metadata.authorizer.StandardAuthorizer"
 class KafkaTls:
     """A TLS-only node's files, both PEM (Kafka 3.x reads PEM stores): ``keystore``, the node's
     private key (unencrypted PKCS#8) followed by its certificate; ``truststore``, the plant CA's
-    certificate (the node verifies its own controller listener against it)."""
+    certificate (the node verifies against it the controller listeners it connects to, its own
+    or the quorum's, and, in a cluster, the other nodes' broker listeners)."""
 
     keystore: Path
     truststore: Path
@@ -76,7 +77,7 @@ class KafkaNodeConfig:
     replication: int = 1
     min_insync: int | None = None
     internal_password: str | None = None  # closed: SASL on every listener (docs/security.md)
-    tls: KafkaTls | None = None           # every listener speaks TLS only (a node alone only)
+    tls: KafkaTls | None = None           # every listener speaks TLS only (client, inter-broker, quorum)
 
     def __post_init__(self) -> None:
         host = check_host("host", self.host)
@@ -114,9 +115,6 @@ class KafkaNodeConfig:
                                    "expected 32 to 128 hex digits (engine.security.kafka_client.password)")
         if self.tls is not None and not isinstance(self.tls, KafkaTls):
             raise ConfigValueError("tls", self.tls, "expected a KafkaTls or None")
-        if self.tls is not None and self.voters:
-            raise ConfigValueError("tls", "true", "TLS is built for a Kafka broker of its own only, "
-                                   "not for a cluster's nodes (yet)")
         advertised = check_host("advertised_host", self.advertised_host or host)
         if advertised in ("0.0.0.0", "::"):
             raise ConfigValueError(
@@ -188,8 +186,12 @@ def listener_protocol(closed: bool, tls: bool) -> str:
 
 def _tls_lines(tls: KafkaTls) -> list[str]:
     """A TLS-only node (issue 13): its certificate and key from a PEM keystore, the plant CA as
-    its truststore (its own client side: the controller listener), TLS 1.2 or newer, no client
-    certificates asked, the peer's address checked against its certificate."""
+    its truststore, TLS 1.2 or newer, no client certificates asked, the peer's address checked
+    against its certificate. Unprefixed ``ssl.*`` settings apply to every listener of the node
+    and to its own client side (Kafka's fallback for a listener without
+    ``listener.name.<name>.ssl.*``): the client listener, which is also the inter-broker one,
+    and the controller listener, on the server side and when the node connects to the quorum's
+    voters and to the other nodes (each at the host its certificate names)."""
     return [
         "ssl.keystore.type=PEM",
         f"ssl.keystore.location={tls.keystore}",

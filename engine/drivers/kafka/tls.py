@@ -1,8 +1,10 @@
-"""TLS for a Kafka broker of its own (``pk:tls true``; docs/security.md, "TLS (Kafka)").
+"""TLS for a Kafka broker of its own or every node of a Kafka cluster (``pk:tls true`` on the
+broker or on the cluster; docs/security.md, "TLS (Kafka)").
 
-The broker's client listener (and its controller listener) speak TLS only, with a certificate for
-its address issued by its agent from the plant CA (engine.security.ca), the same way as a
-Mosquitto's. Kafka 3.x reads PEM stores, so the broker folder holds:
+The node's listeners (client, inter-broker, controller) speak TLS only, with a certificate for its
+address issued by its agent from the plant CA (engine.security.ca), the same way as a
+Mosquitto's; a cluster's nodes each get their own, and verify each other against the plant CA.
+Kafka 3.x reads PEM stores, so the broker folder holds:
 
 - ``tls-keystore.pem`` (0600, like every rendered file): the broker's private key (unencrypted
   PKCS#8) followed by its certificate (``ssl.keystore.type=PEM``);
@@ -12,8 +14,10 @@ The key and certificate are kept while current (so re-rendering gives the same f
 restart the broker) and issued again when there is none, when the certificate expires within 30
 days, names another address or was signed by another CA.
 
-plantkg's own Kafka clients of such a broker (:func:`client_settings`: the driver's AdminClient and
-health check) speak TLS and verify the broker against the plant CA only, address included.
+plantkg's own Kafka clients of such a broker or cluster (engine.security.kafka_client: the
+driver's AdminClient and health check, the bridge workers, MirrorMaker 2, ``plantkg check``'s taps,
+the context broker's ``kafka://`` notifications) speak TLS and verify the broker against the plant
+CA only, address included.
 """
 
 from __future__ import annotations
