@@ -162,6 +162,23 @@ def stop_all(children: Sequence[Child], grace: float = 10.0) -> list[int]:
     return [_finish_stop(child, grace, end) for child in children]
 
 
+def stop_each(children: Sequence[Child], graces: Sequence[float]) -> list[Exception | None]:
+    """:func:`stop_all` with a grace per child and an outcome per child: every group is sent
+    SIGTERM first, then each is waited for (SIGKILL after its grace); a child that cannot be
+    stopped is its own error (None: stopped) and the others are still waited for."""
+    for child in children:
+        _signal_group(child, signal.SIGTERM)
+    now = time.monotonic()
+    errors: list[Exception | None] = []
+    for child, grace in zip(children, graces, strict=True):
+        try:
+            _finish_stop(child, grace, now + grace)
+            errors.append(None)
+        except Exception as exc:  # noqa: BLE001 - this child's own error
+            errors.append(exc)
+    return errors
+
+
 def _finish_stop(child: Child, grace: float, end: float) -> int:
     """Wait for a signalled child until ``end`` (SIGKILL then), reap it, then its group."""
     if not wait_exit(child.popen, max(0.0, end - time.monotonic())):

@@ -67,13 +67,32 @@ class Changes:
     def put_broker(self, spec: BrokerSpec, owner: str | None) -> ObservedBroker:
         return self.brokers.put(spec, owner)
 
+    def put_brokers(self, requests: list[tuple[BrokerSpec, str | None]]) -> list[ObservedBroker | Exception]:
+        """:meth:`put_broker` for many (distinct ids) at once; each its answer or its error."""
+        return self.brokers.put_many(requests)
+
     def delete_broker(self, broker_id: str, owner: str | None) -> None:
         """Stop the broker; the bridge workers it carries go with it."""
-        self.brokers.delete(broker_id, owner)
-        if self.workers is not None:
-            for bridge in self.workers.list():
-                if bridge.spec.local.id == broker_id:
-                    self.workers.delete(broker_id, bridge.spec.remote.id)
+        (error,) = self.delete_brokers([(broker_id, owner)])
+        if error is not None:
+            raise error
+
+    def delete_brokers(self, requests: list[tuple[str, str | None]]) -> list[Exception | None]:
+        """:meth:`delete_broker` for many (distinct ids) at once (every broker gets SIGTERM before
+        any is waited for); each its error (None: deleted)."""
+        errors = self.brokers.delete_many(requests)
+        if self.workers is None:
+            return errors
+        for i, (broker_id, _) in enumerate(requests):
+            if errors[i] is not None:
+                continue
+            try:
+                for bridge in self.workers.list():
+                    if bridge.spec.local.id == broker_id:
+                        self.workers.delete(broker_id, bridge.spec.remote.id)
+            except Exception as exc:  # noqa: BLE001 - this broker's own error
+                errors[i] = exc
+        return errors
 
     def put_topic(self, topic: TopicSpec, owner: str | None) -> ObservedTopic:
         return self.brokers.put_topic(topic, owner)

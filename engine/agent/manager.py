@@ -34,7 +34,8 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from collections.abc import Callable, Sequence
+from typing import Any, TypeVar
 
 from engine import netutil, process
 from engine.agent.folder import BrokerFolder, PidRecord
@@ -49,6 +50,7 @@ from engine.agent.procs import (
     processes_of,
     started_at,
     stop_foreign,
+    stop_together,
 )
 from engine.agent.save_tick import SaveTicker
 from engine.agent.supervision import backoff, start_supervisor
@@ -78,8 +80,10 @@ log = logging.getLogger(__name__)
 
 BROKERS_DIR = "brokers"
 REMOVED_DIR = "removed"
-#: Seconds between polls of a starting broker's port, per broker starting on the agent.
+#: Seconds between polls of a starting broker's port.
 READY_POLL = 0.00025
+#: Threads that render and spawn the brokers of one put_many (a spawn waits for its child's exec).
+SPAWN_THREADS = 8
 
 
 class BrokerNotFoundError(EngineError):
@@ -136,6 +140,39 @@ class _Broker:
         return self.owners
 
 
+@dataclass(eq=False)
+class _Waiting:
+    """A broker being awaited by :meth:`BrokerManager._wait_all_healthy`: its poll state."""
+
+    b: _Broker
+    deadline: float                        # monotonic
+    slow: float                            # seconds between health checks once it listens
+    listening: bool = False
+    next_poll: float = 0.0
+
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+def _each(work: Callable[[T], R], items: list[T], pool: ThreadPoolExecutor | None = None,
+          ) -> list[R | Exception]:
+    """``work`` of every item, from up to SPAWN_THREADS threads (``pool``'s if given); each its
+    result or its error."""
+    def one(item: T) -> R | Exception:
+        try:
+            return work(item)
+        except Exception as exc:  # noqa: BLE001 - this item's own error
+            return exc
+
+    if len(items) <= 1:
+        return [one(item) for item in items]
+    if pool is not None:
+        return list(pool.map(one, items))
+    with ThreadPoolExecutor(max_workers=min(len(items), SPAWN_THREADS)) as pool:
+        return list(pool.map(one, items))
+
+
 class BrokerManager:
     """All brokers of one agent; thread-safe."""
 
@@ -157,7 +194,6 @@ class BrokerManager:
         self.tick = tick
         self._lock = threading.Lock()
         self._brokers: dict[str, _Broker] = {}
-        self._starting = 0  # brokers whose start is being waited for (READY_POLL)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -210,57 +246,128 @@ class BrokerManager:
     def put(self, spec: BrokerSpec, owner: str | None = None) -> ObservedBroker:
         """Make broker ``spec.id`` run as ``spec``; return it once healthy. ``owner``: the plant
         that owns it (refused if another one does; None keeps the recorded owner)."""
-        driver = self.registry.get(spec.kind)
-        driver.validate(spec)
-        b = self._claim(spec, driver)
+        (result,) = self.put_many([(spec, owner)])
+        if isinstance(result, Exception):
+            raise result
+        return result
+
+    def put_many(self, requests: Sequence[tuple[BrokerSpec, str | None]]) -> list[ObservedBroker | Exception]:
+        """:meth:`put` for many brokers (distinct ids) at once: each is checked, rendered and
+        spawned (from a few threads: a spawn waits for its child's exec), then all are awaited in
+        one polling loop (:meth:`_wait_all_healthy`), not a thread each. Each gets its own answer
+        or error, in order; one that fails to start fails alone, as its single PUT would."""
+        ids = [spec.id for spec, _ in requests]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"put_many takes distinct broker ids, not {ids}")
+        # The operation locks in id order: two batches sharing brokers cannot deadlock.
+        claimed: dict[str, _Broker] = {}
+        results: list[ObservedBroker | Exception | None] = [None] * len(requests)
         try:
-            owner = claim(b.record().owner, owner, f"broker {spec.id!r}")
-            if b.held is not None:
-                raise BrokerHeldError(spec.id, "a PUT")
-            if self._unchanged(b, spec, driver):
-                if b.spec != spec:
-                    b.folder.write_spec(spec)
-                    self._update(b, spec=spec)
-                b.record().set_owner(owner)
-                if b.status is not BrokerStatus.RUNNING:
-                    self._wait_healthy(b)
-                return self._observe(b)
-            if b.proc is not None:
-                self._stop_proc(b)
-            if b.spec.kind != spec.kind:
-                self._retire_folder(b)
-                b.owners = Owners(b.folder.path)  # a new broker: its topics and bridges went
-            b.folder.path.mkdir(parents=True, exist_ok=True)
-            b.folder.write_spec(spec)
-            b.record().set_owner(owner)
-            self._update(b, spec=spec, driver=driver, failures=0, next_start=None, last_error=None)
-            try:
-                self._start(b, restart=False)
-            except Exception as exc:
-                self._update(b, status=BrokerStatus.FAILED, last_error=f"start failed: {exc}")
-                raise
-            self._wait_healthy(b)
-            return self._observe(b)
+            for i in sorted(range(len(requests)), key=lambda i: ids[i]):
+                spec = requests[i][0]
+                try:
+                    driver = self.registry.get(spec.kind)
+                    driver.validate(spec)
+                except Exception as exc:  # noqa: BLE001 - this broker's own error
+                    results[i] = exc
+                    continue
+                claimed[spec.id] = self._claim(spec, driver)
+            todo = [i for i in range(len(requests)) if ids[i] in claimed]
+            begun = _each(lambda i: self._put_begin(claimed[ids[i]], *requests[i]), todo)
+            waiting = [i for i, outcome in zip(todo, begun) if outcome is True]
+            for i, outcome in zip(todo, begun):
+                if isinstance(outcome, Exception):
+                    results[i] = outcome
+            errors = self._wait_all_healthy([claimed[ids[i]] for i in waiting])
+            for i, error in zip(waiting, errors):
+                if error is not None:
+                    results[i] = error
+            for i in todo:
+                if results[i] is None:
+                    results[i] = self._observe(claimed[ids[i]])
         finally:
-            b.op.release()
+            for b in claimed.values():
+                b.op.release()
+        return [r for r in results if r is not None]
+
+    def _put_begin(self, b: _Broker, spec: BrokerSpec, owner: str | None) -> bool:
+        """The part of a PUT before its wait (``b``'s operation lock held): True if the broker must
+        now be awaited, False if it runs as asked already."""
+        driver = self.registry.get(spec.kind)
+        owner = claim(b.record().owner, owner, f"broker {spec.id!r}")
+        if b.held is not None:
+            raise BrokerHeldError(spec.id, "a PUT")
+        if self._unchanged(b, spec, driver):
+            if b.spec != spec:
+                b.folder.write_spec(spec)
+                self._update(b, spec=spec)
+            b.record().set_owner(owner)
+            return b.status is not BrokerStatus.RUNNING
+        if b.proc is not None:
+            self._stop_proc(b)
+        if b.spec.kind != spec.kind:
+            self._retire_folder(b)
+            b.owners = Owners(b.folder.path)  # a new broker: its topics and bridges went
+        b.folder.path.mkdir(parents=True, exist_ok=True)
+        b.folder.write_spec(spec)
+        b.record().set_owner(owner)
+        self._update(b, spec=spec, driver=driver, failures=0, next_start=None, last_error=None)
+        try:
+            self._start(b, restart=False)
+        except Exception as exc:
+            self._update(b, status=BrokerStatus.FAILED, last_error=f"start failed: {exc}")
+            raise
+        return True
 
     def delete(self, broker_id: str, owner: str | None = None) -> None:
         """Stop the broker and move its folder to ``<state-dir>/removed/`` (idempotent); refused
         if ``owner`` is given and another plant owns the broker."""
-        with self._lock:
-            b = self._brokers.get(broker_id)
-        if b is None:
-            return
-        with b.op:
-            if b.deleted:
-                return
-            claim(b.record().owner, owner, f"broker {broker_id!r}")
-            if b.proc is not None:
-                self._stop_proc(b)
-            self._retire_folder(b)
-            with self._lock:
-                b.deleted = True
-                self._brokers.pop(broker_id, None)
+        (error,) = self.delete_many([(broker_id, owner)])
+        if error is not None:
+            raise error
+
+    def delete_many(self, requests: Sequence[tuple[str, str | None]]) -> list[Exception | None]:
+        """:meth:`delete` for many brokers (distinct ids) at once: every process is sent SIGTERM,
+        then all are waited for (``engine.process.stop_all``), then the folders are moved away.
+        Each gets its own error (None: deleted), in order."""
+        ids = [broker_id for broker_id, _ in requests]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"delete_many takes distinct broker ids, not {ids}")
+        errors: list[Exception | None] = [None] * len(requests)
+        held: list[tuple[int, _Broker]] = []
+        try:
+            for i in sorted(range(len(requests)), key=lambda i: ids[i]):  # locks in id order
+                with self._lock:
+                    b = self._brokers.get(ids[i])
+                if b is None:
+                    continue
+                b.op.acquire()
+                if b.deleted:
+                    b.op.release()
+                    continue
+                held.append((i, b))
+                try:
+                    claim(b.record().owner, requests[i][1], f"broker {ids[i]!r}")
+                except Exception as exc:  # noqa: BLE001 - this broker's own error
+                    errors[i] = exc
+            going = [(i, b) for i, b in held if errors[i] is None]
+            stopped = self._stop_procs([b for _, b in going if b.proc is not None])
+            for i, b in going:
+                if stopped.get(b.spec.id) is not None:
+                    errors[i] = stopped[b.spec.id]
+                    continue
+                try:
+                    self._retire_folder(b)
+                except Exception as exc:  # noqa: BLE001 - this broker's own error
+                    errors[i] = exc
+                    continue
+                with self._lock:
+                    b.deleted = True
+                    self._brokers.pop(b.spec.id, None)
+        finally:
+            for _, b in held:
+                b.op.release()
+        return errors
 
     def put_topic(self, topic: TopicSpec, owner: str | None = None) -> ObservedTopic:
         """Create or alter a topic; an implicit-topics driver (MQTT) only validates, and the agent
@@ -598,64 +705,122 @@ class BrokerManager:
         log.info("broker %s (%s) started, pid %d", spec.id, driver.kind, proc.pid)
 
     def _wait_healthy(self, b: _Broker) -> None:
-        """Poll until the driver's health check passes (RUNNING) or its start deadline passes.
+        (error,) = self._wait_all_healthy([b])
+        if error is not None:
+            raise error
 
-        Until the broker's port accepts TCP connections, only that is polled, every
-        ``READY_POLL`` s per broker starting on this agent (a refused connect costs microseconds;
-        Mosquitto listens ~6 ms after spawn, and every poll interval of slack was added to each
-        deployment, so one broker is polled at sub-ms, and N starting together share the rate);
-        then the driver's own check, at most every 1/5000 of its start deadline (Mosquitto 2 ms,
-        Kafka's 90 s -> 18 ms)."""
+    def _wait_all_healthy(self, brokers: list[_Broker]) -> list[Exception | None]:
+        """Poll every broker in one loop until it passes the driver's health check (RUNNING),
+        exits (FAILED, ProcessError) or passes its start deadline (BrokerUnavailableError); each
+        one's error (None: healthy), in order.
+
+        Until a broker's port accepts TCP connections, only that is polled, every ``READY_POLL``
+        s (a refused connect costs microseconds; Mosquitto listens ~6 ms after spawn, and every
+        poll interval of slack was added to each deployment); then the driver's own check, at
+        most every 1/5000 of its start deadline (Mosquitto 2 ms, Kafka's 90 s -> 18 ms). One loop
+        for N brokers: N threads each polling would fight over the GIL and the CPUs."""
+        start = time.monotonic()
+        waits = [_Waiting(b, start + b.driver.start_deadline, min(0.25, b.driver.start_deadline / 5000))
+                 for b in brokers if b.driver is not None]
+        assert len(waits) == len(brokers) and all(b.proc is not None for b in brokers)
+        errors: dict[int, Exception | None] = {}
+        with ThreadPoolExecutor(max_workers=SPAWN_THREADS, thread_name_prefix="health") as pool:
+            self._poll_all(waits, errors, pool)
+        return [errors[i] for i in range(len(waits))]
+
+    def _poll_all(self, waits: list[_Waiting], errors: dict[int, Exception | None],
+                  pool: ThreadPoolExecutor) -> None:
+        """The loop of :meth:`_wait_all_healthy`: fills ``errors`` for every broker."""
+        while len(errors) < len(waits):
+            due = [i for i, w in enumerate(waits) if i not in errors and time.monotonic() >= w.next_poll]
+            # Process and port of each (microseconds), then the health checks of those listening
+            # from a few threads (a check is a client's round trip; Kafka's may take a second).
+            listening = []
+            for i in due:
+                try:
+                    if self._poll_port(waits[i]):
+                        listening.append(i)
+                except ProcessError as exc:
+                    self._update(waits[i].b, proc=None, status=BrokerStatus.FAILED, last_error=exc.message)
+                    errors[i] = exc
+            checks = _each(lambda i: waits[i].b.driver.health(waits[i].b.spec, 1.0),  # type: ignore[union-attr]
+                           listening, pool)
+            for i, healthy in zip(listening, checks):
+                if isinstance(healthy, Exception):  # its single PUT would have raised it too
+                    errors[i] = healthy
+                elif healthy:
+                    self._update(waits[i].b, status=BrokerStatus.RUNNING, healthy_since=time.monotonic())
+                    errors[i] = None
+            now = time.monotonic()
+            for i in due:
+                w = waits[i]
+                if i in errors:
+                    continue
+                if now >= w.deadline:
+                    errors[i] = self._still_starting(w.b)
+                else:
+                    w.next_poll = now + (w.slow if w.listening else READY_POLL)
+            pending = [w.next_poll for i, w in enumerate(waits) if i not in errors]
+            if pending:
+                pause = min(pending) - time.monotonic()
+                if pause > 0:
+                    time.sleep(pause)
+
+    @staticmethod
+    def _poll_port(w: _Waiting) -> bool:
+        """Whether a starting broker's port accepts connections (then it is due a health check);
+        ProcessError if its process is gone."""
+        b = w.b
         driver, spec, proc = b.driver, b.spec, b.proc
         assert driver is not None and proc is not None
-        listening = [False]
-        slow = min(0.25, driver.start_deadline / 5000)
+        if not proc.alive():
+            code = proc.exit_code()
+            raise ProcessError(
+                f"broker {spec.id!r} ({driver.kind}) exited"
+                + (f" with code {code}" if code is not None else "")
+                + f" while starting; log {log_file(b.folder.path, driver.kind)} ends with:\n"
+                + _last_lines(proc.log_tail())
+            )
+        if not w.listening:
+            w.listening = netutil.port_open(spec.host, spec.port, timeout=0.05)
+        return w.listening
 
-        def healthy() -> bool:
-            if not proc.alive():
-                code = proc.exit_code()
-                raise ProcessError(
-                    f"broker {spec.id!r} ({driver.kind}) exited"
-                    + (f" with code {code}" if code is not None else "")
-                    + f" while starting; log {log_file(b.folder.path, driver.kind)} ends with:\n"
-                    + _last_lines(proc.log_tail())
-                )
-            if not listening[0]:
-                if not netutil.port_open(spec.host, spec.port, timeout=0.05):
-                    return False
-                listening[0] = True
-            return driver.health(spec, 1.0)
-
-        def interval() -> float:  # reads a counter (no lock: 100 starting brokers ask it often)
-            return slow if listening[0] else min(slow, READY_POLL * max(1, self._starting))
-
-        with self._lock:
-            self._starting += 1
-        try:
-            process.wait_until(healthy, driver.start_deadline, interval,
-                               what=f"broker {spec.id!r} ({driver.kind}) to answer its health check")
-        except ProcessError as exc:
-            self._update(b, proc=None, status=BrokerStatus.FAILED, last_error=exc.message)
-            raise
-        except WaitTimeoutError as exc:
-            self._update(b, last_error=exc.message)
-            raise BrokerUnavailableError(
-                f"broker {spec.id!r} is still starting after {driver.start_deadline:.0f} s",
-                hint="PUT it again to keep waiting; see its log "
-                f"{log_file(b.folder.path, driver.kind)}",
-            ) from exc
-        finally:
-            with self._lock:
-                self._starting -= 1
-        self._update(b, status=BrokerStatus.RUNNING, healthy_since=time.monotonic())
+    def _still_starting(self, b: _Broker) -> BrokerUnavailableError:
+        assert b.driver is not None
+        message = (f"broker {b.spec.id!r} ({b.driver.kind}) did not answer its health check "
+                   f"within {b.driver.start_deadline:.0f} s")
+        self._update(b, last_error=message)
+        return BrokerUnavailableError(
+            f"broker {b.spec.id!r} is still starting after {b.driver.start_deadline:.0f} s",
+            hint="PUT it again to keep waiting; see its log "
+            f"{log_file(b.folder.path, b.driver.kind)}",
+        )
 
     def _stop_proc(self, b: _Broker) -> None:
-        assert b.proc is not None
-        grace = b.driver.stop_grace if b.driver is not None else 30.0
-        b.proc.stop(grace)
-        b.folder.remove_pid()
-        self._update(b, proc=None, status=BrokerStatus.STOPPED, healthy_since=None, next_start=None)
-        log.info("broker %s stopped", b.spec.id)
+        error = self._stop_procs([b]).get(b.spec.id)
+        if error is not None:
+            raise error
+
+    def _stop_procs(self, brokers: list[_Broker]) -> dict[str, Exception]:
+        """Stop the brokers' processes together (SIGTERM to all, then wait for all: N take as long
+        as the slowest); each stopped one STOPPED without its pid.json; the errors by broker id."""
+        procs = [b.proc for b in brokers]
+        assert all(p is not None for p in procs)
+        grace = [b.driver.stop_grace if b.driver is not None else 30.0 for b in brokers]
+        failed = stop_together(procs, grace)  # type: ignore[arg-type]
+        errors: dict[str, Exception] = {}
+        for b, error in zip(brokers, failed):
+            if error is not None:
+                errors[b.spec.id] = error
+                continue
+            try:
+                b.folder.remove_pid()
+            except OSError as exc:
+                errors[b.spec.id] = exc
+                continue
+            self._update(b, proc=None, status=BrokerStatus.STOPPED, healthy_since=None, next_start=None)
+            log.info("broker %s stopped", b.spec.id)
+        return errors
 
     def _retire_folder(self, b: _Broker) -> None:
         """Move the folder to removed/<id>.<UTC time> (logs and data kept for a post-mortem)."""

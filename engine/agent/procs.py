@@ -13,6 +13,8 @@ from __future__ import annotations
 import functools
 import os
 import signal
+import threading
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -141,6 +143,31 @@ class AdoptedProcess:
 
     def log_tail(self, max_bytes: int = 2000) -> str:
         return process.read_tail(self.log_path, max_bytes)
+
+
+def stop_together(procs: Sequence[BrokerProcess], graces: Sequence[float]) -> list[Exception | None]:
+    """Stop many brokers at once, each with its grace: the agent's own children are all sent
+    SIGTERM, then waited for (:func:`engine.process.stop_each`); adopted ones are stopped from a
+    thread each meanwhile. Each one's error (None: stopped), in order."""
+    errors: list[Exception | None] = [None] * len(procs)
+    own = [i for i, p in enumerate(procs) if isinstance(p, SpawnedProcess)]
+    other = [i for i in range(len(procs)) if i not in set(own)]
+
+    def stop_other(i: int) -> None:
+        try:
+            procs[i].stop(graces[i])
+        except Exception as exc:  # noqa: BLE001 - this broker's own error
+            errors[i] = exc
+
+    threads = [threading.Thread(target=stop_other, args=(i,), daemon=True) for i in other]
+    for thread in threads:
+        thread.start()
+    outcomes = process.stop_each([procs[i].child for i in own], [graces[i] for i in own])  # type: ignore[attr-defined]
+    for i, outcome in zip(own, outcomes):
+        errors[i] = outcome
+    for thread in threads:
+        thread.join()
+    return errors
 
 
 def stop_foreign(info: ProcInfo, grace: float) -> None:

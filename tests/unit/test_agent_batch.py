@@ -141,26 +141,86 @@ def test_spec_errors_name_the_items_field() -> None:
 
 
 def test_lanes_start_their_brokers_together(tmp_path: Path) -> None:
-    """Two brokers whose health checks wait for each other: only lanes run at the same time pass."""
-    barrier = threading.Barrier(2, timeout=20)
+    """Two brokers each healthy only once the other listens: passes only if both are spawned
+    before either is awaited (one after the other, the first would wait for the second forever)."""
+    ports = {"a": netutil.free_port(), "b": netutil.free_port()}
 
     class Together(MosquittoDriver):
+        start_deadline = 5.0
+
         def health(self, spec, timeout):  # type: ignore[no-untyped-def]
-            ok = super().health(spec, timeout)
-            if ok and not getattr(self, f"met_{spec.id}", False):
-                barrier.wait()
-                setattr(self, f"met_{spec.id}", True)
-            return ok
+            other = ports["b" if spec.id == "a" else "a"]
+            return netutil.port_open("127.0.0.1", other, timeout=0.05) and super().health(spec, timeout)
 
     manager = BrokerManager(tmp_path / "state", DriverRegistry([Together()])).open()
     try:
         client = create_app(AgentState(manager, TOKEN)).test_client()
-        body = batch(client, [[{"op": "put_broker", "spec": spec("a")}],
-                              [{"op": "put_broker", "spec": spec("b")}]]).get_json()
+        body = batch(client, [[{"op": "put_broker", "spec": spec("a", port=ports["a"])}],
+                              [{"op": "put_broker", "spec": spec("b", port=ports["b"])}]]).get_json()
         assert [lane[0]["outcome"] for lane in body["lanes"]] == ["done", "done"], body
     finally:
         manager.close(stop_brokers=True)
     assert not processes_mentioning(tmp_path)
+
+
+def test_a_batch_of_brokers_all_come_up_and_all_go_down(client: FlaskClient, state: AgentState,
+                                                         tmp_path: Path) -> None:
+    """N brokers in one batch (each with a topic after it in its lane): all running and answering;
+    one batch deletes them all: no process of theirs is left, every folder moved to removed/."""
+    n = 12
+    ids = [f"m{i}" for i in range(n)]
+    body = batch(client, [[{"op": "put_broker", "spec": spec(i)}, {"op": "put_topic", "spec": topic("t", i)}]
+                          for i in ids], observe=True).get_json()
+    assert [[r["outcome"] for r in lane] for lane in body["lanes"]] == [["done", "done"]] * n, body
+    assert sorted(b["spec"]["id"] for b in body["brokers"] if b["status"] == "running") == sorted(ids)
+    pids = {b["spec"]["id"]: b["pid"] for b in body["brokers"]}
+    assert len(set(pids.values())) == n
+    for b in body["brokers"]:
+        assert netutil.port_open(b["spec"]["host"], b["spec"]["port"], timeout=1.0), b
+    assert len(processes_mentioning(tmp_path / "state" / "brokers")) == n
+
+    gone = batch(client, [[{"op": "delete_topic", "broker_id": i, "name": "t"},
+                           {"op": "delete_broker", "broker_id": i}] for i in ids]).get_json()
+    assert [[(r["outcome"], r["status"]) for r in lane] for lane in gone["lanes"]] == [
+        [("done", 204), ("done", 204)]] * n, gone
+    assert state.brokers.list() == []
+    assert not processes_mentioning(tmp_path / "state")
+    for pid in pids.values():
+        assert not Path(f"/proc/{pid}").exists() or "zombie" in Path(f"/proc/{pid}/status").read_text().lower()
+    assert sorted(p.name.split(".")[0] for p in (tmp_path / "state" / "removed").iterdir()) == sorted(ids)
+    assert list((tmp_path / "state" / "brokers").iterdir()) == []
+
+
+def test_one_bad_broker_in_a_batch_fails_alone_with_its_own_error(client: FlaskClient, state: AgentState,
+                                                                   tmp_path: Path) -> None:
+    """Among N brokers started together, one whose port is taken: it alone fails (422, Mosquitto's
+    own words), runs no process and gets no topic; the others run, and their lanes go on."""
+    good = [f"g{i}" for i in range(6)]
+    with socket.create_server(("127.0.0.1", 0)) as taken:
+        lanes = [[{"op": "put_broker", "spec": spec(i)}, {"op": "put_topic", "spec": topic("t", i)}] for i in good]
+        lanes.insert(3, [{"op": "put_broker", "spec": spec("bad", port=taken.getsockname()[1])},
+                         {"op": "put_topic", "spec": topic("t", "bad")}])
+        body = batch(client, lanes).get_json()
+    results = body["lanes"]
+    bad, bad_topic = results.pop(3)
+    assert bad["outcome"] == "failed" and bad["status"] == 422, bad
+    assert "'bad'" in bad["error"]["error"] and "Address already in use" in bad["error"]["error"]
+    assert bad_topic == {"outcome": "skipped"}
+    assert [[r["outcome"] for r in lane] for lane in results] == [["done", "done"]] * len(good)
+    observed = state.brokers.get("bad")
+    assert observed is not None and observed.status is BrokerStatus.FAILED and observed.pid is None
+    assert observed.topics == () and "Address already in use" in (observed.last_error or "")
+    assert not processes_mentioning(tmp_path / "state" / "brokers" / "bad")
+    assert all(state.brokers.get(i).status is BrokerStatus.RUNNING for i in good)  # type: ignore[union-attr]
+
+
+def test_a_batch_may_name_one_broker_in_two_lanes(client: FlaskClient, state: AgentState) -> None:
+    """The same broker in two lanes: its items take turns (no step of all brokers at once)."""
+    a = spec("a")
+    body = batch(client, [[{"op": "put_broker", "spec": a}], [{"op": "put_broker", "spec": a}],
+                          [{"op": "put_broker", "spec": spec("b")}]]).get_json()
+    assert [lane[0]["outcome"] for lane in body["lanes"]] == ["done", "done", "done"], body
+    assert body["lanes"][0][0]["answer"]["pid"] == body["lanes"][1][0]["answer"]["pid"]
 
 
 def test_a_broker_is_healthy_only_once_its_port_accepts_connections(tmp_path: Path) -> None:
