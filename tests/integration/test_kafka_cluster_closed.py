@@ -31,6 +31,7 @@ import pytest
 from confluent_kafka import KafkaException, Producer
 from confluent_kafka.admin import AdminClient
 
+from engine import process
 from engine.model import BrokerStatus
 from tests.integration.agents import Deployment, deployment
 from tests.integration.kafka_clients import password_files, read_topic
@@ -172,7 +173,10 @@ def test_apply_adds_a_user_while_the_cluster_serves(cluster: Cluster) -> None:
         writer.join(300)
     assert code == 0, out
     assert errors == [] and sent[0] > 50, (errors[:5], sent[0])
-    assert _produce(cluster.bootstrap, "plant.kpi", cluster.user("hmi"), 3) == []
+    # the lead node wrote the user and its ACLs to the metadata log; each node enforces them once it
+    # has applied that record (docs/security.md: within moments, not at the end of apply)
+    process.wait_until(lambda: _produce(cluster.bootstrap, "plant.kpi", cluster.user("hmi"), 3) == [], 30.0, 0.5,
+                       what="the new user's writes accepted by every node")
     assert _produce(cluster.bootstrap, "line.energy", cluster.user("hmi")) == ["TOPIC_AUTHORIZATION_FAILED"]
     after = cluster.deployed.fleet.brokers()
     assert all(b.status is BrokerStatus.RUNNING for b in after.values())  # type: ignore[attr-defined]
