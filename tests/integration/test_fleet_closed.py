@@ -68,14 +68,20 @@ def closed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Rig, dict
         agents.stop()
 
 
+def _vehicles(rig: Rig, tmp: Path, count: int) -> process.Child:
+    """Simulated VDA 5050 vehicles sim-0001.. on the closed broker, each logging in as
+    ``agv-<serial>`` with the password in ``tmp/<serial>.pw``."""
+    return process.spawn(
+        [sys.executable, "-m", "fleet.sim", "--broker", f"{MQTT_HOST}:{rig.mqtt_port}", "--manufacturer",
+         "plantkg-sim", "--serial-prefix", "sim-", "--count", str(count), "--state-interval", "1",
+         "--username", "agv-{serial}", "--secret-ref", f"file:{tmp}/{{serial}}.pw"],
+        log_dir=tmp / "logs", name=f"vehicles-{count}", cwd=ROOT)
+
+
 def test_a_vehicle_with_its_password_joins_by_plug_and_play_and_takes_an_order(
         closed: tuple[Rig, dict[str, str], Path], capsys: pytest.CaptureFixture[str]) -> None:
     rig, _, tmp = closed
-    vehicle = process.spawn(
-        [sys.executable, "-m", "fleet.sim", "--broker", f"{MQTT_HOST}:{rig.mqtt_port}", "--manufacturer",
-         "plantkg-sim", "--serial-prefix", "sim-", "--count", "1", "--state-interval", "1",
-         "--username", "agv-{serial}", "--secret-ref", f"file:{tmp}/{{serial}}.pw"],
-        log_dir=tmp / "logs", name="vehicle", cwd=ROOT)
+    vehicle = _vehicles(rig, tmp, 1)
     try:
         row = rig.wait(lambda: (v := rig.vehicle("sim-0001")) and v.get("readySeconds") is not None and v,
                        60.0, "sim-0001 discovered and applied")
@@ -163,11 +169,7 @@ def test_a_vehicle_the_plant_does_not_know_is_admitted_joins_and_is_taken_back(
     assert password not in out.out + out.err
     process.wait_until(lambda: _login(rig.mqtt_port, "agv-sim-0002", password) == "Success", 60.0, 0.2,
                        what="agv-sim-0002's user made by the manager's reconcile", child=rig.manager)
-    vehicle = process.spawn(
-        [sys.executable, "-m", "fleet.sim", "--broker", f"{MQTT_HOST}:{rig.mqtt_port}", "--manufacturer",
-         "plantkg-sim", "--serial-prefix", "sim-", "--count", "2", "--state-interval", "1",
-         "--username", "agv-{serial}", "--secret-ref", f"file:{tmp}/{{serial}}.pw"],
-        log_dir=tmp / "logs", name="vehicles-2", cwd=ROOT)
+    vehicle = _vehicles(rig, tmp, 2)
     try:
         row = rig.wait(lambda: (v := rig.vehicle("sim-0002")) and v.get("readySeconds") is not None
                        and "pick" in v.get("skills", ()) and v, 60.0, "sim-0002 heard, described and applied")

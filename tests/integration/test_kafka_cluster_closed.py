@@ -69,12 +69,18 @@ class Cluster:
         return _as(name, self.passwords[name])
 
 
-def _plant(ports: dict[str, int], files: dict[str, Path], extra: str = "") -> str:
-    nodes = "".join(
+def cluster_nodes(ports: dict[str, int], nodes: dict[str, str]) -> str:
+    """The Turtle of cluster ``ex:c``'s nodes (``nodes``: id n<k> -> host), each broker and
+    controller, on ``ports[id]`` and ``ports[id + ":controller"]``."""
+    return "".join(
         f'ex:{n} a pk:Broker ; pk:id "{n}" ; pk:name "plant-kafka-{n}" ; pk:brokerType "kafka" ; '
         f'pk:ip "{host}" ; pk:port {ports[n]} ;\n    pk:nodeOf ex:c ; pk:nodeId {n[1:]} ; '
         f'pk:kafkaRole "broker" , "controller" ; pk:controllerPort {ports[n + ":controller"]} .\n'
-        for n, host in NODES.items())
+        for n, host in nodes.items())
+
+
+def _plant(ports: dict[str, int], files: dict[str, Path], extra: str = "") -> str:
+    nodes = cluster_nodes(ports, NODES)
     return f"""@prefix pk: <https://w3id.org/plantkg/ontology#> .
 @prefix ex: <http://example.org/kafka-cluster-closed#> .
 ex:c a pk:Broker ; pk:id "plant-kafka" ; pk:name "plant-kafka" ; pk:brokerType "kafka" ;

@@ -35,6 +35,7 @@ from engine.security import ca
 from tests.integration.agents import Deployment, deployment
 from tests.integration.kafka_clients import password_files, publish_numbered, read_topic
 from tests.integration.test_kafka_auth import _produce
+from tests.integration.test_kafka_cluster_closed import cluster_nodes
 
 pytestmark = pytest.mark.integration
 
@@ -60,11 +61,7 @@ class Cluster:
 
 
 def _plant(ports: dict[str, int], files: dict[str, Path]) -> str:
-    nodes = "".join(
-        f'ex:{n} a pk:Broker ; pk:id "{n}" ; pk:name "plant-kafka-{n}" ; pk:brokerType "kafka" ; '
-        f'pk:ip "{host}" ; pk:port {ports[n]} ;\n    pk:nodeOf ex:c ; pk:nodeId {n[1:]} ; '
-        f'pk:kafkaRole "broker" , "controller" ; pk:controllerPort {ports[n + ":controller"]} .\n'
-        for n, host in NODES.items())
+    nodes = cluster_nodes(ports, NODES)
     return f"""@prefix pk: <https://w3id.org/plantkg/ontology#> .
 @prefix ex: <http://example.org/kafka-cluster-tls#> .
 ex:c a pk:Broker ; pk:id "plant-kafka" ; pk:name "plant-kafka" ; pk:brokerType "kafka" ; pk:tls true ;
