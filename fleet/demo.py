@@ -45,6 +45,7 @@ from engine.demo.local_plant import LocalPlant, copy_on_free_ports, processes_un
 from fleet.discovery import model_api
 from fleet.discovery.admission import admit
 from fleet.discovery.records import DataDir, now_iso
+from fleet.manager.service import render_record
 from fleet.sim.kinematics import Limits
 from kg.errors import PlantKGError
 from kg.load import load_plant
@@ -87,16 +88,10 @@ def admit_vehicles(plant_file: Path, data_dir: Path, secret_dir: Path,
     """``plantkg fleet admit`` each (interface, manufacturer, serial): its password in
     ``secret_dir/<serial>.pw`` (0600), its record in the manager's data directory."""
     secret_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
-    data = DataDir(data_dir, _render)
+    data = DataDir(data_dir, render_record)
     binding = model_api.binding_to_json(model_api.plant_binding([plant_file]))
     for interface, manufacturer, serial in vehicles:
         admit(data, binding, interface, manufacturer, serial, secret_dir / f"{serial}.pw")
-
-
-def _render(record: Any) -> str:
-    from fleet.manager.service import render_record
-
-    return render_record(record)
 
 
 @dataclass(frozen=True)

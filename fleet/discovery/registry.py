@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from fleet.discovery.inbox import ConnectionSeen, DescriptionSeen, Event, Interface, StateSeen, VehicleKey, VehicleState
@@ -158,7 +158,7 @@ class Registry:
         if known is not None:
             changed = known.connection_state != state
             if changed:
-                self.known[key] = Known(known.description, state, known.pinned, known.awaiting)
+                self.known[key] = replace(known, connection_state=state)
             out: list[Effect] = [SetConnection(key, state)] if changed else []
             if known.awaiting and state == "ONLINE" and key.interface is Interface.VDA5050:
                 out += self._ask(key, now)
@@ -183,7 +183,7 @@ class Registry:
         if event.payload is None:  # the paper's "removed": unavailable, never deleted
             if known is None or known.connection_state == "OFFLINE":
                 return []
-            self.known[key] = Known(known.description, "OFFLINE", known.pinned, known.awaiting)
+            self.known[key] = replace(known, connection_state="OFFLINE")
             return [SetConnection(key, "OFFLINE")]
         fingerprint = _fingerprint(event.payload)
         if self.refused.get(key) == fingerprint:
@@ -197,14 +197,14 @@ class Registry:
         self.asked.pop(key, None)
         self.described[key] = fingerprint
         if known is not None and known.awaiting:  # admitted: its first own description
-            self.known[key] = Known(description, known.connection_state, known.pinned)
+            self.known[key] = replace(known, description=description, awaiting=False)
             return [Join(key, description, known.connection_state, new=True)]
         if known is not None:
             if known.description == description:
                 return []
             if known.pinned:
                 return [Note(key, "pinned: its new description is ignored (unpin to accept it)")]
-            self.known[key] = Known(description, known.connection_state, known.pinned)
+            self.known[key] = replace(known, description=description)
             return [Join(key, description, known.connection_state, new=False)]
         default = "ONLINE" if key.interface is Interface.PAPER else "OFFLINE"
         state = self.connection.get(key, default)
