@@ -19,6 +19,11 @@ plantkg, each until a QoS-1 publish of a small message is acknowledged.
   (interpreter start, imports, pipeline, apply) until it exits, then the same acknowledged
   publish; ``--cli-runs`` runs (default 10; the desired-state cache is emptied before each, so
   every run plans a plant it has not seen, as the in-process rows do). Issue 16: at most 10x bare.
+- ``plantkg-cli-served``: the same command while a ``plantkg serve`` of that plant runs (started
+  once, before the runs): the command hands its apply to the server over its control socket
+  (engine.control) and prints what the server says; each run's plant differs from the last by the
+  broker's port, an edit the server's warm pipeline follows. The command's stderr must say it ran
+  in the server, else the run fails.
 - ``plantkg-remote-<d>ms``: the same apply against an agent on an emulated remote machine (a
   network namespace behind a veth pair with ``tc netem`` delaying each packet ``--delay-ms`` each
   way, ``benchmarks.netns``); the publish crosses that link too. What the paper's "tool + cable"
@@ -49,8 +54,8 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
-from contextlib import ExitStack, nullcontext
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack, contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -226,26 +231,69 @@ def through_plantkg(work: Path, directory: AgentDirectory, dispatch_only: bool, 
     return elapsed
 
 
-def through_cli(work: Path, directory: AgentDirectory, agents_file: Path) -> float:
+PLANTKG = str(Path(sys.executable).parent / "plantkg")
+SERVED_NOTE = "runs in plantkg serve"
+
+
+def through_cli(work: Path, directory: AgentDirectory, agents_file: Path, served: Served | None = None) -> float:
     """``plantkg apply --yes`` of a one-broker plant as a whole process, until its first
-    acknowledged message; the desired-state cache is empty (a plant never seen)."""
+    acknowledged message; alone, the desired-state cache is empty (a plant never seen); with
+    ``served``, the plant is the served one and the command must have run in the server."""
     port = netutil.free_port(HOST)
-    plant = work / "plant-cli.ttl"
+    plant = served.plant if served else work / "plant-cli.ttl"
     plant.write_text(PLANT.format(host=HOST, port=port))
-    cache = work / "cli-cache"
-    shutil.rmtree(cache, ignore_errors=True)
-    env = {**os.environ, "PLANTKG_CACHE_DIR": str(cache)}
-    argv = [str(Path(sys.executable).parent / "plantkg"), "apply", "--yes", "--agents", str(agents_file), str(plant)]
+    if served:
+        env = served.env
+    else:
+        cache = work / "cli-cache"
+        shutil.rmtree(cache, ignore_errors=True)
+        env = {**os.environ, "PLANTKG_CACHE_DIR": str(cache)}
+    argv = [PLANTKG, "apply", "--yes", "--agents", str(agents_file), str(plant)]
     start = time.perf_counter()
     done = subprocess.run(argv, capture_output=True, text=True, env=env, timeout=120, check=False)
     if done.returncode != 0:
         raise RuntimeError(f"plantkg apply exited {done.returncode}: {done.stderr[-2000:]}")
+    if (SERVED_NOTE in done.stderr) != (served is not None):
+        raise RuntimeError(f"plantkg apply {'did not run' if served else 'ran'} in plantkg serve: {done.stderr[-2000:]}")
     acked_publish(HOST, port)
     elapsed = time.perf_counter() - start
     gone = run_pipeline([plant], directory, destroy=True)
     assert gone.plan is not None and gone.desired is not None
     assert apply(gone.plan, gone.desired, directory, destroy=True).ok
     return elapsed
+
+
+@dataclass(frozen=True)
+class Served:
+    """A running ``plantkg serve`` of ``plant`` and the environment its commands run with."""
+
+    plant: Path
+    env: dict[str, str]
+
+
+@contextmanager
+def served_plant(work: Path, agents_file: Path) -> Iterator[Served]:
+    """``plantkg serve`` of a one-broker plant, its control socket open (engine.control), until left."""
+    short = Path(tempfile.mkdtemp(prefix="pkb-", dir="/tmp"))  # a socket path stays under ~100 bytes
+    env = {**os.environ, "PLANTKG_RUN_DIR": str(short / "run"), "XDG_STATE_HOME": str(work / "served-state"),
+           "PLANTKG_CACHE_DIR": str(work / "served-cache")}
+    plant = work / "plant-served.ttl"
+    plant.write_text(PLANT.format(host=HOST, port=netutil.free_port(HOST)))
+    log = work / "serve.log"
+    with log.open("w") as out:
+        server = subprocess.Popen([PLANTKG, "serve", str(plant), "--agents", str(agents_file), "--listen",
+                                   f"127.0.0.1:{netutil.free_port()}", "--observe-interval", "3600"],
+                                  env=env, stdout=out, stderr=subprocess.STDOUT)
+    try:
+        process.wait_until(lambda: "runs here, warm" in log.read_text() or server.poll() is not None, 60,
+                           what="plantkg serve's control socket")
+        if server.poll() is not None or "runs here, warm" not in log.read_text():
+            raise RuntimeError(f"plantkg serve did not open its control socket: {log.read_text()[-2000:]}")
+        yield Served(plant, env)
+    finally:
+        server.terminate()
+        server.wait(60)
+        shutil.rmtree(short, ignore_errors=True)
 
 
 @dataclass(frozen=True)
@@ -320,9 +368,13 @@ def measure(runs: int, kafka_runs: int = 0, delay_ms: float | None = None, cli_r
         if cli_runs:
             times["plantkg-cli"] = []
             through_cli(work, directory, agents.agents_file)  # warm-up: the file cache of the imports
+            times["plantkg-cli-served"] = []
+            served = stack.enter_context(served_plant(work, agents.agents_file))
+            through_cli(work, directory, agents.agents_file, served)  # warm-up: the server's cold start
         for _ in range(cli_runs):  # interleaved with bare runs of their own
             times["bare"].append(bare(work))
             times["plantkg-cli"].append(through_cli(work, directory, agents.agents_file))
+            times["plantkg-cli-served"].append(through_cli(work, directory, agents.agents_file, served))
         if kafka_runs:
             times.update({"kafka-bare": [], "kafka-plantkg": []})
         for _ in range(kafka_runs):

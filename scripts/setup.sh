@@ -5,7 +5,8 @@
 #      rabbitmq-server for the RabbitMQ plugin (its system service stopped and disabled too).
 #   2. Python: .venv with plantkg installed editable plus the test extra, redone only when
 #      pyproject.toml changed (stamp: .venv/.plantkg-pyproject.sha256); then the broker-type plugin
-#      plugins/plantkg-rabbitmq, editable, redone only when its pyproject.toml changed.
+#      plugins/plantkg-rabbitmq, editable, redone only when its pyproject.toml changed; then the
+#      project's bytecode (compileall: only what changed).
 #   3. Kafka: broker jars resolved from Maven Central by third_party/kafka/pom.xml into
 #      .plantkg/kafka/<version>/libs, redone only when the pom changed (stamp beside libs/).
 #   4. The Go load generator tools/loadgen (benchmarks' MQTT/Kafka clients) built into
@@ -148,6 +149,13 @@ for plugin in plugins/plantkg-rabbitmq; do
         printf '%s\n' "$PLUGIN_HASH" >"$PLUGIN_STAMP"
     fi
 done
+
+# The project's own bytecode, compiled now: where PYTHONDONTWRITEBYTECODE is set (as on CI
+# machines), Python would otherwise compile every module of ours in memory at each start of a
+# command (~0.1 s of `plantkg apply`). Only changed sources are compiled again; a stale .pyc is
+# never used (Python checks the source's mtime).
+"$VENV/bin/python" -m compileall -q -j 0 engine kg fleet plugins benchmarks >/dev/null \
+    || say "python: compiling the bytecode failed (commands start slower; nothing else changes)"
 
 # --- 3. Kafka jars ------------------------------------------------------------------------------
 

@@ -28,14 +28,28 @@ from engine.cli.options import agents_option, owner_option, prune_option, result
 @owner_option
 @result_format_option
 @prune_option
+@click.option("--local", is_flag=True,
+              help="run in this process even when a `plantkg serve` of this plant runs (by default "
+                   "it runs there, with its pipeline warm)")
 def apply_command(files: tuple[str, ...], yes: bool, agents_file: Path | None, parallelism: int,
-                  owner: str | None, prune: bool, fmt: str = "text") -> int:
+                  owner: str | None, prune: bool, local: bool, fmt: str = "text") -> int:
     """Make the brokers run as the plant in FILE(s) describes.
+
+    When `plantkg serve` serves the same FILE(s), agents file and owner, this runs in that server
+    (warm: no imports, shapes or rules to load; its dashboard sees it at once) and prints the same
+    plan, prompt, progress and exit code; --local runs it here.
 
     \b
     Example:
       plantkg apply ontology/examples/robot-cell.ttl --agents agents.toml
     """
+    if not local:
+        from engine.control.client import run_in_server  # noqa: PLC0415 - standard library only
+
+        code = run_in_server("apply", files, agents_file, owner,
+                             {"yes": yes, "parallelism": parallelism, "prune": prune, "format": fmt})
+        if code is not None:
+            return code
     from engine.cli.reconcile import make_changes  # noqa: PLC0415 - the pipeline: only when run
 
     return make_changes(files, agents_file, yes=yes, parallelism=parallelism, destroy=False, fmt=fmt,

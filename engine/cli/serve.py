@@ -39,17 +39,22 @@ DEFAULT_PORT = 8080
                    "at once; more get 429 with Retry-After. See docs/security.md.")
 @click.option("--max-results", type=click.IntRange(1), default=10_000, show_default=True,
               help="Rows (or triples) a SPARQL answer may hold.")
+@click.option("--no-control", is_flag=True,
+              help="Do not open the control socket: `plantkg apply` of this plant then runs in its "
+                   "own process, cold (see docs/performance.md).")
 @click.option("-v", "--verbose", is_flag=True, help="Log every request.")
 def serve_command(files: tuple[str, ...], listen: str, agents_file: Path | None, auto_apply: bool,
                   owner: str | None, token_file: Path | None, allow_remote: bool, observe_interval: float,
                   query_timeout: float, max_results: int, max_queries: int, max_client_queries: int,
-                  verbose: bool) -> int:
+                  no_control: bool, verbose: bool) -> int:
     """Serve a dashboard, a SPARQL endpoint and a JSON API for the plant in FILE(s).
 
     The files are re-read when they change (validate, then plan); a FILE may be a folder (every
     *.ttl inside, e.g. discovered vehicles). The agents are asked what runs every few seconds.
     Nothing is applied unless a logged-in person presses Apply, or --auto-apply (a reconcile loop:
-    see docs/operating.md).
+    see docs/operating.md), or this user runs `plantkg apply` of the same files, agents file and
+    owner: that command then runs here, with the pipeline warm (a Unix socket only this user can
+    open; --no-control closes it).
 
     \b
     Example:
@@ -67,4 +72,5 @@ def serve_command(files: tuple[str, ...], listen: str, agents_file: Path | None,
     limits = Limits(timeout_s=query_timeout, max_rows=max_results, workers=max_queries,
                     per_client=max_client_queries)
     return run_server(list(files), address, agents_file=agents_file, token_file=token_file,
-                      auto_apply=auto_apply, limits=limits, observe_interval=observe_interval, owner=owner)
+                      auto_apply=auto_apply, limits=limits, observe_interval=observe_interval, owner=owner,
+                      control=not no_control)

@@ -176,6 +176,12 @@ class PlantState:
         return tuple(str(p) for p in plant_files(self.paths))
 
     @property
+    def apply_lock(self) -> threading.Lock:
+        """Held by every apply of this process (a person's, the loop's, a command's through the
+        control socket, engine.control.server): two never run at once."""
+        return self._apply_lock
+
+    @property
     def loop(self) -> ReconcileLoop | None:
         """The reconcile loop (auto-apply, once started)."""
         return self._loop

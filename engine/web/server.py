@@ -13,7 +13,7 @@ import sys
 import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
+from typing import IO, TYPE_CHECKING
 
 from flask import Flask
 from werkzeug.serving import BaseWSGIServer, make_server
@@ -26,6 +26,9 @@ from engine.web.app import WebConfig, create_app
 from engine.web.plant_state import PlantState
 from engine.web.rates import RateMonitor
 from engine.web.sparql_protocol import Limits
+
+if TYPE_CHECKING:
+    from engine.control.server import ControlServer
 
 log = logging.getLogger(__name__)
 
@@ -81,10 +84,27 @@ def _desired_and_observed(state: PlantState) -> tuple[DesiredState | None, Obser
     return snap.desired, snap.observed
 
 
+def open_control(files: list[str], agents_file: Path | None, owner: str | None,
+                 state: PlantState) -> tuple[ControlServer | None, str]:
+    """The control socket of this plant (engine.control): commands of this user run here, warm.
+    None and the reason when it cannot be opened (the server runs on without it)."""
+    from engine.control.address import plant_key, socket_path  # noqa: PLC0415
+    from engine.control.commands import plant_commands  # noqa: PLC0415
+    from engine.control.server import ControlServer, ControlUnavailable  # noqa: PLC0415
+
+    server = ControlServer(socket_path(files, agents_file, owner), plant_key(files, agents_file, owner),
+                           plant_commands(state, agents_file, owner))
+    try:
+        return server.start(), ""
+    except ControlUnavailable as exc:
+        return None, str(exc)
+
+
 def run_server(files: list[str], listen: ListenAddress, *, agents_file: Path | None, token_file: Path | None,
                auto_apply: bool, limits: Limits, observe_interval: float, out: IO[str] = sys.stderr,
-               owner: str | None = None) -> int:
-    """The ``plantkg serve`` command: start, print where things are, serve until a signal."""
+               owner: str | None = None, control: bool = True) -> int:
+    """The ``plantkg serve`` command: start, print where things are, serve until a signal.
+    ``control``: open the control socket (``plantkg apply`` of this plant then runs here)."""
     AgentDirectory.load(agents_file)  # a wrong agents file is a start-up error, not a page
     token_path = (token_file or default_token_file()).expanduser().resolve()
     token_path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
@@ -92,6 +112,7 @@ def run_server(files: list[str], listen: ListenAddress, *, agents_file: Path | N
     state = PlantState(files, agents_file, auto_apply=auto_apply, observe_interval=observe_interval,
                        owner=owner)
     running = start_server(listen, state, token, limits)
+    commands, why_not = open_control(files, agents_file, owner, state) if control else (None, "--no-control")
 
     def ready() -> None:
         snap = state.snapshot
@@ -100,9 +121,12 @@ def run_server(files: list[str], listen: ListenAddress, *, agents_file: Path | N
         print(f"  token:  {token_path}" + (" (new)" if created else "") + "  (log in with it to apply)", file=out)
         print(f"  SPARQL: {running.address.url}/sparql", file=out)
         print(f"  apply:  {'automatic after each change of the files, drift put back' if auto_apply else 'on request'}", file=out)
+        print(f"  `plantkg apply` of this plant: {'runs here, warm (' + str(commands.path) + ')' if commands else 'runs in its own process: ' + why_not}", file=out)
         out.flush()
 
     got = wait_for_signal(on_ready=ready)
     log.info("%s received; shutting down", got.name)
+    if commands is not None:
+        commands.close()
     running.shutdown()
     return 0

@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "ontology" / "examples" / "robot-cell.ttl"
 
 #: Runs ``main(ARGS)``, then writes the exit code and the sorted module names to the file given first.
-_PROBE = (
+PROBE = (
     "import json, sys\n"
     "out = sys.argv.pop(1)\n"
     "from engine.cli import main\n"
@@ -45,7 +45,7 @@ NEVER_FOR_HELP = NEVER_FOR_PLAN + ("rdflib", "pyoxigraph", "engine.pipeline", "e
 
 def _probe(tmp_path: Path, *args: str) -> tuple[int, list[str]]:
     out = tmp_path / "modules.json"
-    proc = subprocess.run([sys.executable, "-c", _PROBE, str(out), *args], cwd=ROOT,
+    proc = subprocess.run([sys.executable, "-c", PROBE, str(out), *args], cwd=ROOT,
                           capture_output=True, text=True, timeout=120, check=False)
     assert out.exists(), f"the probe did not finish: {proc.stderr[-2000:]}"
     found = json.loads(out.read_text(encoding="utf-8"))
