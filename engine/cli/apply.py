@@ -16,7 +16,8 @@ from pathlib import Path
 import click
 
 from engine.cli.common import file_argument
-from engine.cli.options import agents_option, owner_option, prune_option, result_format_option, yes_option
+from engine.cli.options import (agents_option, local_option, owner_option, prune_option, result_format_option,
+                                yes_option)
 
 
 @click.command("apply")
@@ -28,9 +29,7 @@ from engine.cli.options import agents_option, owner_option, prune_option, result
 @owner_option
 @result_format_option
 @prune_option
-@click.option("--local", is_flag=True,
-              help="run in this process even when a `plantkg serve` of this plant runs (by default "
-                   "it runs there, with its pipeline warm)")
+@local_option
 def apply_command(files: tuple[str, ...], yes: bool, agents_file: Path | None, parallelism: int,
                   owner: str | None, prune: bool, local: bool, fmt: str = "text") -> int:
     """Make the brokers run as the plant in FILE(s) describes.

@@ -27,3 +27,7 @@ result_format_option = click.option(
     "--format", "fmt", type=click.Choice(["text", "json"]), default="text", show_default=True,
     help="text for people; json: one typed document on stdout at the end (no prompt: needs --yes "
          "when there are changes)")
+local_option = click.option(
+    "--local", is_flag=True,
+    help="run in this process even when a `plantkg serve` of this plant runs (by default it runs "
+         "there, with its pipeline warm: docs/web.md)")

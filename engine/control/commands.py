@@ -1,14 +1,17 @@
-"""What ``plantkg serve`` runs for a command on its control socket: ``apply`` of its own plant.
+"""What ``plantkg serve`` runs for a command on its control socket: ``apply`` or ``destroy`` of its
+own plant.
 
 The same code as the command's own (``engine.cli.reconcile.make_changes``), with three things of
 the server's: its warm pipeline (engine.incremental.warm, one session for the server's life: a
 command after an edit re-validates and re-reasons what the edit reaches), the lock every apply of
 the server holds (the dashboard's, the reconcile loop's), and the command's terminal at the other
-end of the socket. After an apply, the server asks its agents again, so the dashboard shows it.
+end of the socket. Once the command has its exit code, the server asks its agents again (in a
+thread of its own: the command does not wait for it), so the dashboard shows the change.
 """
 
 from __future__ import annotations
 
+import threading
 from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import Any, Protocol
@@ -42,9 +45,9 @@ def plant_commands(state: ServedPlant, agents_file: Path | None, owner: str | No
         files = tuple(str(p) for p in plant_files(state.paths))
         try:
             return make_changes(files, agents_file, yes=request.yes, parallelism=request.parallelism,
-                                destroy=False, owner=owner, prune=request.prune, fmt=request.fmt,
-                                console=console, pipeline=warm, apply_lock=state.apply_lock)
+                                destroy=request.verb == "destroy", owner=owner, prune=request.prune,
+                                fmt=request.fmt, console=console, pipeline=warm, apply_lock=state.apply_lock)
         finally:
-            state.refresh()
+            threading.Thread(target=state.refresh, name="plantkg-control-refresh", daemon=True).start()
 
     return handle

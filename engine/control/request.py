@@ -12,7 +12,7 @@ from typing import Any
 
 from engine.errors import EngineError
 
-VERBS = ("apply",)
+VERBS = ("apply", "destroy")
 FORMATS = ("text", "json")
 MAX_PARALLELISM = 64
 

@@ -4,13 +4,14 @@ what it would print alone (engine.control): real agent, real Mosquitto, both com
 One deployment for the file; the tests run in order:
 
 1. ``apply --yes`` says it runs in the server (its pid), applies, and the broker acknowledges a
-   QoS-1 publish; the dashboard's status shows it running at once (the server observes once more
-   after the command: its own observe interval is an hour here);
+   QoS-1 publish; the dashboard's status shows it running within seconds (the server observes once
+   more after the command: its own observe interval is an hour here);
 2. a second ``apply`` has nothing to do;
 3. an edit that breaks the plant: the server's answer is the violations and exit 1, nothing runs;
 4. a change without ``--yes`` and without a terminal is refused (exit 2), nothing changes;
 5. ``--local`` runs it in the command's own process;
-6. after ``kill -9`` of the server (its socket file left behind), ``apply`` runs alone and works.
+6. ``destroy --yes`` runs in the server too: the broker is gone; ``apply`` brings it back;
+7. after ``kill -9`` of the server (its socket file left behind), ``apply`` runs alone and works.
 """
 
 from __future__ import annotations
@@ -72,9 +73,10 @@ class Served:
         """The server's control socket (in the folder the commands' environment names)."""
         return Path(self.env["PLANTKG_RUN_DIR"]) / socket_path([str(self.plant)], self.fleet.agents_file, None).name
 
-    def status(self) -> dict:  # type: ignore[type-arg]
+    def broker(self) -> dict:  # type: ignore[type-arg]
+        """The broker's row of the dashboard's status document."""
         with urllib.request.urlopen(f"{self.url}/api/status", timeout=10) as answer:
-            return json.load(answer)
+            return {b["id"]: b for b in json.load(answer)["brokers"]}["mqtt"]
 
 
 @pytest.fixture(scope="module")
@@ -128,8 +130,7 @@ def test_apply_runs_in_the_server_and_the_broker_serves(served: Served) -> None:
     assert f"runs in plantkg serve (pid {served.server.pid})" in done.stderr
     assert "Plan: 2 to create" in done.stdout and "Apply complete: 2 changed, 0 failed" in done.stdout
     assert acked(served.port)
-    brokers = {b["id"]: b for b in served.status()["brokers"]}
-    assert brokers["mqtt"]["status"] == "running" and brokers["mqtt"]["pid"], brokers
+    wait_until(lambda: served.broker()["status"] == "running", 30, what="the dashboard showing the broker")
 
 
 def test_a_second_apply_has_nothing_to_do(served: Served) -> None:
@@ -167,6 +168,16 @@ def test_local_runs_in_the_commands_own_process(served: Served) -> None:
     done = served.run("apply", "--yes", "--local")
     assert done.returncode == 0, done.stdout + done.stderr
     assert "runs in plantkg serve" not in done.stderr and "topic.mqtt.served.u: Created" in done.stdout
+
+
+def test_destroy_runs_in_the_server_too(served: Served) -> None:
+    done = served.run("destroy", "--yes")
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert f"runs in plantkg serve (pid {served.server.pid})" in done.stderr and "Destroy complete" in done.stdout
+    assert "mqtt" not in served.fleet.brokers()
+    wait_until(lambda: served.broker()["status"] == "absent", 30, what="the dashboard showing no broker")
+    again = served.run("apply", "--yes")
+    assert again.returncode == 0 and acked(served.port), again.stdout + again.stderr
 
 
 def test_after_the_server_is_killed_apply_runs_alone(served: Served) -> None:

@@ -24,7 +24,7 @@ def test_defaults_are_the_command_lines() -> None:
 
 # (what is changed, the words the refusal must hold)
 REFUSED: list[tuple[dict[str, Any], tuple[str, ...]]] = [
-    ({"verb": "destroy"}, ("'verb'", "'destroy'", "apply")),
+    ({"verb": "plan"}, ("'verb'", "'plan'", "apply, destroy")),
     ({"verb": None}, ("'verb'", "None")),
     ({"key": {**KEY, "owner": "other"}}, ("'key'", "other", "--local")),
     ({"key": "x"}, ("'key'",)),
