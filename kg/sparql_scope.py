@@ -20,6 +20,7 @@ pattern is joined as before: a wrong "no" costs time, never a result.
 from __future__ import annotations
 
 import re
+from functools import lru_cache
 
 _STRING_OR_IRI = re.compile(
     r'"""(?:[^"\\]|\\.|"(?!""))*"""|\'\'\'(?:[^\'\\]|\\.|\'(?!\'\'))*\'\'\''
@@ -50,8 +51,10 @@ def _skip(text: str, start: int, open_: str, close: str) -> int:
     return len(text)
 
 
+@lru_cache(maxsize=4096)
 def binds_this(query: str, var: str = "this") -> bool:
-    """Whether every solution of ``query``'s WHERE group binds ``?var`` (see the module doc)."""
+    """Whether every solution of ``query``'s WHERE group binds ``?var`` (see the module doc).
+    Remembered per text: the shapes' queries are the same at every validation of a process."""
     text = _blank_literals(query)
     brace = text.find("{")
     if brace < 0:
