@@ -26,6 +26,7 @@ from engine.context_broker.subscriptions.model import (
     DeliveryStatus, HttpTarget, KafkaTarget, MqttTarget, PlantKafkas, Status, Subscription, Target,
 )
 from engine.context_broker.subscriptions.outbox import Outbox
+from engine.context_broker.subscriptions.ownership import PLANTKG, Requester
 from engine.context_broker.subscriptions.parse import QParser
 from engine.context_broker.subscriptions.registry import Registry
 from engine.context_broker.subscriptions.result import Result
@@ -150,12 +151,12 @@ class SubscriptionService:
             out.append(query)
         return tuple(out)
 
-    # --- CRUD (called by the blueprint) --------------------------------------------------
-    def create(self, tenant: Tenant, doc: Any) -> Subscription:
-        return self.registry.create(tenant, doc)
+    # --- CRUD (called by the blueprint; ``who``: see .ownership) ------------------------
+    def create(self, tenant: Tenant, doc: Any, who: Requester = PLANTKG) -> Subscription:
+        return self.registry.create(tenant, doc, who)
 
-    def update(self, sub_id: str, tenant: Tenant, patch: Any) -> Subscription:
-        sub = self.registry.update(sub_id, tenant.service, patch)
+    def update(self, sub_id: str, tenant: Tenant, patch: Any, who: Requester = PLANTKG) -> Subscription:
+        sub = self.registry.update(sub_id, tenant.service, patch, who)
         with self._trigger_lock:
             self._last_triggered.pop(sub_id, None)
         if isinstance(patch, dict) and patch.get("status") == Status.INACTIVE.value:
@@ -163,17 +164,18 @@ class SubscriptionService:
             self.dropped(sub_id, self.delivery.discard(sub_id))
         return sub
 
-    def delete(self, sub_id: str, tenant: Tenant) -> None:
-        self.registry.delete(sub_id, tenant.service)
+    def delete(self, sub_id: str, tenant: Tenant, who: Requester = PLANTKG) -> None:
+        self.registry.delete(sub_id, tenant.service, who)
         self.delivery.forget(sub_id)
         with self._trigger_lock:
             self._last_triggered.pop(sub_id, None)
 
-    def get(self, sub_id: str, tenant: Tenant) -> tuple[Subscription, DeliveryStatus]:
-        return self.registry.get(sub_id, tenant.service)
+    def get(self, sub_id: str, tenant: Tenant, who: Requester = PLANTKG) -> tuple[Subscription, DeliveryStatus]:
+        return self.registry.get(sub_id, tenant.service, who)
 
-    def listing(self, tenant: Tenant, path_given: bool) -> list[tuple[Subscription, DeliveryStatus]]:
-        return self.registry.listing(tenant.service, tenant.service_path if path_given else None)
+    def listing(self, tenant: Tenant, path_given: bool,
+                who: Requester = PLANTKG) -> list[tuple[Subscription, DeliveryStatus]]:
+        return self.registry.listing(tenant.service, tenant.service_path if path_given else None, who)
 
     # --- delivery hooks (called by the lanes) --------------------------------------------
     def current(self, sub_id: str) -> Subscription | None:

@@ -1,0 +1,173 @@
+"""Subscriptions by a principal of a closed context broker (engine.context_broker.access and
+.subscriptions.ownership), through Flask's test client over a real store and subscription service:
+a principal subscribes only to entities it names by id and may read, with HTTP notifications only
+(403 with Orion's body, naming the principal and the entity or target); it sees, changes, deletes
+and lists only its own subscriptions (another's is 404); plantkg's token sees every one; the
+owner is stored with the subscription and read back by the next start."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from engine.context_broker.access import Gate
+from engine.context_broker.app import create_app
+from engine.context_broker.store import ContextStore
+from engine.context_broker.subscriptions import SubscriptionService
+from engine.context_broker.subscriptions.registry import SUBSCRIPTIONS_FILE
+from engine.security.ngsi_principals import load_principals, render_principals
+
+AGENT = "agent-token-1"
+ROBOT, PLANNER = "robot-secret", "planner-secret"
+# robot1 writes the pose and reads the task; the planner writes the task and reads the pose
+PRINCIPALS = {"robot1": (ROBOT, ("urn:pose:1",), ("urn:task:1",)),
+              "planner": (PLANNER, ("urn:task:1",), ("urn:pose:1",))}
+HTTP = {"http": {"url": "http://127.0.0.1:9/notify"}}
+
+
+def sub(*entities: dict[str, str], notification: dict[str, Any] | None = None) -> dict[str, Any]:
+    return {"subject": {"entities": list(entities)}, "notification": notification or HTTP}
+
+
+class Broker:
+    """A closed context broker's app with subscriptions, restartable over the same folder."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        file = folder / "principals.json"
+        file.write_text(render_principals(PRINCIPALS), encoding="utf-8")
+        self.gate = Gate(AGENT, load_principals(file))
+        self._open()
+
+    def _open(self) -> None:
+        self.store = ContextStore(self.folder / "data")
+        self.service = SubscriptionService(self.folder / "subs")
+        app = create_app(self.store, token=AGENT, gate=self.gate, listeners=[self.service],
+                         subscriptions_blueprint=self.service.blueprint())
+        self.client = app.test_client()
+
+    def close(self) -> None:
+        self.service.close()
+        self.store.close()
+
+    def restart(self) -> None:
+        self.close()
+        self._open()
+
+    def send(self, method: str, path: str, body: Any = None, token: str = AGENT) -> Any:
+        headers = {"Authorization": f"Bearer {token}"}
+        if body is not None:
+            headers["Content-Type"] = "application/json"
+        return self.client.open(path, method=method, headers=headers,
+                                data=None if body is None else json.dumps(body))
+
+    def create(self, body: dict[str, Any], token: str) -> str:
+        reply = self.send("POST", "/v2/subscriptions", body, token)
+        assert reply.status_code == 201, reply.json
+        return reply.headers["Location"].rsplit("/", 1)[1]
+
+    def listed(self, token: str) -> list[str]:
+        reply = self.send("GET", "/v2/subscriptions?limit=1000", None, token)
+        assert reply.status_code == 200, reply.json
+        return [s["id"] for s in reply.json]
+
+
+@pytest.fixture
+def broker(tmp_path: Path) -> Iterator[Broker]:
+    b = Broker(tmp_path)
+    yield b
+    b.close()
+
+
+def forbidden(reply: Any, *words: str) -> None:
+    assert reply.status_code == 403, (reply.status_code, reply.data)
+    assert reply.mimetype == "application/json" and set(reply.json) == {"error", "description"}
+    assert reply.json["error"] == "Forbidden"
+    for word in words:
+        assert word in reply.json["description"], (word, reply.json)
+
+
+# (token, subscription, what the answer is: 201, or 403 and the words its description holds)
+CREATE_CASES = [
+    ("reads what it may read", ROBOT, sub({"id": "urn:task:1"}), 201, ()),
+    ("reads its own entity", ROBOT, sub({"id": "urn:pose:1", "type": "Pose"}), 201, ()),
+    ("each of several ids", PLANNER, sub({"id": "urn:pose:1"}, {"id": "urn:task:1"}), 201, ()),
+    ("https and httpCustom", PLANNER, sub({"id": "urn:pose:1"}, notification={"httpCustom": {
+        "url": "https://planner.example:8443/n", "headers": {"X-A": "1"}}}), 201, ()),
+    ("an entity it may not read", ROBOT, sub({"id": "urn:other:1"}), 403, ("'robot1'", "'urn:other:1'")),
+    ("one of two it may not read", ROBOT, sub({"id": "urn:task:1"}, {"id": "urn:secret:1"}), 403,
+     ("'robot1'", "'urn:secret:1'")),
+    ("an idPattern", PLANNER, sub({"idPattern": ".*"}), 403, ("'planner'", "by id", "'.*'")),
+    ("a typePattern only", PLANNER, sub({"idPattern": "urn:pose:.*", "typePattern": ".*"}), 403, ("by id",)),
+    ("an MQTT notification", PLANNER, sub({"id": "urn:pose:1"}, notification={"mqtt": {
+        "url": "mqtt://127.0.0.1:1883", "topic": "t"}}), 403, ("'planner'", "mqtt://", "http://")),
+    ("a Kafka notification", PLANNER, sub({"id": "urn:pose:1"}, notification={"kafka": {
+        "url": "kafka://127.0.0.1:9092", "topic": "t"}}), 403, ("'planner'", "kafka://", "plantkg's own")),
+    ("plantkg: a pattern", AGENT, sub({"idPattern": ".*"}), 201, ()),
+    ("plantkg: Kafka", AGENT, sub({"id": "urn:x:1"}, notification={"kafka": {
+        "url": "kafka://127.0.0.1:9092", "topic": "t"}}), 201, ()),
+]
+
+
+@pytest.mark.parametrize(("token", "body", "status", "words"), [c[1:] for c in CREATE_CASES],
+                         ids=[c[0] for c in CREATE_CASES])
+def test_what_a_principal_may_subscribe_to(broker: Broker, token: str, body: dict[str, Any], status: int,
+                                           words: tuple[str, ...]) -> None:
+    reply = broker.send("POST", "/v2/subscriptions", body, token)
+    if status == 403:
+        forbidden(reply, *words)
+        assert broker.listed(AGENT) == []  # nothing refused was stored
+    else:
+        assert reply.status_code == status, reply.json
+
+
+def test_a_principal_sees_changes_and_deletes_only_its_own(broker: Broker) -> None:
+    robots = broker.create(sub({"id": "urn:task:1"}), ROBOT)
+    planners = broker.create(sub({"id": "urn:pose:1"}), PLANNER)
+    plantkgs = broker.create(sub({"idPattern": ".*"}), AGENT)
+    assert broker.listed(ROBOT) == [robots] and broker.listed(PLANNER) == [planners]
+    assert broker.listed(AGENT) == [robots, planners, plantkgs]
+    count = broker.send("GET", "/v2/subscriptions?options=count", None, ROBOT)
+    assert count.headers["Fiware-Total-Count"] == "1"
+    for other in (planners, plantkgs):  # another's is not found, whatever the verb
+        for method, body in (("GET", None), ("PATCH", {"throttling": 5}), ("DELETE", None)):
+            reply = broker.send(method, f"/v2/subscriptions/{other}", body, ROBOT)
+            assert (reply.status_code, reply.json["error"]) == (404, "NotFound"), (method, reply.json)
+    assert broker.send("GET", f"/v2/subscriptions/{robots}", None, ROBOT).json["id"] == robots
+    assert broker.send("PATCH", f"/v2/subscriptions/{robots}", {"throttling": 5}, ROBOT).status_code == 204
+    # a change is checked as the subscription it makes: no entity or target it may not hold
+    forbidden(broker.send("PATCH", f"/v2/subscriptions/{robots}", {"subject": {"entities": [
+        {"id": "urn:other:1"}]}}, ROBOT), "'urn:other:1'")
+    forbidden(broker.send("PATCH", f"/v2/subscriptions/{robots}", {"notification": {"kafka": {
+        "url": "kafka://127.0.0.1:9092", "topic": "t"}}}, ROBOT), "kafka://")
+    shown = broker.send("GET", f"/v2/subscriptions/{robots}", None, AGENT).json
+    assert shown["throttling"] == 5 and shown["subject"]["entities"] == [{"id": "urn:task:1"}]
+    assert "http" in shown["notification"] and "owner" not in shown  # Orion's shape, no owner
+    # plantkg's token changes and deletes any
+    assert broker.send("PATCH", f"/v2/subscriptions/{planners}", {"throttling": 7}, AGENT).status_code == 204
+    assert broker.send("DELETE", f"/v2/subscriptions/{planners}", None, AGENT).status_code == 204
+    assert broker.send("DELETE", f"/v2/subscriptions/{robots}", None, ROBOT).status_code == 204
+    assert broker.listed(AGENT) == [plantkgs] and broker.listed(ROBOT) == []
+
+
+def test_the_owner_is_stored_with_the_subscription_and_kept_by_a_restart(broker: Broker) -> None:
+    robots = broker.create(sub({"id": "urn:task:1"}), ROBOT)
+    plantkgs = broker.create(sub({"id": "urn:task:1"}), AGENT)
+    broker.send("PATCH", f"/v2/subscriptions/{robots}", {"throttling": 3}, AGENT)  # plantkg's change keeps it
+    stored = json.loads((broker.folder / "subs" / SUBSCRIPTIONS_FILE).read_text(encoding="utf-8"))
+    assert {s["id"]: s.get("owner") for s in stored["subscriptions"]} == {robots: "robot1", plantkgs: None}
+    broker.restart()
+    assert broker.listed(ROBOT) == [robots] and broker.listed(PLANNER) == []
+    assert broker.listed(AGENT) == [robots, plantkgs]
+    assert broker.send("GET", f"/v2/subscriptions/{robots}", None, PLANNER).status_code == 404
+
+
+def test_a_principals_tokens_are_still_checked_first(broker: Broker) -> None:
+    for token in ("guess", ROBOT + "x"):
+        reply = broker.send("POST", "/v2/subscriptions", sub({"id": "urn:task:1"}), token)
+        assert (reply.status_code, reply.json["error"]) == (401, "Unauthorized")
+        assert broker.send("GET", "/v2/subscriptions", None, token).status_code == 401
