@@ -68,6 +68,10 @@ class Gate:
                             "has it", REALM)
         return found
 
+    def owners(self) -> dict[str, Requester]:
+        """The principals as owners of subscriptions (:mod:`.subscriptions.ownership`), by name."""
+        return {p.name: requester(p) for p in self._by_digest.values()}
+
 
 def authorize(who: Principal, method: str, path: str, args: Mapping[str, str], body: Any) -> None:
     """Nothing if ``who`` may make the request, else 403 naming the principal and the entity

@@ -6,7 +6,8 @@ A principal subscribes to an entity it may read and its notification arrives at 
 this test runs; subscribing to an entity it may not read, or with a ``kafka://`` notification, is
 403 with Orion's error body naming the principal; it lists only its own subscriptions (FiLiP's
 "already exists" check included) and cannot see or delete another principal's (404); plantkg's
-token sees every one.
+token sees every one. When the plant takes the right away, ``apply`` restarts the broker with the
+new principals file and the subscription stops notifying (plantkg's own on the same entity goes on).
 """
 
 from __future__ import annotations
@@ -82,9 +83,10 @@ class Receiver:
     def url(self) -> str:
         return f"http://{RECEIVER_HOST}:{self.port}/notify"
 
-    def seqs(self, entity_id: str) -> list[int]:
+    def seqs(self, entity_id: str, sub_id: str | None = None) -> list[int]:
         with self.lock:
-            return [e["seq"]["value"] for b in self.bodies for e in b["data"] if e["id"] == entity_id]
+            return [e["seq"]["value"] for b in self.bodies for e in b["data"]
+                    if e["id"] == entity_id and sub_id in (None, b["subscriptionId"])]
 
     def stop(self) -> None:
         self.server.shutdown()
@@ -205,6 +207,31 @@ def test_a_principal_sees_only_its_own_subscriptions_and_plantkg_sees_all(dep: D
     assert status == 200 and {s["id"] for s in listed} == {dep.subs["planner"], dep.subs["robot"]}
     robot.delete_subscription(dep.subs["robot"])
     assert robot.get_subscription_list() == []
+
+
+def test_a_right_taken_away_silences_the_subscription(dep: Deployment, capsys: pytest.CaptureFixture[str]) -> None:
+    status_id, planners = dep.ids["agv/1/status"], dep.subs["planner"]
+    text = dep.plant.read_text(encoding="utf-8")
+    dep.plant.write_text(text.replace("pk:publishes :task ; pk:subscribes :status ;", "pk:publishes :task ;"),
+                         encoding="utf-8")
+    code = main(["apply", str(dep.plant), "--agents", str(dep.fleet.agents_file), "--yes"])
+    out = capsys.readouterr()
+    assert code == 0, out.out + out.err
+    # (another URL: FiLiP with plantkg's token, which sees every subscription, would find the planner's)
+    plantkgs = dep.filip(dep.agent_token).post_subscription(
+        dep.subscription(status_id, "AgvStatus", url=dep.receiver.url + "/plantkg"))
+    assert dep.request("PATCH", f"/v2/entities/{status_id}/attrs", {"seq": {"type": "Number", "value": 10}},
+                       ROBOT_TOKEN)[0] == 204
+    # the match (and its log line) happens before the write is answered
+    log = dep.fleet.agents[HOST].state_dir / "brokers" / "cb" / "logs" / "ngsi-v2.log"
+    assert f"subscription {planners} of principal 'planner' does not notify" in log.read_text(encoding="utf-8")
+    process.wait_until(lambda: dep.receiver.seqs(status_id, plantkgs) == [10], 20, 0.05,
+                       what="plantkg's notification of seq 10")
+    assert 10 not in dep.receiver.seqs(status_id, planners)
+    # still the planner's to see and delete
+    planner = dep.filip(PLANNER_TOKEN)
+    assert [s.id for s in planner.get_subscription_list()] == [planners]
+    planner.delete_subscription(planners)
 
 
 def test_destroy_leaves_nothing(dep: Deployment, capsys: pytest.CaptureFixture[str]) -> None:

@@ -15,11 +15,15 @@ registry on ``POST`` and on the merged result of a ``PATCH``:
   is 404, Orion's "not found", as if it did not exist: it learns nothing of it) and lists only its
   own; plantkg's token sees every one. Orion has no owner (telefonicaid/fiware-orion#3522 leaves it
   to the PEP proxy in front); this broker is its own PEP, so the owner is stored with the
-  subscription (``owner`` in ``subscriptions.json``, never shown in its JSON).
+  subscription (``owner`` in ``subscriptions.json``, never shown in its JSON);
+- a principal's rights are those of the broker's principals file as it runs: when the plant takes
+  a right away (or the principal), the broker restarts with the new file and a subscription its
+  owner may no longer hold stops notifying (:func:`lapsed`, checked at each match; logged once).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 from engine.context_broker.contract import NgsiError
@@ -68,6 +72,21 @@ def check_may_hold(who: Requester, sub: Subscription) -> None:
                          f"(notification.{kind}): {kind}:// notifications are plantkg's own (they reach the "
                          "plant's brokers as plantkg); give an http:// or https:// URL "
                          "(notification.http), or have the plant bridge the entity to the broker")
+
+
+def lapsed(sub: Subscription, owners: Mapping[str, Requester]) -> str | None:
+    """Why ``sub`` may no longer notify (its owner is no principal of ``owners``, the broker's
+    principals as it runs, or may no longer hold it), or None (plantkg's, or still allowed)."""
+    if sub.owner is None:
+        return None
+    who = owners.get(sub.owner)
+    if who is None:
+        return f"its owner {sub.owner!r} is no principal of this context broker any more"
+    try:
+        check_may_hold(who, sub)
+    except NgsiError as err:
+        return err.description
+    return None
 
 
 def _forbidden(description: str) -> NgsiError:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +26,7 @@ from engine.context_broker.subscriptions.model import (
     DeliveryStatus, HttpTarget, KafkaTarget, MqttTarget, PlantKafkas, Status, Subscription, Target,
 )
 from engine.context_broker.subscriptions.outbox import Outbox
-from engine.context_broker.subscriptions.ownership import PLANTKG, Requester
+from engine.context_broker.subscriptions.ownership import PLANTKG, Requester, lapsed
 from engine.context_broker.subscriptions.parse import QParser
 from engine.context_broker.subscriptions.registry import Registry
 from engine.context_broker.subscriptions.result import Result
@@ -47,10 +47,15 @@ class SubscriptionService:
                  backoff: Callable[[int], float] = backoff_delay,
                  status_flush_interval: float = STATUS_FLUSH_INTERVAL,
                  senders: dict[type, Sender] | None = None, fsync: bool = False,
-                 kafkas: PlantKafkas = PlantKafkas()) -> None:
+                 kafkas: PlantKafkas = PlantKafkas(),
+                 owners: Mapping[str, Requester] | None = None) -> None:
         """``kafkas``: the plant's closed Kafka brokers, where ``kafka://`` notifications log in as
-        plantkg's own principal, and those that speak TLS (:mod:`.kafka`)."""
+        plantkg's own principal, and those that speak TLS (:mod:`.kafka`). ``owners``: the
+        broker's principals by name, as it runs (none: a subscription a principal created does
+        not notify, see :func:`.ownership.lapsed`)."""
         self.clock = clock
+        self._owners = dict(owners or {})
+        self._lapsed_logged: set[str] = set()
         self._kafkas = kafkas
         self._parse_q = parse_q or _default_parse_q
         self.registry = Registry(Path(data_dir), self._parse_q)
@@ -129,6 +134,14 @@ class SubscriptionService:
     def _offer(self, sub: Subscription, change: EntityChange, now: float) -> None:
         if not matcher.is_live(sub, now) or not matcher.triggers(sub, change, self._query(sub)):
             return
+        if sub.owner is not None:
+            why = lapsed(sub, self._owners)
+            if why is not None:
+                if sub.id not in self._lapsed_logged:
+                    self._lapsed_logged.add(sub.id)
+                    log.warning("subscription %s of principal %r does not notify: %s", sub.id,
+                                sub.owner, why)
+                return
         with self._trigger_lock:
             if matcher.throttled(sub, self._last_triggered.get(sub.id), now):
                 return

@@ -3,22 +3,30 @@
 a principal subscribes only to entities it names by id and may read, with HTTP notifications only
 (403 with Orion's body, naming the principal and the entity or target); it sees, changes, deletes
 and lists only its own subscriptions (another's is 404); plantkg's token sees every one; the
-owner is stored with the subscription and read back by the next start."""
+owner is stored with the subscription and read back by the next start; a subscription whose owner
+lost the right (or is gone) does not notify."""
 
 from __future__ import annotations
 
 import json
+import logging
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 
+from engine import process
 from engine.context_broker.access import Gate
 from engine.context_broker.app import create_app
 from engine.context_broker.store import ContextStore
+from engine.context_broker.contract import EntityChange, Tenant
 from engine.context_broker.subscriptions import SubscriptionService
+from engine.context_broker.subscriptions.model import HttpTarget
+from engine.context_broker.subscriptions.ownership import PLANTKG, Requester, lapsed
 from engine.context_broker.subscriptions.registry import SUBSCRIPTIONS_FILE
+from engine.context_broker.subscriptions.result import Result
 from engine.security.ngsi_principals import load_principals, render_principals
 
 AGENT = "agent-token-1"
@@ -45,7 +53,7 @@ class Broker:
 
     def _open(self) -> None:
         self.store = ContextStore(self.folder / "data")
-        self.service = SubscriptionService(self.folder / "subs")
+        self.service = SubscriptionService(self.folder / "subs", owners=self.gate.owners())
         app = create_app(self.store, token=AGENT, gate=self.gate, listeners=[self.service],
                          subscriptions_blueprint=self.service.blueprint())
         self.client = app.test_client()
@@ -171,3 +179,71 @@ def test_a_principals_tokens_are_still_checked_first(broker: Broker) -> None:
         reply = broker.send("POST", "/v2/subscriptions", sub({"id": "urn:task:1"}), token)
         assert (reply.status_code, reply.json["error"]) == (401, "Unauthorized")
         assert broker.send("GET", "/v2/subscriptions", None, token).status_code == 401
+
+
+ROBOT_NOW = Requester("robot1", frozenset({"urn:pose:1", "urn:task:1"}))
+# (owner of a subscription to urn:task:1, the broker's principals as it runs, why it lapsed or None)
+LAPSE_CASES = [
+    ("plantkg's own", None, {}, None),
+    ("its owner still reads it", "robot1", {"robot1": ROBOT_NOW}, None),
+    ("its owner lost the right", "robot1", {"robot1": Requester("robot1", frozenset({"urn:pose:1"}))},
+     "may not read entity 'urn:task:1'"),
+    ("its owner is gone", "robot1", {"planner": Requester("planner", frozenset({"urn:task:1"}))},
+     "no principal of this context broker"),
+]
+
+
+@pytest.mark.parametrize(("owner", "owners", "why"), [c[1:] for c in LAPSE_CASES], ids=[c[0] for c in LAPSE_CASES])
+def test_a_subscription_lapses_when_its_owner_may_no_longer_hold_it(tmp_path: Path, owner: str | None,
+                                                                    owners: dict[str, Requester],
+                                                                    why: str | None) -> None:
+    service = SubscriptionService(tmp_path)
+    try:
+        who = PLANTKG if owner is None else ROBOT_NOW
+        made = service.create(Tenant(), sub({"id": "urn:task:1"}), who)
+        got = lapsed(made, owners)
+        assert (got is None) if why is None else (why in (got or "")), got
+    finally:
+        service.close()
+
+
+class Recorder:
+    """The HTTP sender's place: records each notification's URL (no receiver needed)."""
+
+    def __init__(self) -> None:
+        self.urls: list[str] = []
+        self.lock = threading.Lock()
+
+    def send(self, target: HttpTarget, msg: Any) -> Result:
+        with self.lock:
+            self.urls.append(target.url)
+        return Result.success(204)
+
+    def close(self) -> None:
+        return None
+
+
+def test_a_lapsed_subscription_does_not_notify_and_plantkgs_still_does(tmp_path: Path,
+                                                                       caplog: pytest.LogCaptureFixture) -> None:
+    recorder = Recorder()
+    # the robot's right to read the task is gone from the principals the broker runs with
+    service = SubscriptionService(tmp_path, senders={HttpTarget: recorder},
+                                  owners={"robot1": Requester("robot1", frozenset({"urn:pose:1"}))})
+    service.start()
+    try:
+        robots = service.create(Tenant(), sub({"id": "urn:task:1"}, notification={"http": {
+            "url": "http://127.0.0.1:9/robot"}}), ROBOT_NOW)
+        service.create(Tenant(), sub({"id": "urn:task:1"}, notification={"http": {
+            "url": "http://127.0.0.1:9/plantkg"}}))
+        task = {"id": "urn:task:1", "type": "T", "v": {"type": "Number", "value": 1, "metadata": {}}}
+        with caplog.at_level(logging.WARNING):
+            for _ in range(2):
+                service.entity_changed(EntityChange(tenant=Tenant(), entity=task, changed=frozenset({"v"}),
+                                                    created=True))
+        lapsed_lines = [r.getMessage() for r in caplog.records if "does not notify" in r.getMessage()]
+        assert len(lapsed_lines) == 1 and robots.id in lapsed_lines[0], lapsed_lines  # logged once
+        process.wait_until(lambda: len(recorder.urls) == 2, 10, 0.01, what="plantkg's notifications")
+        assert recorder.urls == ["http://127.0.0.1:9/plantkg"] * 2
+        assert service.registry.status_of(robots.id).times_sent == 0
+    finally:
+        service.close()
