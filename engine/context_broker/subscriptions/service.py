@@ -76,14 +76,15 @@ class SubscriptionService:
         recovered, self._recovered = self._recovered, []
         gone = []
         for msg in recovered:
-            if self.registry.current(msg.subscription_id) is None:  # deleted meanwhile
+            sub = self.registry.current(msg.subscription_id)
+            if sub is None or lapsed(sub, self._owners) is not None:  # deleted, or no longer its owner's to get
                 gone.append(msg)
             else:
                 self.delivery.enqueue(msg)
         self.outbox.settle(gone)
         if recovered:
             log.info("%d notification(s) left undelivered by the last run queued again (%d of "
-                     "deleted subscriptions let go)", len(recovered) - len(gone), len(gone))
+                     "deleted or lapsed subscriptions let go)", len(recovered) - len(gone), len(gone))
         if self._flusher is None:
             self._flusher = threading.Thread(target=self._flush_loop, name="subscription-status",
                                              daemon=True)

@@ -24,6 +24,7 @@ from engine.context_broker.store import ContextStore
 from engine.context_broker.contract import EntityChange, Tenant
 from engine.context_broker.subscriptions import SubscriptionService
 from engine.context_broker.subscriptions.model import HttpTarget
+from engine.context_broker.subscriptions.outbox import Outbox
 from engine.context_broker.subscriptions.ownership import PLANTKG, Requester, lapsed
 from engine.context_broker.subscriptions.registry import SUBSCRIPTIONS_FILE
 from engine.context_broker.subscriptions.result import Result
@@ -208,16 +209,18 @@ def test_a_subscription_lapses_when_its_owner_may_no_longer_hold_it(tmp_path: Pa
 
 
 class Recorder:
-    """The HTTP sender's place: records each notification's URL (no receiver needed)."""
+    """The HTTP sender's place: records each notification's URL (no receiver needed); ``down``:
+    each attempt fails, to be retried (what is queued stays in the outbox at close)."""
 
-    def __init__(self) -> None:
+    def __init__(self, down: bool = False) -> None:
         self.urls: list[str] = []
+        self.down = down
         self.lock = threading.Lock()
 
     def send(self, target: HttpTarget, msg: Any) -> Result:
         with self.lock:
             self.urls.append(target.url)
-        return Result.success(204)
+        return Result.temporary("receiver down") if self.down else Result.success(204)
 
     def close(self) -> None:
         return None
@@ -247,3 +250,36 @@ def test_a_lapsed_subscription_does_not_notify_and_plantkgs_still_does(tmp_path:
         assert service.registry.status_of(robots.id).times_sent == 0
     finally:
         service.close()
+
+
+def test_what_a_lapsed_subscription_left_undelivered_is_not_sent_after_the_restart(tmp_path: Path) -> None:
+    task = {"id": "urn:task:1", "type": "T", "v": {"type": "Number", "value": 1, "metadata": {}}}
+    down = Recorder(down=True)
+    service = SubscriptionService(tmp_path, senders={HttpTarget: down}, backoff=lambda attempt: 600.0,
+                                  owners={"robot1": ROBOT_NOW})
+    service.start()
+    try:
+        service.create(Tenant(), sub({"id": "urn:task:1"}, notification={"http": {
+            "url": "http://127.0.0.1:9/robot"}}), ROBOT_NOW)
+        plantkgs = service.create(Tenant(), sub({"id": "urn:task:1"}, notification={"http": {
+            "url": "http://127.0.0.1:9/plantkg"}}))
+        service.entity_changed(EntityChange(tenant=Tenant(), entity=task, changed=frozenset({"v"}), created=True))
+        process.wait_until(lambda: len(down.urls) == 2, 10, 0.01, what="the first attempts")
+    finally:
+        service.close()  # both notifications stay in the outbox
+    # the robot's right to read the task is gone when the broker starts again
+    again = SubscriptionService(tmp_path, senders={HttpTarget: Recorder(down=True)}, backoff=lambda attempt: 600.0,
+                                owners={"robot1": Requester("robot1", frozenset({"urn:pose:1"}))})
+    try:
+        assert again.outbox.pending() == 2  # both read back
+        again.start()
+        # the robot's is let go at once (settled); plantkg's is queued again and, its receiver
+        # still down, stays in the outbox
+        assert again.outbox.pending() == 1
+    finally:
+        again.close()
+    left = Outbox(tmp_path)
+    try:
+        assert [m.subscription_id for m in left.recover()] == [plantkgs.id]
+    finally:
+        left.close()
