@@ -18,7 +18,12 @@ What a principal may do (:func:`authorize`):
 - read ``/v2/entities/{id}...`` of an entity it may read or write; list ``/v2/entities`` or
   ``POST /v2/op/query`` only when the request names its ids (``id=a,b`` or the query's
   ``entities[].id``), all of them readable;
-- nothing else: types, subscriptions and the whole graph are plantkg's (the agent's token).
+- ``/v2/subscriptions`` (create, list) and ``/v2/subscriptions/{id}`` (get, change, delete):
+  let through with the principal as the request's :class:`Requester` (:func:`requester`); the
+  subscriptions' own rules need the parsed subscription and its stored owner, so
+  :mod:`.subscriptions.ownership` checks them: subjects only by ``id`` of entities it may read,
+  HTTP notifications only, its own subscriptions only;
+- nothing else: types and the whole graph are plantkg's (the agent's token).
 """
 
 from __future__ import annotations
@@ -28,11 +33,13 @@ from collections.abc import Mapping
 from typing import Any
 
 from engine.context_broker.contract import NgsiError
+from engine.context_broker.subscriptions.ownership import PLANTKG, Requester
 from engine.security.ngsi_principals import Principal, token_digest
 
 PUBLIC_PATHS = frozenset({"/version"})
 REALM = {"WWW-Authenticate": 'Bearer realm="plantkg context broker"'}
 ENTITY_PREFIX = "/v2/entities/"
+SUBSCRIPTIONS = "/v2/subscriptions"
 
 
 class Gate:
@@ -61,12 +68,18 @@ class Gate:
                             "has it", REALM)
         return found
 
+    def owners(self) -> dict[str, Requester]:
+        """The principals as owners of subscriptions (:mod:`.subscriptions.ownership`), by name."""
+        return {p.name: requester(p) for p in self._by_digest.values()}
+
 
 def authorize(who: Principal, method: str, path: str, args: Mapping[str, str], body: Any) -> None:
     """Nothing if ``who`` may make the request, else 403 naming the principal and the entity
     (the rules in the module docstring). ``body``: the parsed JSON body, or None."""
     if who.internal or path in PUBLIC_PATHS:
         return
+    if path == SUBSCRIPTIONS or path.startswith(SUBSCRIPTIONS + "/"):
+        return  # the subscriptions' rules: .subscriptions.ownership, with requester(who)
     read = method in ("GET", "HEAD") or (method == "POST" and path == "/v2/op/query")
     allowed = (who.read | who.write) if read else who.write
     wanted: list[str] | None
@@ -89,6 +102,14 @@ def authorize(who: Principal, method: str, path: str, args: Mapping[str, str], b
         if eid not in allowed:
             raise NgsiError(403, "Forbidden", f"principal {who.name!r} may not "
                             f"{'read' if read else 'write'} entity {eid!r}")
+
+
+def requester(who: Principal | None) -> Requester:
+    """Who the subscriptions blueprint serves: plantkg's rights for the agent's token (and on a
+    broker without a gate, ``who`` None), else the principal and the entities it may read."""
+    if who is None or who.internal:
+        return PLANTKG
+    return Requester(who.name, who.read | who.write)
 
 
 def _batch_ids(body: Any) -> list[str] | None:

@@ -5,7 +5,8 @@ What every request goes through, before its view (in this order):
 1. writes (POST, PUT, PATCH, DELETE; ``POST /v2/op/query`` is a read) need
    ``Authorization: Bearer <token>`` when the app has a token: 401 ``Unauthorized`` otherwise;
    on a closed broker (a ``gate``, :mod:`.access`) every request but ``/version`` needs a
-   principal's token (401 without, 403 outside its rights, checked after step 2);
+   principal's token (401 without, 403 outside its rights, checked after step 2); the
+   principal is left in the environ for the subscriptions blueprint (:mod:`.subscriptions.ownership`);
 2. a body-carrying request without ``Content-Length`` (nor chunked encoding): 411
    ``ContentLengthRequired``; over 1 MB (Orion's limit): 413 ``RequestEntityTooLarge``;
 3. tenancy headers are checked by the views (``Fiware-Service``, ``Fiware-ServicePath``).
@@ -35,13 +36,14 @@ from flask import Blueprint, Flask, Response, request
 from werkzeug.exceptions import HTTPException, MethodNotAllowed, NotFound, RequestEntityTooLarge
 
 from engine.context_broker import batch, routes
-from engine.context_broker.access import PUBLIC_PATHS, Gate, authorize
+from engine.context_broker.access import PUBLIC_PATHS, Gate, authorize, requester
 from engine.context_broker.contract import ChangeListener, NgsiError
 from engine.context_broker.fastpath import fast_writes
 from engine.context_broker.openapi import openapi_document
 from engine.context_broker.params import FREE_PARAMS, check_url_param
 from engine.context_broker.routes import json_response
 from engine.context_broker.store import ContextStore
+from engine.context_broker.subscriptions.ownership import ENVIRON_KEY
 
 log = logging.getLogger(__name__)
 MAX_BODY = 1024 * 1024
@@ -107,6 +109,7 @@ def create_app(store: ContextStore, *, token: str | None = None,
         if who is not None:
             body = request.get_json(silent=True) if method == "POST" else None
             authorize(who, method, request.path, request.args, body)
+        request.environ[ENVIRON_KEY] = requester(who)
         return None
 
     app.register_error_handler(NgsiError, _error)

@@ -168,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
     from engine.context_broker.subscriptions import SubscriptionService
 
     subscriptions = SubscriptionService(args.data_dir / "subscriptions", fsync=args.fsync,
-                                        kafkas=kafkas)
+                                        kafkas=kafkas, owners=gate.owners() if gate else {})
     subscriptions.start()
     try:
         app = create_app(store, token=token, gate=gate, listeners=[subscriptions],

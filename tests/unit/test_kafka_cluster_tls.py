@@ -3,7 +3,8 @@ cluster makes every node TLS (engine.derive), each node's server.properties puts
 TLS (client, inter-broker, controller: open SSL or closed SASL_SSL) with the plant CA as truststore
 and endpoint identification on, each node's keystore names its own host, and every plantkg client
 of the cluster is told to speak TLS (a bridge end, a context broker's kafka:// notifications). The
-cluster itself: tests/integration/test_kafka_cluster_tls.py."""
+cluster itself: tests/integration/test_kafka_cluster_tls.py (closed) and test_kafka_cluster_tls_open.py
+(open)."""
 
 from __future__ import annotations
 

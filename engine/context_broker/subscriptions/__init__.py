@@ -7,7 +7,8 @@ the entity layer calls after each durable write. Inside, one module per job: :mo
 (validation), :mod:`.matcher` (which
 subscriptions a change triggers), :mod:`.render` (the notification), :mod:`.registry` (durable
 CRUD and delivery status), :mod:`.delivery` (per-subscription lanes, retries with backoff) and
-the senders :mod:`.http`, :mod:`.mqtt`, :mod:`.kafka`. See docs/context-broker-subscriptions.md.
+the senders :mod:`.http`, :mod:`.mqtt`, :mod:`.kafka`; :mod:`.ownership` (what a principal of a
+closed broker may subscribe to, and whose a subscription is). See docs/context-broker-subscriptions.md.
 """
 
 from engine.context_broker.subscriptions.service import SubscriptionService

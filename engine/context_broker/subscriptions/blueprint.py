@@ -9,6 +9,10 @@
 - ``GET``/``PATCH`` (204)/``DELETE`` (204) ``/v2/subscriptions/<id>``: 400 for an id that is
   not 24 hex digits, 404 for one the service does not have.
 
+On a closed context broker the app leaves the request's principal in the WSGI environ
+(:data:`.ownership.ENVIRON_KEY`): a principal creates only what it may hold and sees, changes,
+deletes and lists only its own (:mod:`.ownership`); without it, plantkg's own rights.
+
 Every refusal is an :class:`NgsiError`; this blueprint renders it as Orion does (the app's
 handler does the same for the other routes).
 """
@@ -21,8 +25,9 @@ from typing import TYPE_CHECKING, Any
 from flask import Blueprint, Response, request
 
 from engine.context_broker.contract import NgsiError, bad_request
-from engine.context_broker.subscriptions.scope import subscription_tenant
 from engine.context_broker.subscriptions.model import render
+from engine.context_broker.subscriptions.ownership import ENVIRON_KEY, PLANTKG, Requester
+from engine.context_broker.subscriptions.scope import subscription_tenant
 
 if TYPE_CHECKING:
     from engine.context_broker.subscriptions.service import SubscriptionService
@@ -68,6 +73,10 @@ def _body() -> Any:
         raise NgsiError(400, "ParseError", f"Errors found in incoming JSON buffer: {err}") from None
 
 
+def _requester() -> Requester:
+    return request.environ.get(ENVIRON_KEY, PLANTKG)
+
+
 def make_blueprint(service: SubscriptionService) -> Blueprint:
     bp = Blueprint("ngsi_subscriptions", __name__)
     bp.register_error_handler(NgsiError, _error)
@@ -84,7 +93,7 @@ def make_blueprint(service: SubscriptionService) -> Blueprint:
             raise bad_request(f"Invalid value for URI param /options/: {', '.join(sorted(unknown))} "
                               "(subscriptions take only count)")
         path_given = bool((request.headers.get("Fiware-ServicePath") or "").strip())
-        subs = service.listing(tenant, path_given)
+        subs = service.listing(tenant, path_given, _requester())
         now = service.clock()
         page = [render(s, d, now) for s, d in subs[offset:offset + limit]]
         headers = {"Fiware-Total-Count": str(len(subs))} if "count" in options else {}
@@ -94,25 +103,25 @@ def make_blueprint(service: SubscriptionService) -> Blueprint:
     @bp.post("/v2/subscriptions/")
     def create_subscription() -> Response:
         tenant = subscription_tenant(request.headers)
-        sub = service.create(tenant, _body())
+        sub = service.create(tenant, _body(), _requester())
         return Response(status=201, headers={"Location": f"/v2/subscriptions/{sub.id}"})
 
     @bp.get("/v2/subscriptions/<sub_id>")
     def get_subscription(sub_id: str) -> Response:
         tenant = subscription_tenant(request.headers)
-        sub, status = service.get(sub_id, tenant)
+        sub, status = service.get(sub_id, tenant, _requester())
         return _json_response(render(sub, status, service.clock()))
 
     @bp.patch("/v2/subscriptions/<sub_id>")
     def patch_subscription(sub_id: str) -> Response:
         tenant = subscription_tenant(request.headers)
-        service.update(sub_id, tenant, _body())
+        service.update(sub_id, tenant, _body(), _requester())
         return Response(status=204)
 
     @bp.delete("/v2/subscriptions/<sub_id>")
     def delete_subscription(sub_id: str) -> Response:
         tenant = subscription_tenant(request.headers)
-        service.delete(sub_id, tenant)
+        service.delete(sub_id, tenant, _requester())
         return Response(status=204)
 
     return bp

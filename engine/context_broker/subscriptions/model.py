@@ -141,6 +141,8 @@ class Subscription:
     throttling: int = 0
     #: the service paths it watches, from ``tenant.service_path`` read as a query (see .scope)
     scope: ReadScope = field(default_factory=ReadScope)
+    #: the principal that created it (None: plantkg's own token), see .ownership; never rendered
+    owner: str | None = None
 
 
 @dataclass(frozen=True)

@@ -5,14 +5,15 @@ fsync it, rename it over the old one, fsync the directory), so a kill -9 leaves 
 new version, never half of one:
 
 - ``subscriptions.json``: every subscription as its client wrote it (after ``PATCH`` merges),
-  with its tenant. Written before ``POST``/``PATCH``/``DELETE`` answer 2xx, and when a
+  with its tenant and, when a principal created it, its ``owner`` (:mod:`.ownership`). Written before ``POST``/``PATCH``/``DELETE`` answer 2xx, and when a
   ``oneshot`` subscription fires or ``maxFailsLimit`` deactivates one.
 - ``subscription-status.json``: the delivery counters (``timesSent``, ``lastSuccess``, ...),
   written by :meth:`Registry.flush_status` (every few seconds by the service, and at close), so a
   kill -9 loses at most that window of counter updates.
 
 Subscriptions belong to a ``Fiware-Service`` (Orion: "subscriptions belong only to the service");
-their service path is the scope of entities they watch.
+their service path is the scope of entities they watch. Every call takes the :class:`Requester`:
+a principal creates only what it may hold and sees only its own (:mod:`.ownership`).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from typing import Any
 from engine.context_broker.contract import NgsiError, Tenant, not_found
 from engine.errors import EngineError
 from engine.context_broker.subscriptions.model import DeliveryStatus, Status, Subscription
+from engine.context_broker.subscriptions.ownership import PLANTKG, Requester, check_may_hold, may_see
 from engine.context_broker.subscriptions.parse import QParser, merge_patch, parse_subscription
 from engine.context_broker.subscriptions.result import Result
 from engine.whole_file import write_whole
@@ -88,14 +90,18 @@ class Registry:
             for item in items:
                 try:
                     tenant = Tenant(item["service"], item["servicePath"])
-                    sub = parse_subscription(item["doc"], sub_id=item["id"], tenant=tenant,
-                                             parse_q=self._parse_q)
+                    owner = item.get("owner")
+                    if owner is not None and not isinstance(owner, str):
+                        raise SubscriptionStoreError(path, f"subscription {item['id']}: owner "
+                                                           f"{owner!r} is not a principal's name")
+                    sub = replace(parse_subscription(item["doc"], sub_id=item["id"], tenant=tenant,
+                                                     parse_q=self._parse_q), owner=owner)
                 except (KeyError, TypeError) as err:
                     raise SubscriptionStoreError(path, f"entry without {err}") from None
                 except NgsiError as err:
                     raise SubscriptionStoreError(
                         path, f"subscription {item['id']} is not valid: {err.description}") from None
-                self._docs[sub.id] = {"tenant": tenant, "doc": item["doc"]}
+                self._docs[sub.id] = {"tenant": tenant, "doc": item["doc"], "owner": owner}
                 self._subs[sub.id] = sub
         status_path = self._dir / STATUS_FILE
         if status_path.exists():
@@ -138,7 +144,8 @@ class Registry:
         changes nothing (the request is answered 500 saying so)."""
         path = self._dir / SUBSCRIPTIONS_FILE
         items = [{"id": sub_id, "service": entry["tenant"].service,
-                  "servicePath": entry["tenant"].service_path, "doc": entry["doc"]}
+                  "servicePath": entry["tenant"].service_path, "doc": entry["doc"],
+                  **({"owner": entry["owner"]} if entry.get("owner") is not None else {})}
                  for sub_id, entry in docs.items()]
         try:
             atomic_write_json(path, {"version": 1, "subscriptions": items})
@@ -158,42 +165,49 @@ class Registry:
         atomic_write_json(self._dir / STATUS_FILE, data)
 
     # --- CRUD ----------------------------------------------------------------------------
-    def create(self, tenant: Tenant, doc: Mapping[str, Any]) -> Subscription:
+    def create(self, tenant: Tenant, doc: Mapping[str, Any], who: Requester = PLANTKG) -> Subscription:
         sub_id = new_id()
-        sub = parse_subscription(doc, sub_id=sub_id, tenant=tenant, parse_q=self._parse_q)
+        sub = replace(parse_subscription(doc, sub_id=sub_id, tenant=tenant, parse_q=self._parse_q),
+                      owner=who.name)
+        check_may_hold(who, sub)
         stored = {k: v for k, v in doc.items() if k != "id"}
         with self._lock:
-            self._commit({**self._docs, sub_id: {"tenant": tenant, "doc": stored}},
+            self._commit({**self._docs, sub_id: {"tenant": tenant, "doc": stored, "owner": who.name}},
                          {**self._subs, sub_id: sub})
             self._status[sub_id] = DeliveryStatus()
         return sub
 
-    def _owned(self, sub_id: str, service: str) -> Subscription:
+    def _owned(self, sub_id: str, service: str, who: Requester) -> Subscription:
+        """The subscription ``sub_id`` of ``service`` if ``who`` may see it, else 404 (another
+        principal's is not found either: see .ownership)."""
         check_id(sub_id)
         sub = self._subs.get(sub_id)
-        if sub is None or sub.tenant.service != service:
+        if sub is None or sub.tenant.service != service or not may_see(who, sub):
             raise not_found(NOT_FOUND)
         return sub
 
-    def get(self, sub_id: str, service: str) -> tuple[Subscription, DeliveryStatus]:
+    def get(self, sub_id: str, service: str, who: Requester = PLANTKG) -> tuple[Subscription, DeliveryStatus]:
         with self._lock:
-            sub = self._owned(sub_id, service)
+            sub = self._owned(sub_id, service, who)
             return sub, self._status.get(sub_id, DeliveryStatus())
 
-    def listing(self, service: str, service_path: str | None) -> list[tuple[Subscription, DeliveryStatus]]:
-        """The service's subscriptions in creation order; with ``service_path`` (canonical, see
-        .scope), only those created with exactly that service-path query (as Orion)."""
+    def listing(self, service: str, service_path: str | None,
+                who: Requester = PLANTKG) -> list[tuple[Subscription, DeliveryStatus]]:
+        """The service's subscriptions ``who`` may see, in creation order; with ``service_path``
+        (canonical, see .scope), only those created with exactly that service-path query (as Orion)."""
         with self._lock:
             return [(s, self._status.get(s.id, DeliveryStatus())) for s in self._subs.values()
-                    if s.tenant.service == service
+                    if s.tenant.service == service and may_see(who, s)
                     and (service_path is None or s.tenant.service_path == service_path)]
 
-    def update(self, sub_id: str, service: str, patch: Any) -> Subscription:
+    def update(self, sub_id: str, service: str, patch: Any, who: Requester = PLANTKG) -> Subscription:
         with self._lock:
-            old = self._owned(sub_id, service)
+            old = self._owned(sub_id, service, who)
             merged = merge_patch(self._docs[sub_id]["doc"], patch)
-            sub = parse_subscription(merged, sub_id=sub_id, tenant=old.tenant, parse_q=self._parse_q)
-            self._commit({**self._docs, sub_id: {"tenant": old.tenant, "doc": merged}},
+            sub = replace(parse_subscription(merged, sub_id=sub_id, tenant=old.tenant, parse_q=self._parse_q),
+                          owner=old.owner)
+            check_may_hold(who, sub)
+            self._commit({**self._docs, sub_id: {**self._docs[sub_id], "doc": merged}},
                          {**self._subs, sub_id: sub})
             if sub.status is not Status.INACTIVE and "status" in patch:
                 # re-activated by its owner: a fresh start for maxFailsLimit
@@ -201,9 +215,9 @@ class Registry:
                 self._status_dirty = True
         return sub
 
-    def delete(self, sub_id: str, service: str) -> None:
+    def delete(self, sub_id: str, service: str, who: Requester = PLANTKG) -> None:
         with self._lock:
-            self._owned(sub_id, service)
+            self._owned(sub_id, service, who)
             self._commit({k: v for k, v in self._docs.items() if k != sub_id},
                          {k: v for k, v in self._subs.items() if k != sub_id})
             self._status.pop(sub_id, None)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +26,7 @@ from engine.context_broker.subscriptions.model import (
     DeliveryStatus, HttpTarget, KafkaTarget, MqttTarget, PlantKafkas, Status, Subscription, Target,
 )
 from engine.context_broker.subscriptions.outbox import Outbox
+from engine.context_broker.subscriptions.ownership import PLANTKG, Requester, lapsed
 from engine.context_broker.subscriptions.parse import QParser
 from engine.context_broker.subscriptions.registry import Registry
 from engine.context_broker.subscriptions.result import Result
@@ -46,10 +47,15 @@ class SubscriptionService:
                  backoff: Callable[[int], float] = backoff_delay,
                  status_flush_interval: float = STATUS_FLUSH_INTERVAL,
                  senders: dict[type, Sender] | None = None, fsync: bool = False,
-                 kafkas: PlantKafkas = PlantKafkas()) -> None:
+                 kafkas: PlantKafkas = PlantKafkas(),
+                 owners: Mapping[str, Requester] | None = None) -> None:
         """``kafkas``: the plant's closed Kafka brokers, where ``kafka://`` notifications log in as
-        plantkg's own principal, and those that speak TLS (:mod:`.kafka`)."""
+        plantkg's own principal, and those that speak TLS (:mod:`.kafka`). ``owners``: the
+        broker's principals by name, as it runs (none: a subscription a principal created does
+        not notify, see :func:`.ownership.lapsed`)."""
         self.clock = clock
+        self._owners = dict(owners or {})
+        self._lapsed_logged: set[str] = set()
         self._kafkas = kafkas
         self._parse_q = parse_q or _default_parse_q
         self.registry = Registry(Path(data_dir), self._parse_q)
@@ -70,14 +76,15 @@ class SubscriptionService:
         recovered, self._recovered = self._recovered, []
         gone = []
         for msg in recovered:
-            if self.registry.current(msg.subscription_id) is None:  # deleted meanwhile
+            sub = self.registry.current(msg.subscription_id)
+            if sub is None or lapsed(sub, self._owners) is not None:  # deleted, or no longer its owner's to get
                 gone.append(msg)
             else:
                 self.delivery.enqueue(msg)
         self.outbox.settle(gone)
         if recovered:
             log.info("%d notification(s) left undelivered by the last run queued again (%d of "
-                     "deleted subscriptions let go)", len(recovered) - len(gone), len(gone))
+                     "deleted or lapsed subscriptions let go)", len(recovered) - len(gone), len(gone))
         if self._flusher is None:
             self._flusher = threading.Thread(target=self._flush_loop, name="subscription-status",
                                              daemon=True)
@@ -128,6 +135,14 @@ class SubscriptionService:
     def _offer(self, sub: Subscription, change: EntityChange, now: float) -> None:
         if not matcher.is_live(sub, now) or not matcher.triggers(sub, change, self._query(sub)):
             return
+        if sub.owner is not None:
+            why = lapsed(sub, self._owners)
+            if why is not None:
+                if sub.id not in self._lapsed_logged:
+                    self._lapsed_logged.add(sub.id)
+                    log.warning("subscription %s of principal %r does not notify: %s", sub.id,
+                                sub.owner, why)
+                return
         with self._trigger_lock:
             if matcher.throttled(sub, self._last_triggered.get(sub.id), now):
                 return
@@ -150,12 +165,12 @@ class SubscriptionService:
             out.append(query)
         return tuple(out)
 
-    # --- CRUD (called by the blueprint) --------------------------------------------------
-    def create(self, tenant: Tenant, doc: Any) -> Subscription:
-        return self.registry.create(tenant, doc)
+    # --- CRUD (called by the blueprint; ``who``: see .ownership) ------------------------
+    def create(self, tenant: Tenant, doc: Any, who: Requester = PLANTKG) -> Subscription:
+        return self.registry.create(tenant, doc, who)
 
-    def update(self, sub_id: str, tenant: Tenant, patch: Any) -> Subscription:
-        sub = self.registry.update(sub_id, tenant.service, patch)
+    def update(self, sub_id: str, tenant: Tenant, patch: Any, who: Requester = PLANTKG) -> Subscription:
+        sub = self.registry.update(sub_id, tenant.service, patch, who)
         with self._trigger_lock:
             self._last_triggered.pop(sub_id, None)
         if isinstance(patch, dict) and patch.get("status") == Status.INACTIVE.value:
@@ -163,17 +178,18 @@ class SubscriptionService:
             self.dropped(sub_id, self.delivery.discard(sub_id))
         return sub
 
-    def delete(self, sub_id: str, tenant: Tenant) -> None:
-        self.registry.delete(sub_id, tenant.service)
+    def delete(self, sub_id: str, tenant: Tenant, who: Requester = PLANTKG) -> None:
+        self.registry.delete(sub_id, tenant.service, who)
         self.delivery.forget(sub_id)
         with self._trigger_lock:
             self._last_triggered.pop(sub_id, None)
 
-    def get(self, sub_id: str, tenant: Tenant) -> tuple[Subscription, DeliveryStatus]:
-        return self.registry.get(sub_id, tenant.service)
+    def get(self, sub_id: str, tenant: Tenant, who: Requester = PLANTKG) -> tuple[Subscription, DeliveryStatus]:
+        return self.registry.get(sub_id, tenant.service, who)
 
-    def listing(self, tenant: Tenant, path_given: bool) -> list[tuple[Subscription, DeliveryStatus]]:
-        return self.registry.listing(tenant.service, tenant.service_path if path_given else None)
+    def listing(self, tenant: Tenant, path_given: bool,
+                who: Requester = PLANTKG) -> list[tuple[Subscription, DeliveryStatus]]:
+        return self.registry.listing(tenant.service, tenant.service_path if path_given else None, who)
 
     # --- delivery hooks (called by the lanes) --------------------------------------------
     def current(self, sub_id: str) -> Subscription | None:
