@@ -48,7 +48,7 @@ class Focus:
         self._subclasses: dict[str, frozenset[ox.NamedNode]] = {}
         self._sets: dict[str, frozenset[Term]] = {}
         self._checks: dict[str, int] = {}
-        self._large: dict[str, bool] = {}
+        self._estimates: dict[str, int] = {}
 
     # -- the dataset ---------------------------------------------------------------------------
     def _quads(self, s: Term | None, p: ox.NamedNode, o: Term | None) -> Iterable[ox.Quad]:
@@ -66,17 +66,27 @@ class Focus:
             self._subclasses[cls] = found
         return found
 
-    def is_large(self, key: str, targets: list[tuple[str, object]]) -> bool:
-        """Whether ``targets`` hold at least :data:`LARGE` focus nodes, estimated by cheap
-        ``LIMIT`` probes (a count of triples, not of distinct nodes)."""
-        if key not in self._large:
-            total = 0
+    def estimate(self, key: str, targets: list[tuple[str, object]]) -> int:
+        """How many focus nodes ``targets`` hold, up to :data:`LARGE` (at least 1), by ``LIMIT`` probes
+        (a count of triples, not of distinct nodes: 0 exactly when there is none)."""
+        if key not in self._estimates:
+            cap, total = max(LARGE, 1), 0  # at least 1: whether there is any at all
             for kind, value in targets:
-                if total >= LARGE:
+                if total >= cap:
                     break
-                total += self._probe(kind, value, LARGE - total)
-            self._large[key] = total >= LARGE
-        return self._large[key]
+                total += self._probe(kind, value, cap - total)
+            self._estimates[key] = total
+        return self._estimates[key]
+
+    def is_large(self, key: str, targets: list[tuple[str, object]]) -> bool:
+        """Whether ``targets`` hold at least :data:`LARGE` focus nodes (estimated)."""
+        return self.estimate(key, targets) >= LARGE
+
+    def is_empty(self, key: str, targets: list[tuple[str, object]]) -> bool:
+        """Whether ``targets`` hold no focus node at all: a shape without focus nodes has no
+        results (SHACL §2.1), so its queries need not run. Most shapes of a small plant are so
+        (no AGV, no Kafka cluster...)."""
+        return self.estimate(key, targets) == 0
 
     def _probe(self, kind: str, value: object, limit: int) -> int:
         if kind == "targetNode":

@@ -432,6 +432,8 @@ def run_unit(store: ox.Store, unit: Unit, focus: Focus, options: dict[str, objec
         for row in store.query(text, **options):  # type: ignore[arg-type]
             yield from unit.violations(row)
         return
+    if focus.is_empty(targets.key, list(targets.pairs)):
+        return  # no focus node: the shape has no results
     free = unit.free and focus.is_large(targets.key, list(targets.pairs))
     for row in store.query(unit.query(None if free else targets.pattern), **options):  # type: ignore[arg-type]
         if not free or keep(row["this"]):
