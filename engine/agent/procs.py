@@ -164,7 +164,7 @@ def stop_together(procs: Sequence[BrokerProcess], graces: Sequence[float]) -> li
         thread.start()
     outcomes = process.stop_each([procs[i].child for i in own], [graces[i] for i in own])  # type: ignore[attr-defined]
     for i, outcome in zip(own, outcomes):
-        errors[i] = outcome
+        errors[i] = outcome if isinstance(outcome, Exception) else None  # else: its exit code
     for thread in threads:
         thread.join()
     return errors
