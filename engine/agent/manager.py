@@ -34,10 +34,11 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
-from collections.abc import Callable, Sequence
-from typing import Any, TypeVar
+from collections.abc import Sequence
+from typing import Any
 
 from engine import netutil, process
+from engine.agent.fanout import each
 from engine.agent.folder import BrokerFolder, PidRecord
 from engine.agent.held import Held, clear_held, read_held, write_held
 from engine.agent.owners import Owners, claim
@@ -151,28 +152,6 @@ class _Waiting:
     next_poll: float = 0.0
 
 
-T = TypeVar("T")
-R = TypeVar("R")
-
-
-def _each(work: Callable[[T], R], items: list[T], pool: ThreadPoolExecutor | None = None,
-          ) -> list[R | Exception]:
-    """``work`` of every item, from up to SPAWN_THREADS threads (``pool``'s if given); each its
-    result or its error."""
-    def one(item: T) -> R | Exception:
-        try:
-            return work(item)
-        except Exception as exc:  # noqa: BLE001 - this item's own error
-            return exc
-
-    if len(items) <= 1:
-        return [one(item) for item in items]
-    if pool is not None:
-        return list(pool.map(one, items))
-    with ThreadPoolExecutor(max_workers=min(len(items), SPAWN_THREADS)) as pool:
-        return list(pool.map(one, items))
-
-
 class BrokerManager:
     """All brokers of one agent; thread-safe."""
 
@@ -280,7 +259,8 @@ class BrokerManager:
                     continue
                 claimed[spec.id] = self._claim(spec, driver)
             todo = [i for i in range(len(requests)) if ids[i] in claimed]
-            begun = _each(lambda i: self._put_begin(claimed[ids[i]], *requests[i]), todo)
+            begun = each(lambda i: self._put_begin(claimed[ids[i]], *requests[i]), todo,
+                         threads=SPAWN_THREADS, name="spawn")
             waiting = [i for i, outcome in zip(todo, begun) if outcome is True]
             for i, outcome in zip(todo, begun):
                 if isinstance(outcome, Exception):
@@ -750,8 +730,8 @@ class BrokerManager:
                 except ProcessError as exc:
                     self._update(waits[i].b, proc=None, status=BrokerStatus.FAILED, last_error=exc.message)
                     errors[i] = exc
-            checks = _each(lambda i: waits[i].b.driver.health(waits[i].b.spec, 1.0),  # type: ignore[union-attr]
-                           listening, pool)
+            checks = each(lambda i: waits[i].b.driver.health(waits[i].b.spec, 1.0),  # type: ignore[union-attr]
+                          listening, threads=SPAWN_THREADS, pool=pool)
             for i, healthy in zip(listening, checks):
                 if isinstance(healthy, Exception):  # its single PUT would have raised it too
                     errors[i] = healthy
