@@ -101,6 +101,11 @@ class BrokerProcess(Protocol):
     def log_tail(self, max_bytes: int = 2000) -> str: ...
 
 
+def log_end(proc: BrokerProcess, count: int = 12) -> str:
+    """The last ``count`` lines of a broker's log, for an error message."""
+    return "\n".join(proc.log_tail().strip().splitlines()[-count:])
+
+
 class SpawnedProcess:
     """A broker this agent started (its Popen reaps it and knows its exit code)."""
 
