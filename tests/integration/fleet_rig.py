@@ -6,6 +6,9 @@ Their fixtures ended alike: the manager (a test may have replaced it) must have 
 ``plantkg destroy`` must remove the plant and every vehicle discovered, and whatever happened, a
 manager still running and the agents are stopped (the agents check that no broker survived).
 A fixture now says only how its rig is made: ``with managed_fleet(...) as rig: yield rig``.
+
+test_fleet_paper and test_fleet_paper_scenario write a plant of their own for two agents (one
+for Mosquitto, one for the context broker) per test: :func:`agents_with_plant`.
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Protocol, TypeVar
 
-from engine import process
+from engine import netutil, process
 from engine.cli import main
 from tests.integration.agents import AgentFleet, start_agents
 
@@ -63,4 +66,19 @@ def managed_fleet(plant: Path, hosts: list[str], agents_dir: Path,
     finally:
         if rig is not None and rig.manager.running():
             process.stop(rig.manager, grace=5.0)
+        agents.stop()
+
+
+@contextmanager
+def agents_with_plant(folder: Path, plant_text: Callable[[int, int], str], mqtt_ip: str,
+                      cb_ip: str) -> Iterator[tuple[AgentFleet, Path]]:
+    """Agents on ``mqtt_ip`` and ``cb_ip``, and ``folder/plant.ttl`` written by ``plant_text(MQTT
+    port, context broker port)`` with a free port of each; the agents stopped at the end (they
+    check that no broker survived)."""
+    agents = start_agents([mqtt_ip, cb_ip], folder / "agents")
+    try:
+        path = folder / "plant.ttl"
+        path.write_text(plant_text(netutil.free_port(mqtt_ip), netutil.free_port(cb_ip)), encoding="utf-8")
+        yield agents, path
+    finally:
         agents.stop()
