@@ -5,8 +5,9 @@
 - :func:`wait_until` polls a predicate until it returns something truthy or a deadline passes; it
   fails fast, with the log's tail, if the watched child exits meanwhile. No bare sleeps elsewhere.
 - :func:`stop` sends SIGTERM to the whole group, SIGKILL after a grace period, and reaps the child,
-  so a JVM and anything it forked are gone when it returns. :func:`stop_all` does that for many
-  children at once: every group is signalled first, then all are waited for together.
+  so a JVM and anything it forked are gone when it returns. :func:`stop_each` does that for many
+  children at once (every group is signalled first, then all are waited for together), each with
+  its own outcome; :func:`stop_all` is the same for a caller that treats any failure as fatal.
 - :func:`wait_exit` waits for a process to exit and wakes the moment it does (a pidfd, Linux 5.3+),
   where ``Popen.wait(timeout)`` polls with sleeps growing to 50 ms, which a stop would pay.
 """
@@ -152,31 +153,32 @@ def stop(child: Child, grace: float = 10.0) -> int:
     return _finish_stop(child, grace, time.monotonic() + grace)
 
 
-def stop_all(children: Sequence[Child], grace: float = 10.0) -> list[int]:
-    """:func:`stop` for many children at once: SIGTERM every group first, then wait for them all
-    (each until ``grace`` s after the signals, then SIGKILL), so stopping N brokers takes about
-    as long as the slowest one, not the sum. Returns the leaders' exit codes, in order."""
-    for child in children:
-        _signal_group(child, signal.SIGTERM)
-    end = time.monotonic() + grace
-    return [_finish_stop(child, grace, end) for child in children]
-
-
-def stop_each(children: Sequence[Child], graces: Sequence[float]) -> list[Exception | None]:
-    """:func:`stop_all` with a grace per child and an outcome per child: every group is sent
-    SIGTERM first, then each is waited for (SIGKILL after its grace); a child that cannot be
-    stopped is its own error (None: stopped) and the others are still waited for."""
+def stop_each(children: Sequence[Child], graces: Sequence[float]) -> list[int | Exception]:
+    """:func:`stop` for many children at once, each with its grace: SIGTERM every group first,
+    then wait for them all (each until its grace after the signals, then SIGKILL), so stopping N
+    brokers takes about as long as the slowest one, not the sum. Each child's outcome, in order:
+    its leader's exit code, or the error that kept it from being stopped (the others are still
+    waited for: one child that will not stop leaves none of the others running)."""
     for child in children:
         _signal_group(child, signal.SIGTERM)
     now = time.monotonic()
-    errors: list[Exception | None] = []
+    outcomes: list[int | Exception] = []
     for child, grace in zip(children, graces, strict=True):
         try:
-            _finish_stop(child, grace, now + grace)
-            errors.append(None)
+            outcomes.append(_finish_stop(child, grace, now + grace))
         except Exception as exc:  # noqa: BLE001 - this child's own error
-            errors.append(exc)
-    return errors
+            outcomes.append(exc)
+    return outcomes
+
+
+def stop_all(children: Sequence[Child], grace: float = 10.0) -> list[int]:
+    """:func:`stop_each` with one grace for all, for a caller that wants the exit codes and has no
+    use for a partial stop: once every child was waited for, the first error is raised."""
+    outcomes = stop_each(children, [grace] * len(children))
+    for outcome in outcomes:
+        if isinstance(outcome, Exception):
+            raise outcome
+    return outcomes  # type: ignore[return-value] - no error among them
 
 
 def _finish_stop(child: Child, grace: float, end: float) -> int:

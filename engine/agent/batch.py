@@ -32,11 +32,11 @@ apply on them. A batch carries them all::
 from __future__ import annotations
 
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
 from engine.agent.changes import REMOTE_TOKEN, Changes, check_remote_token, error_status
+from engine.agent.fanout import each
 from engine.agent.owners import OWNER_FIELD, check_owner
 from engine.agent.wire import BROKER_ID, WireError, bridge_spec_from_json, broker_spec_from_json, topic_spec_from_json
 from engine.model import to_dict
@@ -211,6 +211,11 @@ def _broker_step(changes: Changes, items: dict[int, Item]) -> dict[int, dict[str
 
 
 def _each_lane(work: Callable[[int], list[dict[str, Any]]], count: int) -> list[list[dict[str, Any]]]:
-    """``work(k)`` for every lane k, a thread each (a lane may wait for a broker of its own)."""
-    with ThreadPoolExecutor(max_workers=count, thread_name_prefix="batch") as pool:
-        return list(pool.map(work, range(count)))
+    """``work(k)`` for every lane k, a thread each (a lane may wait for a broker of its own).
+    :func:`run_lane` makes every item's error its result, so an error here is a bug: the first is
+    raised once every lane is done."""
+    lanes = each(work, range(count), threads=count, name="batch")
+    for lane in lanes:
+        if isinstance(lane, Exception):
+            raise lane
+    return lanes  # type: ignore[return-value] - no error among them

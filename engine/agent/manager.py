@@ -19,6 +19,10 @@ per broker) and is what the HTTP layer calls. Its rules:
   STOPPED_BY_OPERATOR, keeps its folder (spec, config, data), and nothing starts it (supervisor,
   re-adoption, PUT) until ``start`` or ``restart``; ``restart`` is a stop and a start (a new pid).
 
+Many brokers at once (``put_many``, ``delete_many``: a batch) are ordered and awaited by
+:mod:`engine.agent.bring_up`, through the steps the manager hands it; so is the wait of every
+single PUT and start.
+
 Locking: each broker has an operation lock held for a whole PUT/DELETE/topic call (the supervisor
 only ``try``-locks it, so it never waits behind a slow start); ``self._lock`` guards the broker
 table and every field update, so a GET reads a consistent snapshot without waiting for a PUT.
@@ -30,14 +34,14 @@ import logging
 import shutil
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
-from collections.abc import Callable, Sequence
-from typing import Any, TypeVar
+from collections.abc import Sequence
+from typing import Any
 
-from engine import netutil, process
+from engine import process
+from engine.agent import bring_up
 from engine.agent.folder import BrokerFolder, PidRecord
 from engine.agent.held import Held, clear_held, read_held, write_held
 from engine.agent.owners import Owners, claim
@@ -45,6 +49,7 @@ from engine.agent.procs import (
     AdoptedProcess,
     BrokerProcess,
     SpawnedProcess,
+    log_end,
     mentions,
     proc_info,
     processes_of,
@@ -61,9 +66,7 @@ from engine.errors import (
     BrokerUnavailableError,
     DriverError,
     EngineError,
-    ProcessError,
     UnknownDriverError,
-    WaitTimeoutError,
 )
 from engine.model import (
     BridgeSpec,
@@ -80,10 +83,6 @@ log = logging.getLogger(__name__)
 
 BROKERS_DIR = "brokers"
 REMOVED_DIR = "removed"
-#: Seconds between polls of a starting broker's port.
-READY_POLL = 0.00025
-#: Threads that render and spawn the brokers of one put_many (a spawn waits for its child's exec).
-SPAWN_THREADS = 8
 
 
 class BrokerNotFoundError(EngineError):
@@ -140,39 +139,6 @@ class _Broker:
         return self.owners
 
 
-@dataclass(eq=False)
-class _Waiting:
-    """A broker being awaited by :meth:`BrokerManager._wait_all_healthy`: its poll state."""
-
-    b: _Broker
-    deadline: float                        # monotonic
-    slow: float                            # seconds between health checks once it listens
-    listening: bool = False
-    next_poll: float = 0.0
-
-
-T = TypeVar("T")
-R = TypeVar("R")
-
-
-def _each(work: Callable[[T], R], items: list[T], pool: ThreadPoolExecutor | None = None,
-          ) -> list[R | Exception]:
-    """``work`` of every item, from up to SPAWN_THREADS threads (``pool``'s if given); each its
-    result or its error."""
-    def one(item: T) -> R | Exception:
-        try:
-            return work(item)
-        except Exception as exc:  # noqa: BLE001 - this item's own error
-            return exc
-
-    if len(items) <= 1:
-        return [one(item) for item in items]
-    if pool is not None:
-        return list(pool.map(one, items))
-    with ThreadPoolExecutor(max_workers=min(len(items), SPAWN_THREADS)) as pool:
-        return list(pool.map(one, items))
-
-
 class BrokerManager:
     """All brokers of one agent; thread-safe."""
 
@@ -196,6 +162,10 @@ class BrokerManager:
         self._brokers: dict[str, _Broker] = {}
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        # What a batch may do to the brokers (engine.agent.bring_up orders the steps and waits).
+        self._steps = bring_up.Steps[_Broker](
+            registry=registry, claim=self._claim, held=self._held, begin=self._put_begin,
+            observe=self._observe, update=self._update, stop=self._stop_procs, remove=self._remove)
 
     @property
     def brokers_dir(self) -> Path:
@@ -218,20 +188,27 @@ class BrokerManager:
 
     def close(self, *, stop_brokers: bool = False) -> None:
         """Stop supervising; with ``stop_brokers`` also stop every broker (specs stay, so the next
-        agent starts them again)."""
+        agent starts them again). They are stopped together, each with its own outcome
+        (:meth:`_stop_procs`: N brokers take about as long as one, and one that will not stop
+        leaves none of the others running); then each failure is logged and the first (by id)
+        raised."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join()
-        if stop_brokers:
-            def stop(b: _Broker) -> None:
-                with b.op:
-                    if b.proc is not None:
-                        self._stop_proc(b)
-
-            running = self._all()
-            if running:  # all at once: N brokers take about as long to stop as one
-                with ThreadPoolExecutor(max_workers=min(len(running), 64)) as pool:
-                    list(pool.map(stop, running))
+        if not stop_brokers:
+            return
+        brokers = sorted(self._all(), key=lambda b: b.spec.id)  # the locks in id order, as a batch
+        for b in brokers:
+            b.op.acquire()
+        try:
+            errors = self._stop_procs([b for b in brokers if b.proc is not None and not b.deleted])
+        finally:
+            for b in brokers:
+                b.op.release()
+        for broker_id, error in sorted(errors.items()):
+            log.error("broker %s could not be stopped: %s", broker_id, error)
+        if errors:
+            raise errors[min(errors)]
 
     # --- API -------------------------------------------------------------------------------
 
@@ -254,41 +231,10 @@ class BrokerManager:
     def put_many(self, requests: Sequence[tuple[BrokerSpec, str | None]]) -> list[ObservedBroker | Exception]:
         """:meth:`put` for many brokers (distinct ids) at once: each is checked, rendered and
         spawned (from a few threads: a spawn waits for its child's exec), then all are awaited in
-        one polling loop (:meth:`_wait_all_healthy`), not a thread each. Each gets its own answer
-        or error, in order; one that fails to start fails alone, as its single PUT would."""
-        ids = [spec.id for spec, _ in requests]
-        if len(set(ids)) != len(ids):
-            raise ValueError(f"put_many takes distinct broker ids, not {ids}")
-        # The operation locks in id order: two batches sharing brokers cannot deadlock.
-        claimed: dict[str, _Broker] = {}
-        results: list[ObservedBroker | Exception | None] = [None] * len(requests)
-        try:
-            for i in sorted(range(len(requests)), key=lambda i: ids[i]):
-                spec = requests[i][0]
-                try:
-                    driver = self.registry.get(spec.kind)
-                    driver.validate(spec)
-                except Exception as exc:  # noqa: BLE001 - this broker's own error
-                    results[i] = exc
-                    continue
-                claimed[spec.id] = self._claim(spec, driver)
-            todo = [i for i in range(len(requests)) if ids[i] in claimed]
-            begun = _each(lambda i: self._put_begin(claimed[ids[i]], *requests[i]), todo)
-            waiting = [i for i, outcome in zip(todo, begun) if outcome is True]
-            for i, outcome in zip(todo, begun):
-                if isinstance(outcome, Exception):
-                    results[i] = outcome
-            errors = self._wait_all_healthy([claimed[ids[i]] for i in waiting])
-            for i, error in zip(waiting, errors):
-                if error is not None:
-                    results[i] = error
-            for i in todo:
-                if results[i] is None:
-                    results[i] = self._observe(claimed[ids[i]])
-        finally:
-            for b in claimed.values():
-                b.op.release()
-        return [r for r in results if r is not None]
+        one polling loop, not a thread each (:func:`engine.agent.bring_up.put_many`). Each gets its
+        own answer or error, in order; one that fails to start fails alone, as its single PUT
+        would."""
+        return bring_up.put_many(self._steps, requests)
 
     def _put_begin(self, b: _Broker, spec: BrokerSpec, owner: str | None) -> bool:
         """The part of a PUT before its wait (``b``'s operation lock held): True if the broker must
@@ -328,46 +274,10 @@ class BrokerManager:
 
     def delete_many(self, requests: Sequence[tuple[str, str | None]]) -> list[Exception | None]:
         """:meth:`delete` for many brokers (distinct ids) at once: every process is sent SIGTERM,
-        then all are waited for (``engine.process.stop_all``), then the folders are moved away.
-        Each gets its own error (None: deleted), in order."""
-        ids = [broker_id for broker_id, _ in requests]
-        if len(set(ids)) != len(ids):
-            raise ValueError(f"delete_many takes distinct broker ids, not {ids}")
-        errors: list[Exception | None] = [None] * len(requests)
-        held: list[tuple[int, _Broker]] = []
-        try:
-            for i in sorted(range(len(requests)), key=lambda i: ids[i]):  # locks in id order
-                with self._lock:
-                    b = self._brokers.get(ids[i])
-                if b is None:
-                    continue
-                b.op.acquire()
-                if b.deleted:
-                    b.op.release()
-                    continue
-                held.append((i, b))
-                try:
-                    claim(b.record().owner, requests[i][1], f"broker {ids[i]!r}")
-                except Exception as exc:  # noqa: BLE001 - this broker's own error
-                    errors[i] = exc
-            going = [(i, b) for i, b in held if errors[i] is None]
-            stopped = self._stop_procs([b for _, b in going if b.proc is not None])
-            for i, b in going:
-                if stopped.get(b.spec.id) is not None:
-                    errors[i] = stopped[b.spec.id]
-                    continue
-                try:
-                    self._retire_folder(b)
-                except Exception as exc:  # noqa: BLE001 - this broker's own error
-                    errors[i] = exc
-                    continue
-                with self._lock:
-                    b.deleted = True
-                    self._brokers.pop(b.spec.id, None)
-        finally:
-            for _, b in held:
-                b.op.release()
-        return errors
+        then all are waited for, then the folders are moved away
+        (:func:`engine.agent.bring_up.delete_many`). Each gets its own error (None: deleted), in
+        order."""
+        return bring_up.delete_many(self._steps, requests)
 
     def put_topic(self, topic: TopicSpec, owner: str | None = None) -> ObservedTopic:
         """Create or alter a topic; an implicit-topics driver (MQTT) only validates, and the agent
@@ -606,15 +516,29 @@ class BrokerManager:
 
     def _existing(self, broker_id: str) -> _Broker:
         """A known broker with its operation lock held, else BrokerNotFoundError."""
+        b = self._held(broker_id)
+        if b is None:
+            raise BrokerNotFoundError(broker_id)
+        return b
+
+    def _held(self, broker_id: str) -> _Broker | None:
+        """A known broker with its operation lock held, else None."""
         with self._lock:
             b = self._brokers.get(broker_id)
         if b is None:
-            raise BrokerNotFoundError(broker_id)
+            return None
         b.op.acquire()
         if b.deleted:
             b.op.release()
-            raise BrokerNotFoundError(broker_id)
+            return None
         return b
+
+    def _remove(self, b: _Broker) -> None:
+        """A stopped broker gone (its lock held): its folder moved away, then out of the table."""
+        self._retire_folder(b)
+        with self._lock:
+            b.deleted = True
+            self._brokers.pop(b.spec.id, None)
 
     def _unchanged(self, b: _Broker, spec: BrokerSpec, driver: Driver) -> bool:
         """Running (or starting) with the same essence and the same rendered files."""
@@ -705,96 +629,10 @@ class BrokerManager:
         log.info("broker %s (%s) started, pid %d", spec.id, driver.kind, proc.pid)
 
     def _wait_healthy(self, b: _Broker) -> None:
-        (error,) = self._wait_all_healthy([b])
+        """Return once the spawned broker is healthy; else its error (engine.agent.bring_up)."""
+        (error,) = bring_up.wait_all_healthy([b], self._update)
         if error is not None:
             raise error
-
-    def _wait_all_healthy(self, brokers: list[_Broker]) -> list[Exception | None]:
-        """Poll every broker in one loop until it passes the driver's health check (RUNNING),
-        exits (FAILED, ProcessError) or passes its start deadline (BrokerUnavailableError); each
-        one's error (None: healthy), in order.
-
-        Until a broker's port accepts TCP connections, only that is polled, every ``READY_POLL``
-        s (a refused connect costs microseconds; Mosquitto listens ~6 ms after spawn, and every
-        poll interval of slack was added to each deployment); then the driver's own check, at
-        most every 1/5000 of its start deadline (Mosquitto 2 ms, Kafka's 90 s -> 18 ms). One loop
-        for N brokers: N threads each polling would fight over the GIL and the CPUs."""
-        start = time.monotonic()
-        waits = [_Waiting(b, start + b.driver.start_deadline, min(0.25, b.driver.start_deadline / 5000))
-                 for b in brokers if b.driver is not None]
-        assert len(waits) == len(brokers) and all(b.proc is not None for b in brokers)
-        errors: dict[int, Exception | None] = {}
-        with ThreadPoolExecutor(max_workers=SPAWN_THREADS, thread_name_prefix="health") as pool:
-            self._poll_all(waits, errors, pool)
-        return [errors[i] for i in range(len(waits))]
-
-    def _poll_all(self, waits: list[_Waiting], errors: dict[int, Exception | None],
-                  pool: ThreadPoolExecutor) -> None:
-        """The loop of :meth:`_wait_all_healthy`: fills ``errors`` for every broker."""
-        while len(errors) < len(waits):
-            due = [i for i, w in enumerate(waits) if i not in errors and time.monotonic() >= w.next_poll]
-            # Process and port of each (microseconds), then the health checks of those listening
-            # from a few threads (a check is a client's round trip; Kafka's may take a second).
-            listening = []
-            for i in due:
-                try:
-                    if self._poll_port(waits[i]):
-                        listening.append(i)
-                except ProcessError as exc:
-                    self._update(waits[i].b, proc=None, status=BrokerStatus.FAILED, last_error=exc.message)
-                    errors[i] = exc
-            checks = _each(lambda i: waits[i].b.driver.health(waits[i].b.spec, 1.0),  # type: ignore[union-attr]
-                           listening, pool)
-            for i, healthy in zip(listening, checks):
-                if isinstance(healthy, Exception):  # its single PUT would have raised it too
-                    errors[i] = healthy
-                elif healthy:
-                    self._update(waits[i].b, status=BrokerStatus.RUNNING, healthy_since=time.monotonic())
-                    errors[i] = None
-            now = time.monotonic()
-            for i in due:
-                w = waits[i]
-                if i in errors:
-                    continue
-                if now >= w.deadline:
-                    errors[i] = self._still_starting(w.b)
-                else:
-                    w.next_poll = now + (w.slow if w.listening else READY_POLL)
-            pending = [w.next_poll for i, w in enumerate(waits) if i not in errors]
-            if pending:
-                pause = min(pending) - time.monotonic()
-                if pause > 0:
-                    time.sleep(pause)
-
-    @staticmethod
-    def _poll_port(w: _Waiting) -> bool:
-        """Whether a starting broker's port accepts connections (then it is due a health check);
-        ProcessError if its process is gone."""
-        b = w.b
-        driver, spec, proc = b.driver, b.spec, b.proc
-        assert driver is not None and proc is not None
-        if not proc.alive():
-            code = proc.exit_code()
-            raise ProcessError(
-                f"broker {spec.id!r} ({driver.kind}) exited"
-                + (f" with code {code}" if code is not None else "")
-                + f" while starting; log {log_file(b.folder.path, driver.kind)} ends with:\n"
-                + _last_lines(proc.log_tail())
-            )
-        if not w.listening:
-            w.listening = netutil.port_open(spec.host, spec.port, timeout=0.05)
-        return w.listening
-
-    def _still_starting(self, b: _Broker) -> BrokerUnavailableError:
-        assert b.driver is not None
-        message = (f"broker {b.spec.id!r} ({b.driver.kind}) did not answer its health check "
-                   f"within {b.driver.start_deadline:.0f} s")
-        self._update(b, last_error=message)
-        return BrokerUnavailableError(
-            f"broker {b.spec.id!r} is still starting after {b.driver.start_deadline:.0f} s",
-            hint="PUT it again to keep waiting; see its log "
-            f"{log_file(b.folder.path, b.driver.kind)}",
-        )
 
     def _stop_proc(self, b: _Broker) -> None:
         error = self._stop_procs([b]).get(b.spec.id)
@@ -907,7 +745,7 @@ class BrokerManager:
                 error = (f"exited unexpectedly at {when}"
                          + (f" with code {code}" if code is not None else "")
                          + f"; restart in {delay:.1f} s. Log ends with:\n"
-                         + _last_lines(b.proc.log_tail()))
+                         + log_end(b.proc))
                 self._update(b, proc=None, status=BrokerStatus.CRASHED, failures=failures,
                              next_start=now + delay, last_error=error, healthy_since=None)
                 log.warning("broker %s %s", b.spec.id, error)
@@ -948,7 +786,3 @@ def _native_status(broker: BrokerStatus, connected: bool | None) -> BridgeStatus
         return BridgeStatus.RUNNING if connected else BridgeStatus.CONNECTING
     return {BrokerStatus.STARTING: BridgeStatus.CONNECTING, BrokerStatus.CRASHED: BridgeStatus.CRASHED,
             BrokerStatus.FAILED: BridgeStatus.FAILED}.get(broker, BridgeStatus.STOPPED)
-
-
-def _last_lines(text: str, count: int = 12) -> str:
-    return "\n".join(text.strip().splitlines()[-count:])

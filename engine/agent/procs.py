@@ -101,6 +101,11 @@ class BrokerProcess(Protocol):
     def log_tail(self, max_bytes: int = 2000) -> str: ...
 
 
+def log_end(proc: BrokerProcess, count: int = 12) -> str:
+    """The last ``count`` lines of a broker's log, for an error message."""
+    return "\n".join(proc.log_tail().strip().splitlines()[-count:])
+
+
 class SpawnedProcess:
     """A broker this agent started (its Popen reaps it and knows its exit code)."""
 
@@ -164,7 +169,7 @@ def stop_together(procs: Sequence[BrokerProcess], graces: Sequence[float]) -> li
         thread.start()
     outcomes = process.stop_each([procs[i].child for i in own], [graces[i] for i in own])  # type: ignore[attr-defined]
     for i, outcome in zip(own, outcomes):
-        errors[i] = outcome
+        errors[i] = outcome if isinstance(outcome, Exception) else None  # else: its exit code
     for thread in threads:
         thread.join()
     return errors

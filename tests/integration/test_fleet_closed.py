@@ -31,8 +31,9 @@ from engine import process
 from engine.cli import main
 from engine.security import mqtt_client
 from fleet.sim import map as site_map
-from tests.integration.agents import plant_copy, start_agents
-from tests.integration.test_fleet_plug_and_play import CB_HOST, MQTT_HOST, ROOT, Rig, spawn_manager
+from tests.integration.agents import AgentFleet, plant_copy
+from tests.integration.fleet_rig import ROOT, managed_fleet, spawn_manager
+from tests.integration.test_fleet_plug_and_play import CB_HOST, MQTT_HOST, Rig
 from tests.integration.test_plant_access import Client
 
 pytestmark = pytest.mark.integration
@@ -52,20 +53,14 @@ def closed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Rig, dict
         secret.chmod(0o600)
         text += f'\naf:{user} pk:secretRef "file:{secret}" .\n'
     plant.write_text(text, encoding="utf-8")
-    agents = start_agents([MQTT_HOST, CB_HOST], tmp / "agents")
-    manager = None
-    try:
-        assert main(["apply", str(plant), "--agents", str(agents.agents_file), "--yes"]) == 0
+
+    def start(agents: AgentFleet) -> Rig:
         manager = spawn_manager(plant, tmp / "fleet-data", agents.agents_file, tmp / "logs", "fleet-manager")
-        rig = Rig(plant, tmp / "fleet-data", agents, manager, ports["fleet-mqtt"], ports["fleet-context"])
-        rig.wait_started()  # connected as plantkg.fleet: a closed broker refuses anybody else
+        return Rig(plant, tmp / "fleet-data", agents, manager, ports["fleet-mqtt"], ports["fleet-context"])
+
+    # (its wait_started: connected as plantkg.fleet, for a closed broker refuses anybody else)
+    with managed_fleet(plant, [MQTT_HOST, CB_HOST], tmp / "agents", start) as rig:
         yield rig, passwords, tmp
-        assert process.stop(manager, grace=15.0) == 0, manager.log_tail()
-        assert main(["destroy", *rig.files(), "--agents", str(agents.agents_file), "--yes"]) == 0
-    finally:
-        if manager is not None and manager.running():
-            process.stop(manager, grace=5.0)
-        agents.stop()
 
 
 def _vehicles(rig: Rig, tmp: Path, count: int) -> process.Child:

@@ -32,10 +32,11 @@ import requests
 from paho.mqtt import client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
-from engine import netutil, process
+from engine import process
 from engine.model import BridgeMechanism
 from fleet.sim import map as site_map
-from tests.integration.agents import ROOT, AgentFleet, start_agents
+from tests.integration.agents import ROOT, AgentFleet
+from tests.integration.fleet_rig import agents_with_plant
 
 filip_cb = pytest.importorskip("filip.clients.ngsi_v2")
 from filip.models.base import FiwareHeader  # noqa: E402
@@ -147,13 +148,8 @@ class Planner:
 
 @pytest.fixture
 def plant(tmp_path: Path) -> Iterator[tuple[AgentFleet, Path]]:
-    fleet = start_agents([MQTT_IP, CB_IP], tmp_path / "agents")
-    try:
-        path = tmp_path / "plant.ttl"
-        path.write_text(plant_text(netutil.free_port(MQTT_IP), netutil.free_port(CB_IP)), encoding="utf-8")
-        yield fleet, path
-    finally:
-        fleet.stop()
+    with agents_with_plant(tmp_path, plant_text, MQTT_IP, CB_IP) as made:
+        yield made
 
 
 def test_a_paper_agv_runs_a_task_written_on_the_context_broker(plant, tmp_path: Path, capsys) -> None:

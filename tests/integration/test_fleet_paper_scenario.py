@@ -31,10 +31,11 @@ from typing import Any
 
 import pytest
 
-from engine import netutil, process
+from engine import process
 from engine.model import BridgeMechanism
 from fleet.sim import map as site_map
-from tests.integration.agents import ROOT, AgentFleet, start_agents
+from tests.integration.agents import ROOT, AgentFleet
+from tests.integration.fleet_rig import agents_with_plant
 
 filip_cb = pytest.importorskip("filip.clients.ngsi_v2")
 import requests  # noqa: E402
@@ -167,13 +168,8 @@ class Poller(threading.Thread):
 
 @pytest.fixture
 def plant(tmp_path: Path) -> Iterator[tuple[AgentFleet, Path]]:
-    fleet = start_agents([MQTT_IP, CB_IP], tmp_path / "agents")
-    try:
-        path = tmp_path / "plant.ttl"
-        path.write_text(plant_text(netutil.free_port(MQTT_IP), netutil.free_port(CB_IP)), encoding="utf-8")
-        yield fleet, path
-    finally:
-        fleet.stop()
+    with agents_with_plant(tmp_path, plant_text, MQTT_IP, CB_IP) as made:
+        yield made
 
 
 def test_fig7_two_agvs_reach_their_points_in_order_and_an_ngsi_poller_sees_them_finish(

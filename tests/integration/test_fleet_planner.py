@@ -38,12 +38,11 @@ from typing import Any
 import pytest
 
 from engine import process
-from engine.cli import main
-from tests.integration.agents import AgentFleet, plant_copy, start_agents
+from tests.integration.agents import AgentFleet, plant_copy
+from tests.integration.fleet_rig import ROOT, managed_fleet, spawn_manager
 
 pytestmark = pytest.mark.integration
 
-ROOT = Path(__file__).resolve().parents[2]
 MQTT_HOST, CB_HOST = "127.0.0.2", "127.0.0.3"
 
 STATIONS = [{"name": "load-1", "x": 2.0, "y": 6.0}, {"name": "unload-1", "x": 10.0, "y": 6.0},
@@ -130,33 +129,25 @@ class Rig:
     def files(self) -> list[str]:
         return [str(self.plant), *map(str, sorted((self.data / "discovered").glob("*.ttl")))]
 
+    def wait_started(self) -> None:
+        def started() -> bool:
+            s = self.status()
+            return bool(s.get("manager", {}).get("connected") and (s.get("lastReconcile") or {}).get("ok"))
+        process.wait_until(started, 60.0, 0.05, what="the manager connected and reconciled", child=self.manager)
+
 
 @pytest.fixture(scope="module")
 def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
     tmp = tmp_path_factory.mktemp("planner")
     plant, ports = plant_copy("agv-fleet.ttl", tmp)
-    agents = start_agents([MQTT_HOST, CB_HOST], tmp / "agents")
     data = tmp / "fleet-data"
-    manager = None
-    try:
-        assert main(["apply", str(plant), "--agents", str(agents.agents_file), "--yes"]) == 0
-        manager = process.spawn([sys.executable, "-m", "fleet.manager", plant, "--data-dir", data, "--agents",
-                                 agents.agents_file, "--resync", "5"], log_dir=tmp / "logs", name="fleet-manager",
-                                cwd=ROOT)
-        r = Rig(tmp, plant, data, agents, manager, ports["fleet-mqtt"], ports["fleet-context"])
 
-        def started() -> bool:
-            s = r.status()
-            return bool(s.get("manager", {}).get("connected") and (s.get("lastReconcile") or {}).get("ok"))
-        process.wait_until(started, 60.0, 0.05, what="the manager connected and reconciled", child=manager)
+    def start(agents: AgentFleet) -> Rig:
+        manager = spawn_manager(plant, data, agents.agents_file, tmp / "logs", "fleet-manager")
+        return Rig(tmp, plant, data, agents, manager, ports["fleet-mqtt"], ports["fleet-context"])
+
+    with managed_fleet(plant, [MQTT_HOST, CB_HOST], tmp / "agents", start) as r:
         yield r
-        manager = r.manager  # a test may have restarted it
-        assert process.stop(manager, grace=15.0) == 0, manager.log_tail()
-        assert main(["destroy", *r.files(), "--agents", str(agents.agents_file), "--yes"]) == 0
-    finally:
-        if manager is not None and manager.running():
-            process.stop(manager, grace=5.0)
-        agents.stop()
 
 
 def write_map(path: Path, parking: list[dict[str, float]]) -> Path:

@@ -41,12 +41,12 @@ from engine import process
 from engine.cli import main
 from engine.render.plan import NO_CHANGES
 from engine.model import BridgeMechanism
-from tests.integration.agents import AgentFleet, plant_copy, start_agents
+from tests.integration.agents import AgentFleet, plant_copy
+from tests.integration.fleet_rig import ROOT, managed_fleet, spawn_manager
 from tests.unit.fleet import discovery_data as d
 
 pytestmark = pytest.mark.integration
 
-ROOT = Path(__file__).resolve().parents[2]
 MQTT_HOST, CB_HOST = "127.0.0.2", "127.0.0.3"
 FLEET = "https://w3id.org/plantkg/fleet#"
 
@@ -113,11 +113,6 @@ class Rig:
         return out
 
 
-def spawn_manager(plant: Path, data: Path, agents_file: Path, logs: Path, name: str) -> process.Child:
-    return process.spawn([sys.executable, "-m", "fleet.manager", plant, "--data-dir", data,
-                          "--agents", agents_file, "--resync", "5"], log_dir=logs, name=name, cwd=ROOT)
-
-
 def mqtt_client(port: int, name: str) -> mqtt.Client:
     client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"{name}-{os.getpid()}")
     client.connect(MQTT_HOST, port)
@@ -129,23 +124,14 @@ def mqtt_client(port: int, name: str) -> mqtt.Client:
 def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
     tmp = tmp_path_factory.mktemp("plug-and-play")
     plant, ports = plant_copy("agv-fleet.ttl", tmp)
-    agents = start_agents([MQTT_HOST, CB_HOST], tmp / "agents")
     data = tmp / "fleet-data"
-    manager = None
-    try:
-        assert main(["apply", str(plant), "--agents", str(agents.agents_file), "--yes"]) == 0
+
+    def start(agents: AgentFleet) -> Rig:
         manager = spawn_manager(plant, data, agents.agents_file, tmp / "logs", "fleet-manager")
-        r = Rig(plant, data, agents, manager, ports["fleet-mqtt"], ports["fleet-context"])
-        r.wait_started()
+        return Rig(plant, data, agents, manager, ports["fleet-mqtt"], ports["fleet-context"])
+
+    with managed_fleet(plant, [MQTT_HOST, CB_HOST], tmp / "agents", start) as r:
         yield r
-        manager = r.manager
-        if manager.running():  # (the kill -9 test stops the manager it started itself)
-            assert process.stop(manager, grace=15.0) == 0, manager.log_tail()
-        assert main(["destroy", *r.files(), "--agents", str(agents.agents_file), "--yes"]) == 0
-    finally:
-        if manager is not None and manager.running():
-            process.stop(manager, grace=5.0)
-        agents.stop()
 
 
 def sparql(rig: Rig, capsys: pytest.CaptureFixture[str], query: str) -> list[dict[str, Any]]:

@@ -219,6 +219,26 @@ def test_stopped_brokers_start_again_with_the_next_manager(managers: Managers) -
     assert running.restarts == 0 and running.last_error is None
 
 
+def test_closing_stops_every_broker_though_the_stop_of_one_fails(managers: Managers) -> None:
+    """Broker b's stop fails (its pid.json cannot be removed: a directory stands there); a and c,
+    before and after it by id, are stopped all the same, and b's error is raised."""
+    manager = managers.open()
+    observed = {name: manager.put(mqtt(name)) for name in ("a", "b", "c")}
+    blocker = manager.brokers_dir / "b" / "pid.json"
+    blocker.unlink()
+    (blocker / "kept").mkdir(parents=True)
+    with pytest.raises(IsADirectoryError) as failed:
+        manager.close(stop_brokers=True)
+    assert str(blocker) in str(failed.value)
+    for name in ("a", "c"):
+        assert not netutil.port_open("127.0.0.1", observed[name].spec.port)
+        assert manager.get(name).status is BrokerStatus.STOPPED
+        assert not (manager.brokers_dir / name / "pid.json").exists()
+    assert proc_info(observed["b"].pid) is None  # its process went; only its record stayed
+    (blocker / "kept").rmdir()
+    blocker.rmdir()
+
+
 def test_a_stray_process_of_a_broker_folder_is_stopped(managers: Managers) -> None:
     first = managers.open()
     observed = first.put(mqtt())

@@ -102,3 +102,18 @@ def test_wait_until_asks_a_callable_interval_before_each_pause() -> None:
 
     assert process.wait_until(lambda: next(calls), 5.0, interval) is True
     assert len(asked) == 2
+
+
+def test_stop_each_waits_for_each_child_its_own_grace(tmp_path: Path) -> None:
+    """One child ignores SIGTERM (SIGKILL after its short grace: -9), the others exit on it; the
+    long grace of the others does not hold up the stubborn one, and each answers its own code."""
+    stubborn = "trap '' TERM; echo ready; while :; do sleep 0.05; done"
+    polite = "trap 'exit 7' TERM; echo ready; while :; do sleep 0.05; done"
+    children = [process.spawn(["sh", "-c", script], log_dir=tmp_path, name=f"c{i}")
+                for i, script in enumerate((polite, stubborn, polite))]
+    for child in children:
+        process.wait_until(lambda c=child: "ready" in c.log_tail(), 5.0, 0.01)
+    start = time.monotonic()
+    assert process.stop_each(children, [20.0, 0.3, 20.0]) == [7, -9, 7]
+    assert time.monotonic() - start < 10
+    assert not any(c.group_alive() for c in children)
