@@ -41,7 +41,7 @@ DEFAULT_PORT = 8080
               help="Rows (or triples) a SPARQL answer may hold.")
 @click.option("--no-control", is_flag=True,
               help="Do not open the control socket: `plantkg apply` of this plant then runs in its "
-                   "own process, cold (see docs/performance.md).")
+                   "own process, cold (see docs/web.md).")
 @click.option("-v", "--verbose", is_flag=True, help="Log every request.")
 def serve_command(files: tuple[str, ...], listen: str, agents_file: Path | None, auto_apply: bool,
                   owner: str | None, token_file: Path | None, allow_remote: bool, observe_interval: float,

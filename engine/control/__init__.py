@@ -1,7 +1,7 @@
 """``plantkg serve``'s control socket: a command of the same user runs in the warm server.
 
 ``plantkg apply`` starts cold: imports, shapes, TBox and rules cost far more than the apply of a
-small plant (docs/performance.md). A ``plantkg serve`` process keeps all of that warm. When one
+small plant (benchmarks/results/deploy.md, rows plantkg-cli and plantkg-cli-served). A ``plantkg serve`` process keeps all of that warm. When one
 serves exactly the files (and agents file and owner) an ``apply`` names, the command hands its
 work to it over a Unix socket only its user can open, and prints what comes back: the same plan,
 progress, prompt, summary and exit code as when it runs alone.
