@@ -152,10 +152,14 @@ class RunningAgent:
         self.thread.join()
         close_connections(self.server)
         self.server.server_close()
-        if self.workers is not None:
-            self.workers.close(stop_workers=stop_brokers)
-        self.manager.close(stop_brokers=stop_brokers)
-        self.lock.close()
+        try:  # a worker that will not stop must not leave the brokers running, nor the lock held
+            if self.workers is not None:
+                self.workers.close(stop_workers=stop_brokers)
+        finally:
+            try:
+                self.manager.close(stop_brokers=stop_brokers)
+            finally:
+                self.lock.close()
 
 
 def start_agent(

@@ -55,6 +55,7 @@ from engine.agent.procs import (
     processes_of,
     started_at,
     stop_foreign,
+    stop_together,
 )
 from engine.agent.supervision import backoff, start_supervisor
 from engine.agent.wire import bridge_spec_from_json
@@ -283,13 +284,39 @@ class WorkerManager:
         return self
 
     def close(self, *, stop_workers: bool = False) -> None:
+        """Stop supervising; with ``stop_workers`` also stop every worker, together (SIGTERM to
+        all, then wait: :func:`~engine.agent.procs.stop_together`), each with its own outcome, so
+        one that will not stop leaves none of the others running; then each failure is logged and
+        the first (by folder name) raised."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join()
-        if stop_workers:
-            for w in self._all():
-                with w.op:
-                    self._stop_proc(w)
+        if not stop_workers:
+            return
+        workers = sorted(self._all(), key=lambda w: w.folder.path.name)  # the locks in one order
+        for w in workers:
+            w.op.acquire()
+        errors: dict[str, Exception] = {}
+        try:
+            running = [w for w in workers if w.proc is not None]
+            failed = stop_together([w.proc for w in running], [STOP_GRACE] * len(running))  # type: ignore[misc]
+            for w, error in zip(running, failed):
+                if error is None:
+                    try:
+                        w.folder.remove_pid()
+                    except OSError as exc:
+                        error = exc
+                if error is not None:
+                    errors[w.folder.path.name] = error
+                    continue
+                self._set(w, proc=None, status=BridgeStatus.STOPPED, next_start=None)
+        finally:
+            for w in workers:
+                w.op.release()
+        for name, error in sorted(errors.items()):
+            log.error("bridge worker %s could not be stopped: %s", name, error)
+        if errors:
+            raise errors[min(errors)]
 
     # --- API -------------------------------------------------------------------------------
 

@@ -187,3 +187,24 @@ def test_a_taken_port_is_a_clear_error(tmp_path: Path) -> None:
             start_agent(ListenAddress("127.0.0.1", taken.getsockname()[1]), tmp_path, TOKEN,
                         registry=DriverRegistry([MosquittoDriver()]))
     lock_state_dir(tmp_path).close()  # the failed start released the lock
+
+
+def test_a_worker_that_will_not_stop_leaves_no_broker_running(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Shutdown with stop_brokers: the bridge workers' close raises (a worker that could not be
+    stopped); the brokers are stopped all the same and the state dir's lock is released."""
+    running = start_agent(ListenAddress("127.0.0.1", 0), tmp_path / "state", TOKEN,
+                          registry=DriverRegistry([MosquittoDriver()]))
+    spec = mqtt()
+    AgentClient(running.address.url, TOKEN, timeout=10.0).put_broker(spec)
+    assert netutil.port_open(spec.host, spec.port)
+
+    def will_not_stop(*, stop_workers: bool = False) -> None:
+        raise OSError("bridge worker w1 could not be stopped")
+
+    assert running.workers is not None
+    monkeypatch.setattr(running.workers, "close", will_not_stop)
+    with pytest.raises(OSError, match="could not be stopped"):
+        running.shutdown(stop_brokers=True)
+    assert not netutil.port_open(spec.host, spec.port)
+    assert not processes_mentioning(tmp_path)
+    lock_state_dir(tmp_path / "state").close()  # released
