@@ -4,6 +4,8 @@
   so the restarts roll one node at a time, in node-id order; new nodes start in parallel;
 - only the lead or the broker list changes (a node was added): an in-place update, no restart;
 - the controller quorum of a running cluster would change: refused, naming the voters;
+- the listener security of a running cluster would change (TLS on or off, closed or opened):
+  refused on every node, naming the cluster and what changes; a one-node cluster just restarts;
 - a node leaves: its cluster's topics are not deleted with it;
 - a node's spec crosses the agent API unchanged, and a bad one is refused naming the field;
 - a node renders its roles, the quorum and the cluster's defaults.
@@ -24,6 +26,7 @@ from engine.model import (
     Action,
     BrokerSpec,
     BrokerStatus,
+    BrokerUser,
     DesiredState,
     KafkaNode,
     KafkaVoter,
@@ -94,6 +97,40 @@ def test_the_quorum_of_a_running_cluster_does_not_change() -> None:
     reason = result.refusals[0].reason
     assert "cluster 'plant'" in reason and "3@127.0.0.4:9093 →" in reason and reason.endswith(
         "pk:controllerPort") and "3@127.0.0.9:9093)" in reason
+
+
+@pytest.mark.parametrize(("before", "after", "what"), [
+    ({}, {"tls": True}, "(tls false → true)"),
+    ({"tls": True}, {}, "(tls true → false)"),
+    ({"allow_anonymous": True}, {"allow_anonymous": False}, "(open → closed)"),
+    ({"allow_anonymous": False, "tls": True}, {"allow_anonymous": True}, "(tls true → false, closed → open)"),
+])
+def test_the_listener_security_of_a_running_cluster_does_not_change(
+        before: dict[str, object], after: dict[str, object], what: str) -> None:
+    desired = DesiredState(tuple(replace(node(i), **after) for i in (1, 2, 3)), (TOPIC,))
+    observed = ObservedState((running(replace(node(1), **before), OBSERVED_TOPIC),
+                              running(replace(node(2), **before)), running(replace(node(3), **before))))
+    result = plan(desired, observed)
+    assert not result.applicable and not result.pending
+    assert [r.address for r in result.refusals] == ["broker.k1", "broker.k2", "broker.k3"]
+    reason = result.refusals[0].reason
+    assert f"Kafka cluster 'plant' would change {what}" in reason
+    assert "destroy the cluster and apply it again (its data is lost)" in reason
+
+
+def test_the_listener_security_of_a_new_cluster_or_a_one_node_cluster_may_change() -> None:
+    # nothing runs yet: created with TLS
+    assert plan(DesiredState(tuple(replace(node(i), tls=True) for i in (1, 2, 3))), ObservedState()).applicable
+    # a one-node cluster has no other node to lose: a plain restart
+    alone = node(1, voters=VOTERS[:1], bootstrap=("127.0.0.2:9092",), replication=1, min_insync=1)
+    result = plan(DesiredState((replace(alone, tls=True),)), ObservedState((running(alone),)))
+    assert result.applicable and [(c.address, c.action) for c in result.pending] == [("broker.k1", Action.REPLACE)]
+    # a change that keeps the listeners (only the users of a closed cluster) rolls as before
+    closed = [replace(node(i), allow_anonymous=False) for i in (1, 2, 3)]
+    users = (BrokerUser("plc", "env:PLC", ("line.energy",)),)
+    result = plan(DesiredState(tuple(replace(n, users=users) for n in closed)),
+                  ObservedState(tuple(running(n) for n in closed)))
+    assert result.applicable and {c.action for c in result.pending} == {Action.REPLACE}
 
 
 def test_lowering_partitions_of_a_cluster_topic_is_refused_by_name() -> None:
