@@ -29,9 +29,11 @@ remote end's ``closed`` changed.
 A node of a Kafka cluster (``BrokerSpec.kafka``, docs/kafka.md) is a broker like the others; a
 change of what it renders replaces it (apply rolls a cluster's replaced nodes one at a time), a
 change of only its lead flag or broker list is made in place, and a change of a running cluster's
-controller quorum, or of its listener security (``pk:tls`` on or off, closed or opened: nodes on
-the old and the new listeners cannot talk to each other), is refused. The cluster's topics are planned on its lead node only, and a node
-that leaves deletes none of them.
+controller quorum is refused. A change of its listener security (``pk:tls`` on or off, closed or
+opened: nodes on the old and the new listeners cannot talk to each other) replaces every node as a
+*whole-cluster* restart (:func:`restarts_whole_cluster`: its reason says so; apply restarts the
+nodes all at once instead of one at a time). The cluster's topics are planned on its lead node
+only, and a node that leaves deletes none of them.
 
 Order: brokers, topics, bridges, then deletes (bridges and topics before their broker). Changes a
 broker cannot make (fewer Kafka partitions, another replication factor) are :class:`Refusal` s,
@@ -57,7 +59,6 @@ from dataclasses import dataclass, fields, replace
 from typing import Any
 
 from engine.derived.access import open_broker_warnings
-from engine.security import kafka_client
 from engine.model import (
     Action,
     BridgeSpec,
@@ -225,7 +226,6 @@ def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False,
     claimed: set[str] = set()
     seen: dict[str, tuple[tuple[object, ...], tuple[object, ...]]] = {}
     sort_keys: list[tuple[int, str]] = []  # with a memo: the sort key of each change, in order
-    cluster_sizes = _cluster_sizes(observed.brokers)
     for spec in desired.brokers:
         if spec.host in unreachable:
             continue  # its state is unknown: no change is planned, the host is listed
@@ -247,9 +247,9 @@ def plan(desired: DesiredState, observed: ObservedState, *, prune: bool = False,
             refusals.append(claim)  # type: ignore[arg-type]
             claimed.add(spec.id)
             continue
-        refused = _quorum_refusal(spec, have) or _listener_refusal(spec, have, cluster_sizes)
-        if refused is not None:
-            refusals.append(refused)
+        quorum = _quorum_refusal(spec, have)
+        if quorum is not None:
+            refusals.append(quorum)
             continue
         if memo is not None:
             sort_keys.extend(done[4])  # type: ignore[arg-type]
@@ -418,6 +418,9 @@ def _broker_change(spec: BrokerSpec, have: ObservedBroker | None) -> Change:
             how = "the broker moves: stopped on the old host, started anew on the new one"
         elif before["kind"] != after["kind"]:
             how = "the broker is stopped and started anew as the new kind"
+        elif restarts_whole_cluster(Change(spec.address, Action.REPLACE, before, after)):
+            how = ("whole cluster: listener security changes; every node of the cluster is stopped and "
+                   "started again at once, its data kept, then all are awaited in sync")
         else:
             how = "the agent restarts the broker"
         return Change(spec.address, Action.REPLACE, before, after, f"{what} forces replacement ({how})")
@@ -472,47 +475,24 @@ def _quorum_refusal(spec: BrokerSpec, have: ObservedBroker | None) -> Refusal | 
                                  "keep the controllers' pk:ip, pk:port and pk:controllerPort")
 
 
-def _cluster_sizes(brokers: Iterable[ObservedBroker]) -> dict[str, int]:
-    """How many nodes of each Kafka cluster the agents run (observed)."""
-    sizes: dict[str, int] = {}
-    for have in brokers:
-        if have.spec.kafka is not None:
-            sizes[have.spec.kafka.cluster] = sizes.get(have.spec.kafka.cluster, 0) + 1
-    return sizes
+def listener_security(essence: Mapping[str, Any]) -> tuple[bool, bool]:
+    """What a Kafka broker's listeners speak, all of them (clients, and in a cluster replication and
+    the controllers), from its essence (:func:`broker_essence`): (TLS, closed: SASL; as
+    engine.security.kafka_client.is_closed says). A cluster's nodes speak it all together
+    (engine.derived.access)."""
+    return bool(essence.get("tls")), essence.get("allow_anonymous") is False or bool(essence.get("users"))
 
 
-def listener_security(spec: BrokerSpec) -> tuple[bool, bool]:
-    """What a Kafka node's listeners speak, all of them (clients, replication, the controllers):
-    (TLS, closed: SASL). A cluster's nodes speak it all together (engine.derived.access)."""
-    return spec.tls, kafka_client.is_closed(spec)
-
-
-def _listener_refusal(spec: BrokerSpec, have: ObservedBroker | None,
-                      cluster_sizes: Mapping[str, int]) -> Refusal | None:
-    """A node of a running multi-node cluster whose listener security would change (``pk:tls``
-    on or off, the cluster closed or opened): apply would restart its nodes one at a time, and a
-    node restarted on the new listeners cannot reach those still on the old ones (the KRaft quorum,
-    replication), so the roll would stop at the first node, half done. A one-node cluster has no
-    other node to lose: its replacement is a plain restart."""
-    if have is None or have.spec.kafka is None or spec.kafka is None:
-        return None
-    if cluster_sizes.get(have.spec.kafka.cluster, 0) < 2:
-        return None
-    (old_tls, old_closed), (new_tls, new_closed) = listener_security(have.spec), listener_security(spec)
-    what = []
-    if old_tls != new_tls:
-        what.append(f"tls {_show(old_tls)} → {_show(new_tls)}")
-    if old_closed != new_closed:
-        show = lambda closed: "closed" if closed else "open"  # noqa: E731
-        what.append(f"{show(old_closed)} → {show(new_closed)}")
-    if not what:
-        return None
-    return Refusal(spec.address, f"the listener security of running Kafka cluster {spec.kafka.cluster!r} "
-                                 f"would change ({', '.join(what)}): its nodes would restart one at a "
-                                 "time, and a node on the new listeners cannot reach the nodes still on "
-                                 "the old ones (KRaft quorum, replication), so the restart would stop "
-                                 "half-done; destroy the cluster and apply it again (its data is lost), "
-                                 "or keep its pk:tls and pk:allowAnonymous as they are")
+def restarts_whole_cluster(change: Change) -> bool:
+    """A cluster node's replacement that changes its listener security (``pk:tls`` on or off, the
+    cluster closed or opened): a node on the new listeners cannot reach the nodes still on the old
+    ones (KRaft quorum, replication), so the nodes cannot roll one at a time; apply restarts them
+    all at once instead (engine.apply_calls)."""
+    if change.action is not Action.REPLACE or not change.before or not change.after:
+        return False
+    before, after = change.before.get("kafka"), change.after.get("kafka")
+    return (bool(before) and bool(after) and before.get("cluster") == after.get("cluster")
+            and listener_security(change.before) != listener_security(change.after))
 
 
 def _bridge_change(spec: BridgeSpec, have: ObservedBridge | None, held: bool = False) -> Change:

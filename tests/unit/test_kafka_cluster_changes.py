@@ -4,8 +4,9 @@
   so the restarts roll one node at a time, in node-id order; new nodes start in parallel;
 - only the lead or the broker list changes (a node was added): an in-place update, no restart;
 - the controller quorum of a running cluster would change: refused, naming the voters;
-- the listener security of a running cluster would change (TLS on or off, closed or opened):
-  refused on every node, naming the cluster and what changes; a one-node cluster just restarts;
+- the listener security of a running cluster changes (TLS on or off, closed or opened): every node
+  is replaced as a whole-cluster restart (the reason says so), and apply keeps their lanes apart so
+  all restart at once instead of rolling;
 - a node leaves: its cluster's topics are not deleted with it;
 - a node's spec crosses the agent API unchanged, and a bad one is refused naming the field;
 - a node renders its roles, the quorum and the cluster's defaults.
@@ -36,7 +37,7 @@ from engine.model import (
     TopicSpec,
     to_dict,
 )
-from engine.plan import plan
+from engine.plan import plan, restarts_whole_cluster
 
 VOTERS = tuple(KafkaVoter(i, f"127.0.0.{i + 1}", 9093) for i in (1, 2, 3))
 CID = kraft_cluster_id("urn:x:plant")
@@ -100,37 +101,37 @@ def test_the_quorum_of_a_running_cluster_does_not_change() -> None:
 
 
 @pytest.mark.parametrize(("before", "after", "what"), [
-    ({}, {"tls": True}, "(tls false → true)"),
-    ({"tls": True}, {}, "(tls true → false)"),
-    ({"allow_anonymous": True}, {"allow_anonymous": False}, "(open → closed)"),
-    ({"allow_anonymous": False, "tls": True}, {"allow_anonymous": True}, "(tls true → false, closed → open)"),
+    ({}, {"tls": True}, "tls null → true"),
+    ({"tls": True}, {}, "tls true → null"),
+    ({"allow_anonymous": True}, {"allow_anonymous": False}, "allow_anonymous true → false"),
+    ({"allow_anonymous": False, "tls": True}, {"allow_anonymous": True}, "allow_anonymous false → true, tls true → null"),
 ])
-def test_the_listener_security_of_a_running_cluster_does_not_change(
+def test_a_listener_security_change_restarts_the_whole_cluster_at_once(
         before: dict[str, object], after: dict[str, object], what: str) -> None:
     desired = DesiredState(tuple(replace(node(i), **after) for i in (1, 2, 3)), (TOPIC,))
     observed = ObservedState((running(replace(node(1), **before), OBSERVED_TOPIC),
                               running(replace(node(2), **before)), running(replace(node(3), **before))))
     result = plan(desired, observed)
-    assert not result.applicable and not result.pending
-    assert [r.address for r in result.refusals] == ["broker.k1", "broker.k2", "broker.k3"]
-    reason = result.refusals[0].reason
-    assert f"Kafka cluster 'plant' would change {what}" in reason
-    assert "destroy the cluster and apply it again (its data is lost)" in reason
+    assert result.applicable
+    assert [(c.address, c.action) for c in result.pending] == [
+        ("broker.k1", Action.REPLACE), ("broker.k2", Action.REPLACE), ("broker.k3", Action.REPLACE)]
+    assert all(restarts_whole_cluster(c) for c in result.pending)
+    assert result.pending[0].reason.startswith(f"{what} forces replacement (whole cluster: listener security changes")
+    # three lanes: every node's PUT goes out in the same wave (no roll)
+    assert sorted([op.change.address for op in lane] for lane in lanes(operations(result, desired))) == [
+        ["broker.k1"], ["broker.k2"], ["broker.k3"]]
 
 
-def test_the_listener_security_of_a_new_cluster_or_a_one_node_cluster_may_change() -> None:
-    # nothing runs yet: created with TLS
-    assert plan(DesiredState(tuple(replace(node(i), tls=True) for i in (1, 2, 3))), ObservedState()).applicable
-    # a one-node cluster has no other node to lose: a plain restart
-    alone = node(1, voters=VOTERS[:1], bootstrap=("127.0.0.2:9092",), replication=1, min_insync=1)
-    result = plan(DesiredState((replace(alone, tls=True),)), ObservedState((running(alone),)))
-    assert result.applicable and [(c.address, c.action) for c in result.pending] == [("broker.k1", Action.REPLACE)]
-    # a change that keeps the listeners (only the users of a closed cluster) rolls as before
+def test_a_change_that_keeps_the_listeners_still_rolls() -> None:
     closed = [replace(node(i), allow_anonymous=False) for i in (1, 2, 3)]
     users = (BrokerUser("plc", "env:PLC", ("line.energy",)),)
-    result = plan(DesiredState(tuple(replace(n, users=users) for n in closed)),
-                  ObservedState(tuple(running(n) for n in closed)))
-    assert result.applicable and {c.action for c in result.pending} == {Action.REPLACE}
+    desired = DesiredState(tuple(replace(n, users=users) for n in closed))
+    result = plan(desired, ObservedState(tuple(running(n) for n in closed)))
+    assert {c.action for c in result.pending} == {Action.REPLACE}
+    assert not any(restarts_whole_cluster(c) for c in result.pending)
+    assert "whole cluster" not in result.pending[0].reason
+    [lane] = lanes(operations(result, desired))
+    assert [op.change.address for op in lane] == ["broker.k1", "broker.k2", "broker.k3"]
 
 
 def test_lowering_partitions_of_a_cluster_topic_is_refused_by_name() -> None:
