@@ -6,7 +6,10 @@ DELETE on its broker's agent, a bridge's on the agent of its local broker. Calls
 *lanes*, one per broker (:func:`lanes`): a lane runs in plan order (the broker before its topics,
 topic deletes before the broker's delete); a lane whose broker takes over an address (host, port)
 another broker frees joins that broker's lane after it, so the old broker is gone before the new
-one binds. Pure functions of the plan and the desired state; :mod:`engine.apply` runs them.
+one binds. A running Kafka cluster's replaced nodes roll one at a time (their lanes joined, in
+node-id order), unless their listener security changes: then they restart all at once (a
+whole-cluster restart). Pure functions of the plan and the desired state; :mod:`engine.apply` runs
+them.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from typing import Any
 
 from engine.errors import EngineError
 from engine.model import Action, BridgeMechanism, Change, DesiredState, Plan
-from engine.plan import ALL_TOPIC_SETTINGS, NEW_BROKER_FIELDS, broker_of, topic_settings
+from engine.plan import ALL_TOPIC_SETTINGS, NEW_BROKER_FIELDS, broker_of, restarts_whole_cluster, topic_settings
 
 
 @dataclass(frozen=True)
@@ -170,11 +173,15 @@ def _rolling(ops: Sequence[Operation]) -> list[list[str]]:
     """Per Kafka cluster, its running nodes that the plan restarts (replace), by node id: their
     lanes are joined so the restarts roll one node at a time — each node's PUT returns once the
     node is back in sync (the driver's health), then the next stops. New nodes start in parallel
-    (a new quorum needs its majority up at once)."""
+    (a new quorum needs its majority up at once), and so do the nodes of a whole-cluster restart
+    (:func:`engine.plan.restarts_whole_cluster`: their listener security changes, so a node on the
+    new listeners could not join the nodes still on the old ones): their lanes stay apart, so every
+    node's PUT goes out in the same wave, each agent stops its node (data kept) and starts it with
+    the new configuration, and all are awaited in sync together, under one deadline."""
     clusters: dict[str, list[tuple[int, str]]] = {}
     for op in ops:
         c = op.change
-        if c.action is not Action.REPLACE or not c.address.startswith("broker."):
+        if c.action is not Action.REPLACE or not c.address.startswith("broker.") or restarts_whole_cluster(c):
             continue
         before, after = (c.before or {}).get("kafka"), (c.after or {}).get("kafka")
         if before and after and before.get("cluster") == after.get("cluster"):

@@ -29,8 +29,11 @@ remote end's ``closed`` changed.
 A node of a Kafka cluster (``BrokerSpec.kafka``, docs/kafka.md) is a broker like the others; a
 change of what it renders replaces it (apply rolls a cluster's replaced nodes one at a time), a
 change of only its lead flag or broker list is made in place, and a change of a running cluster's
-controller quorum is refused. The cluster's topics are planned on its lead node only, and a node
-that leaves deletes none of them.
+controller quorum is refused. A change of its listener security (``pk:tls`` on or off, closed or
+opened: nodes on the old and the new listeners cannot talk to each other) replaces every node as a
+*whole-cluster* restart (:func:`restarts_whole_cluster`: its reason says so; apply restarts the
+nodes all at once instead of one at a time). The cluster's topics are planned on its lead node
+only, and a node that leaves deletes none of them.
 
 Order: brokers, topics, bridges, then deletes (bridges and topics before their broker). Changes a
 broker cannot make (fewer Kafka partitions, another replication factor) are :class:`Refusal` s,
@@ -415,6 +418,9 @@ def _broker_change(spec: BrokerSpec, have: ObservedBroker | None) -> Change:
             how = "the broker moves: stopped on the old host, started anew on the new one"
         elif before["kind"] != after["kind"]:
             how = "the broker is stopped and started anew as the new kind"
+        elif restarts_whole_cluster(Change(spec.address, Action.REPLACE, before, after)):
+            how = ("whole cluster: listener security changes; every node of the cluster is stopped and "
+                   "started again at once, its data kept, then all are awaited in sync")
         else:
             how = "the agent restarts the broker"
         return Change(spec.address, Action.REPLACE, before, after, f"{what} forces replacement ({how})")
@@ -467,6 +473,26 @@ def _quorum_refusal(spec: BrokerSpec, have: ObservedBroker | None) -> Refusal | 
                                  f"({show(old)} → {show(new)}): a running KRaft cluster keeps its "
                                  "controllers; add or remove nodes with the 'broker' role only, or "
                                  "keep the controllers' pk:ip, pk:port and pk:controllerPort")
+
+
+def listener_security(essence: Mapping[str, Any]) -> tuple[bool, bool]:
+    """What a Kafka broker's listeners speak, all of them (clients, and in a cluster replication and
+    the controllers), from its essence (:func:`broker_essence`): (TLS, closed: SASL; as
+    engine.security.kafka_client.is_closed says). A cluster's nodes speak it all together
+    (engine.derived.access)."""
+    return bool(essence.get("tls")), essence.get("allow_anonymous") is False or bool(essence.get("users"))
+
+
+def restarts_whole_cluster(change: Change) -> bool:
+    """A cluster node's replacement that changes its listener security (``pk:tls`` on or off, the
+    cluster closed or opened): a node on the new listeners cannot reach the nodes still on the old
+    ones (KRaft quorum, replication), so the nodes cannot roll one at a time; apply restarts them
+    all at once instead (engine.apply_calls)."""
+    if change.action is not Action.REPLACE or not change.before or not change.after:
+        return False
+    before, after = change.before.get("kafka"), change.after.get("kafka")
+    return (bool(before) and bool(after) and before.get("cluster") == after.get("cluster")
+            and listener_security(change.before) != listener_security(change.after))
 
 
 def _bridge_change(spec: BridgeSpec, have: ObservedBridge | None, held: bool = False) -> Change:

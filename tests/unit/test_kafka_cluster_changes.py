@@ -4,6 +4,9 @@
   so the restarts roll one node at a time, in node-id order; new nodes start in parallel;
 - only the lead or the broker list changes (a node was added): an in-place update, no restart;
 - the controller quorum of a running cluster would change: refused, naming the voters;
+- the listener security of a running cluster changes (TLS on or off, closed or opened): every node
+  is replaced as a whole-cluster restart (the reason says so), and apply keeps their lanes apart so
+  all restart at once instead of rolling;
 - a node leaves: its cluster's topics are not deleted with it;
 - a node's spec crosses the agent API unchanged, and a bad one is refused naming the field;
 - a node renders its roles, the quorum and the cluster's defaults.
@@ -24,6 +27,7 @@ from engine.model import (
     Action,
     BrokerSpec,
     BrokerStatus,
+    BrokerUser,
     DesiredState,
     KafkaNode,
     KafkaVoter,
@@ -33,7 +37,7 @@ from engine.model import (
     TopicSpec,
     to_dict,
 )
-from engine.plan import plan
+from engine.plan import plan, restarts_whole_cluster
 
 VOTERS = tuple(KafkaVoter(i, f"127.0.0.{i + 1}", 9093) for i in (1, 2, 3))
 CID = kraft_cluster_id("urn:x:plant")
@@ -94,6 +98,40 @@ def test_the_quorum_of_a_running_cluster_does_not_change() -> None:
     reason = result.refusals[0].reason
     assert "cluster 'plant'" in reason and "3@127.0.0.4:9093 →" in reason and reason.endswith(
         "pk:controllerPort") and "3@127.0.0.9:9093)" in reason
+
+
+@pytest.mark.parametrize(("before", "after", "what"), [
+    ({}, {"tls": True}, "tls null → true"),
+    ({"tls": True}, {}, "tls true → null"),
+    ({"allow_anonymous": True}, {"allow_anonymous": False}, "allow_anonymous true → false"),
+    ({"allow_anonymous": False, "tls": True}, {"allow_anonymous": True}, "allow_anonymous false → true, tls true → null"),
+])
+def test_a_listener_security_change_restarts_the_whole_cluster_at_once(
+        before: dict[str, object], after: dict[str, object], what: str) -> None:
+    desired = DesiredState(tuple(replace(node(i), **after) for i in (1, 2, 3)), (TOPIC,))
+    observed = ObservedState((running(replace(node(1), **before), OBSERVED_TOPIC),
+                              running(replace(node(2), **before)), running(replace(node(3), **before))))
+    result = plan(desired, observed)
+    assert result.applicable
+    assert [(c.address, c.action) for c in result.pending] == [
+        ("broker.k1", Action.REPLACE), ("broker.k2", Action.REPLACE), ("broker.k3", Action.REPLACE)]
+    assert all(restarts_whole_cluster(c) for c in result.pending)
+    assert result.pending[0].reason.startswith(f"{what} forces replacement (whole cluster: listener security changes")
+    # three lanes: every node's PUT goes out in the same wave (no roll)
+    assert sorted([op.change.address for op in lane] for lane in lanes(operations(result, desired))) == [
+        ["broker.k1"], ["broker.k2"], ["broker.k3"]]
+
+
+def test_a_change_that_keeps_the_listeners_still_rolls() -> None:
+    closed = [replace(node(i), allow_anonymous=False) for i in (1, 2, 3)]
+    users = (BrokerUser("plc", "env:PLC", ("line.energy",)),)
+    desired = DesiredState(tuple(replace(n, users=users) for n in closed))
+    result = plan(desired, ObservedState(tuple(running(n) for n in closed)))
+    assert {c.action for c in result.pending} == {Action.REPLACE}
+    assert not any(restarts_whole_cluster(c) for c in result.pending)
+    assert "whole cluster" not in result.pending[0].reason
+    [lane] = lanes(operations(result, desired))
+    assert [op.change.address for op in lane] == ["broker.k1", "broker.k2", "broker.k3"]
 
 
 def test_lowering_partitions_of_a_cluster_topic_is_refused_by_name() -> None:
