@@ -82,12 +82,15 @@ def run_pipeline(
     """
     files = list(files)
     timings: dict[str, float] = {}
-    key = None
+    key, hit = None, None
     if cache is not None:
         with _timed(timings, "cache"):
-            key = cache.key(files, reason_engine=reason_engine, validate_engine=validate_engine)
-            hit = cache.get(key)
-    if cache is not None and hit is not None:
+            try:
+                key = cache.key(files, reason_engine=reason_engine, validate_engine=validate_engine)
+            except OSError:  # a FILE that is missing, unreadable or a folder: no cache; load says which
+                key = None
+            hit = cache.get(key) if key is not None else None
+    if hit is not None:
         result = Pipeline(None, hit[1], desired=hit[0], timings=timings)
         desired = hit[0]
     else:

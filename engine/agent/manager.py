@@ -53,6 +53,7 @@ from engine.agent.procs import (
     mentions,
     proc_info,
     processes_of,
+    raise_first,
     started_at,
     stop_foreign,
     stop_together,
@@ -205,10 +206,7 @@ class BrokerManager:
         finally:
             for b in brokers:
                 b.op.release()
-        for broker_id, error in sorted(errors.items()):
-            log.error("broker %s could not be stopped: %s", broker_id, error)
-        if errors:
-            raise errors[min(errors)]
+        raise_first(errors, "broker", log)
 
     # --- API -------------------------------------------------------------------------------
 

@@ -11,10 +11,11 @@ Linux-only (``/proc``), like the agent.
 from __future__ import annotations
 
 import functools
+import logging
 import os
 import signal
 import threading
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -173,6 +174,15 @@ def stop_together(procs: Sequence[BrokerProcess], graces: Sequence[float]) -> li
     for thread in threads:
         thread.join()
     return errors
+
+
+def raise_first(errors: Mapping[str, Exception], what: str, logger: logging.Logger) -> None:
+    """After stopping many things together: log each one's failure (``what`` and its name), then
+    raise the first by name, so a caller learns of it once all were tried."""
+    for name, error in sorted(errors.items()):
+        logger.error("%s %s could not be stopped: %s", what, name, error)
+    if errors:
+        raise errors[min(errors)]
 
 
 def stop_foreign(info: ProcInfo, grace: float) -> None:

@@ -55,6 +55,7 @@ from engine.agent.procs import (
     processes_of,
     started_at,
     stop_foreign,
+    raise_first,
     stop_together,
 )
 from engine.agent.supervision import backoff, start_supervisor
@@ -313,10 +314,7 @@ class WorkerManager:
         finally:
             for w in workers:
                 w.op.release()
-        for name, error in sorted(errors.items()):
-            log.error("bridge worker %s could not be stopped: %s", name, error)
-        if errors:
-            raise errors[min(errors)]
+        raise_first(errors, "bridge worker", log)
 
     # --- API -------------------------------------------------------------------------------
 

@@ -13,34 +13,54 @@ import hashlib
 import json
 import os
 from collections.abc import Sequence
-from pathlib import Path
+
+TYPE_CHECKING = False  # pathlib and typing are not imported on the command's side
+if TYPE_CHECKING:
+    from pathlib import Path
 
 #: ``sun_path`` holds 108 bytes on Linux (104 on the BSDs); a longer path cannot be bound.
 MAX_SOCKET_PATH = 100
 
 
-def run_dir() -> Path:
+def run_folder() -> str:
     """``$PLANTKG_RUN_DIR``, else ``$XDG_RUNTIME_DIR/plantkg``, else ``$XDG_STATE_HOME/plantkg/run``
     (``~/.local/state/plantkg/run``)."""
     explicit = os.environ.get("PLANTKG_RUN_DIR")
     if explicit:
-        return Path(explicit).expanduser()
+        return os.path.expanduser(explicit)
     runtime = os.environ.get("XDG_RUNTIME_DIR")
     if runtime:
-        return Path(runtime) / "plantkg"
-    base = os.environ.get("XDG_STATE_HOME") or str(Path("~/.local/state").expanduser())
-    return Path(base) / "plantkg" / "run"
+        return os.path.join(runtime, "plantkg")
+    base = os.environ.get("XDG_STATE_HOME") or os.path.expanduser("~/.local/state")
+    return os.path.join(base, "plantkg", "run")
+
+
+def _resolved(name: str | os.PathLike[str]) -> str:
+    return os.path.realpath(os.path.expanduser(os.fspath(name)))
 
 
 def plant_key(files: Sequence[str], agents_file: str | os.PathLike[str] | None, owner: str | None) -> dict[str, object]:
     """What names one served plant: resolved files, agents file (None: the default), owner."""
     agents = agents_file or os.environ.get("PLANTKG_AGENTS") or None
-    return {"files": [str(Path(f).expanduser().resolve()) for f in files],
-            "agents": str(Path(agents).expanduser().resolve()) if agents else None,
+    return {"files": [_resolved(f) for f in files], "agents": _resolved(agents) if agents else None,
             "owner": owner}
 
 
-def socket_path(files: Sequence[str], agents_file: str | os.PathLike[str] | None, owner: str | None) -> Path:
-    """The socket of the server of that plant (which may not run)."""
+def socket_file(files: Sequence[str], agents_file: str | os.PathLike[str] | None, owner: str | None) -> str:
+    """The socket of the server of that plant (which may not run), as the command connects to it."""
     digest = hashlib.sha256(json.dumps(plant_key(files, agents_file, owner), sort_keys=True).encode())
-    return run_dir() / f"serve-{digest.hexdigest()[:24]}.sock"
+    return os.path.join(run_folder(), f"serve-{digest.hexdigest()[:24]}.sock")
+
+
+def run_dir() -> Path:
+    """:func:`run_folder` as a Path (the server's side)."""
+    from pathlib import Path  # noqa: PLC0415
+
+    return Path(run_folder())
+
+
+def socket_path(files: Sequence[str], agents_file: str | os.PathLike[str] | None, owner: str | None) -> Path:
+    """:func:`socket_file` as a Path (the server's side)."""
+    from pathlib import Path  # noqa: PLC0415
+
+    return Path(socket_file(files, agents_file, owner))

@@ -15,9 +15,11 @@ import os
 import socket
 import sys
 from collections.abc import Sequence
-from typing import Any
+TYPE_CHECKING = False  # typing is not imported: the command starts at once
+if TYPE_CHECKING:
+    from typing import Any
 
-from engine.control.address import MAX_SOCKET_PATH, plant_key, socket_path
+from engine.control.address import MAX_SOCKET_PATH, plant_key, socket_file
 from engine.control.wire import PROTOCOL, WireError, receive, send
 
 HELLO_TIMEOUT_S = 5.0
@@ -29,14 +31,14 @@ def run_in_server(verb: str, files: Sequence[str], agents_file: str | os.PathLik
                   owner: str | None, options: dict[str, Any]) -> int | None:
     """Run ``verb`` with ``options`` in the server of this plant; its exit code, or None when
     there is no server to run it (see the module docstring)."""
-    path = socket_path(files, agents_file, owner)
-    if len(str(path)) > MAX_SOCKET_PATH:
+    path = socket_file(files, agents_file, owner)
+    if len(path) > MAX_SOCKET_PATH:
         return None
     conn = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     try:
         conn.settimeout(HELLO_TIMEOUT_S)
         try:
-            conn.connect(str(path))
+            conn.connect(path)
             stream = conn.makefile("rwb")
             hello = receive(stream)
         except (OSError, WireError):

@@ -11,6 +11,7 @@ thread of its own: the command does not wait for it), so the dashboard shows the
 
 from __future__ import annotations
 
+import logging
 import threading
 from contextlib import AbstractContextManager
 from pathlib import Path
@@ -21,6 +22,8 @@ from engine.control.request import Request
 from engine.control.server import Handler
 from engine.incremental.warm import WarmPipeline
 from engine.reconcile_loop import plant_files
+
+log = logging.getLogger(__name__)
 
 
 class ServedPlant(Protocol):
@@ -36,8 +39,17 @@ class ServedPlant(Protocol):
 
 
 def plant_commands(state: ServedPlant, agents_file: Path | None, owner: str | None) -> Handler:
-    """The handler of ``state``'s plant: files, agents file and owner are the server's."""
+    """The handler of ``state``'s plant: files, agents file and owner are the server's. The warm
+    pipeline starts at once, in a thread of its own (a command that comes first waits for it)."""
     warm = WarmPipeline()
+
+    def start_warm() -> None:  # the session's cold start now, not in the first command
+        try:
+            warm(tuple(str(p) for p in plant_files(state.paths)), None, observe=False, owner=owner)
+        except Exception:  # noqa: BLE001 - the first command starts it again and reports the error
+            log.info("control socket: the warm pipeline could not start yet", exc_info=True)
+
+    threading.Thread(target=start_warm, name="plantkg-control-warm", daemon=True).start()
 
     def handle(request: Request, console: Console) -> int:
         from engine.cli.reconcile import make_changes  # noqa: PLC0415 - imports the CLI's renderers

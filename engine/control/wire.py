@@ -10,7 +10,9 @@ to hold an unbounded message.
 from __future__ import annotations
 
 import json
-from typing import IO, Any
+TYPE_CHECKING = False  # typing is not imported: the command starts at once
+if TYPE_CHECKING:
+    from typing import IO, Any
 
 MAX_LINE = 1 << 20
 PROTOCOL = 1

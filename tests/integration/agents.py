@@ -81,6 +81,16 @@ def _alive(pid: int) -> bool:
     return state not in ("Z", "X")
 
 
+def secret_files(folder: Path, tokens: Mapping[str, str]) -> Path:
+    """``folder`` with one 0600 file per principal holding its token (what a plant's
+    ``pk:secretRef "file:..."`` names); the folder."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, token in tokens.items():
+        (folder / name).write_text(token + "\n", encoding="utf-8")
+        (folder / name).chmod(0o600)
+    return folder
+
+
 def start_agents(hosts: list[str], tmp_path: Path, *, tls: bool = False) -> AgentFleet:
     """One agent per host on a free port of that host; the agents file lists them. ``tls``: the
     agents serve HTTPS (certificates of the test run's plant CA)."""

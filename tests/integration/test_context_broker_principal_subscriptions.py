@@ -25,7 +25,8 @@ import requests
 
 from engine import netutil, process
 from engine.cli import main
-from tests.integration.agents import AgentFleet, start_agents
+from tests.integration.agents import AgentFleet, secret_files, start_agents
+from tests.integration.test_context_broker_principals import PLANT
 
 filip_cb = pytest.importorskip("filip.clients.ngsi_v2")
 from filip.clients.exceptions import BaseHttpClientException  # noqa: E402
@@ -40,18 +41,8 @@ ROBOT_TOKEN, PLANNER_TOKEN = "robot1-Sub-Token-3c9e", "planner-Sub-Token-8d21"
 NOT_ITS_OWN = "urn:ngsi-ld:Secret:1"  # an entity neither principal may read
 REFUSED = (BaseHttpClientException, requests.HTTPError)
 
-# robot1 writes its status and reads its task; the planner the other way round
-PLANT = """@prefix pk: <https://w3id.org/plantkg/ontology#> .
-@prefix :   <https://example.org/cb-principal-subs#> .
-:cb a pk:Broker ; pk:id "cb" ; pk:name "fleet context broker" ; pk:brokerType "ngsi-v2" ;
-    pk:ip "127.0.0.3" ; pk:port {port} ; pk:hasTopic :status, :task .
-:status a pk:Topic ; pk:id "status" ; pk:name "agv/1/status" ; pk:entityType "AgvStatus" .
-:task a pk:Topic ; pk:id "task" ; pk:name "agv/1/task" ; pk:entityType "AgvTask" .
-:robot1 a pk:Resource ; pk:id "robot1" ; pk:name "AGV 1" ; pk:sendsTo :cb ;
-    pk:publishes :status ; pk:subscribes :task ; pk:secretRef "file:{secrets}/robot1" .
-:planner a pk:Resource ; pk:id "planner" ; pk:name "Task planner" ; pk:sendsTo :cb ;
-    pk:publishes :task ; pk:subscribes :status ; pk:secretRef "file:{secrets}/planner" .
-"""
+# robot1 writes its status and reads its task; the planner the other way round (the plant of
+# test_context_broker_principals)
 
 
 class Receiver:
@@ -129,11 +120,7 @@ class Deployment:
 @pytest.fixture(scope="module")
 def dep(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Deployment]:
     tmp = tmp_path_factory.mktemp("cb-principal-subs")
-    secrets = tmp / "secrets"
-    secrets.mkdir()
-    for name, token in (("robot1", ROBOT_TOKEN), ("planner", PLANNER_TOKEN)):
-        (secrets / name).write_text(token + "\n", encoding="utf-8")
-        (secrets / name).chmod(0o600)
+    secrets = secret_files(tmp / "secrets", {"robot1": ROBOT_TOKEN, "planner": PLANNER_TOKEN})
     fleet = start_agents([HOST], tmp / "agents")
     receiver = Receiver()
     try:

@@ -22,7 +22,7 @@ import requests
 from engine import netutil
 from engine.cli import main
 from engine.security.ngsi_principals import token_digest
-from tests.integration.agents import AgentFleet, start_agents
+from tests.integration.agents import AgentFleet, secret_files, start_agents
 
 filip_cb = pytest.importorskip("filip.clients.ngsi_v2")
 from filip.clients.exceptions import BaseHttpClientException  # noqa: E402
@@ -68,11 +68,7 @@ class Deployment:
 @pytest.fixture(scope="module")
 def dep(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Deployment]:
     tmp = tmp_path_factory.mktemp("cb-principals")
-    secrets = tmp / "secrets"
-    secrets.mkdir()
-    for name, token in (("robot1", ROBOT_TOKEN), ("planner", PLANNER_TOKEN)):
-        (secrets / name).write_text(token + "\n", encoding="utf-8")
-        (secrets / name).chmod(0o600)
+    secrets = secret_files(tmp / "secrets", {"robot1": ROBOT_TOKEN, "planner": PLANNER_TOKEN})
     fleet = start_agents([HOST], tmp / "agents")
     try:
         port = netutil.free_port(HOST)

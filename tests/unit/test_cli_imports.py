@@ -1,7 +1,7 @@
 """The command line starts at once: ``plantkg --help`` and ``plantkg plan`` do not import what they
 do not use (the agent's HTTP server, Flask, rdflib's SPARQL engine, pySHACL, the broker clients).
 
-Each case runs ``engine.cli.main`` — what the ``plantkg`` console script calls — in a fresh
+Each case runs ``engine.cli.main`` — what the ``plantkg`` console script (engine.control.entry) runs for every command line it does not hand to a server — in a fresh
 interpreter and reads the modules it ended with (``sys.modules``; ``-X importtime`` misses modules
 loaded through ``importlib.import_module``, as the lazy command group does). No timing is asserted:
 ``benchmarks/bench_cli.py`` measures it.

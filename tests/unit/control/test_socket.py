@@ -31,6 +31,9 @@ from engine.control.wire import receive, send
 from engine.errors import EngineError
 from tests.unit.test_cli_imports import PROBE
 
+#: PROBE through the console script's entry point (engine.control.entry), not engine.cli.main.
+ENTRY_PROBE = PROBE.replace("from engine.cli import main", "from engine.control.entry import main")
+
 ROOT = Path(__file__).resolve().parents[3]
 FILES = ["plant.ttl"]
 OPTIONS = {"yes": True, "parallelism": 3, "prune": False, "format": "text"}
@@ -216,7 +219,7 @@ def test_a_live_servers_socket_is_kept_and_a_stale_one_replaced(serve) -> None: 
     assert run_in_server("apply", FILES, None, None, OPTIONS) == 5
 
 
-def test_apply_handed_to_a_server_loads_no_graph_library(serve, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_apply_handed_to_a_server_loads_no_graph_library_nor_click(serve, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     (tmp_path / "plant.ttl").write_text("")
     (tmp_path / "agents.toml").write_text("")
     files = [str(tmp_path / "plant.ttl")]
@@ -226,7 +229,7 @@ def test_apply_handed_to_a_server_loads_no_graph_library(serve, tmp_path: Path) 
                            lambda request, console: seen.append(request) or 0).start()
     try:
         out = tmp_path / "probe.json"
-        done = subprocess.run([sys.executable, "-c", PROBE, str(out), "apply", "--yes", "--parallelism", "2",
+        done = subprocess.run([sys.executable, "-c", ENTRY_PROBE, str(out), "apply", "--yes", "--parallelism", "2",
                                "--agents", str(tmp_path / "agents.toml"), *files], cwd=tmp_path,
                               env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True,
                               timeout=120, check=False)
@@ -235,6 +238,6 @@ def test_apply_handed_to_a_server_loads_no_graph_library(serve, tmp_path: Path) 
         server.close(timeout=10)
     assert found["code"] == 0, done.stderr
     assert seen and seen[0].parallelism == 2 and seen[0].yes
-    heavy = [m for m in found["modules"] if m.split(".")[0] in ("rdflib", "pyshacl", "owlready2", "flask")
-             or m in ("engine.pipeline", "engine.cli.reconcile", "engine.apply", "kg.load")]
+    heavy = [m for m in found["modules"] if m.split(".")[0] in ("rdflib", "pyshacl", "owlready2", "flask", "click")
+             or m in ("engine.pipeline", "engine.cli", "engine.cli.reconcile", "engine.apply", "kg.load")]
     assert heavy == []
