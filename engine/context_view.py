@@ -21,7 +21,8 @@ engine's agents file holds every agent's), plantkg's own principal there: a clos
 principals) answers 401 without it, and its reads of the whole graph are plantkg's only
 (docs/security.md). A ``pk:external`` context broker (a real Orion) is read without a token, so no
 agent's token ever goes to a broker plantkg does not run; only loopback or plant addresses the
-plant itself names are asked.
+plant itself names are asked. One that says ``pk:tls true`` is read over HTTPS, verified against the
+plant CA only (engine.security.https).
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ import pyoxigraph as ox
 
 from engine.errors import EngineError
 from engine.model import BrokerSpec
+from engine.security import https
 from engine.values import host_in_url
 from kg.load import PlantGraph
 from kg.namespaces import NGSI_GRAPH_BASE
@@ -44,23 +46,24 @@ GRAPH_PATH = "/plantkg/v1/graph"
 #: Largest context read (bytes); a bigger answer is refused rather than held in memory twice.
 MAX_CONTEXT_BYTES = 256 * 1024 * 1024
 
-_CONTEXT_BROKERS = """SELECT ?broker ?ip ?port WHERE {
-  ?broker a pk:ContextBroker ; pk:ip ?ip ; pk:port ?port } ORDER BY ?broker"""
+_CONTEXT_BROKERS = """SELECT ?broker ?ip ?port ?tls WHERE {
+  ?broker a pk:ContextBroker ; pk:ip ?ip ; pk:port ?port . OPTIONAL { ?broker pk:tls ?tls } } ORDER BY ?broker"""
 
 
 @dataclass(frozen=True)
 class ContextSource:
-    """A context broker of the plant: its individual, where it answers and the token it is read
-    with (None: none sent)."""
+    """A context broker of the plant: its individual, where it answers, the token it is read
+    with (None: none sent) and whether it speaks HTTPS (``pk:tls true``)."""
 
     iri: str
     host: str
     port: int
     token: str | None = field(default=None, repr=False)  # never shown
+    tls: bool = False
 
     @property
     def url(self) -> str:
-        return f"http://{host_in_url(self.host)}:{self.port}{GRAPH_PATH}"
+        return f"{'https' if self.tls else 'http'}://{host_in_url(self.host)}:{self.port}{GRAPH_PATH}"
 
 
 @dataclass(frozen=True)
@@ -92,10 +95,11 @@ def context_sources(plant: PlantGraph, tokens: Mapping[str, str] | None = None) 
     its token from ``tokens`` (broker IRI -> token, :func:`agent_tokens`) if there."""
     tokens = tokens or {}
     found = []
-    for broker, ip, port in run_query(plant, _CONTEXT_BROKERS).rows:
+    for broker, ip, port, tls in run_query(plant, _CONTEXT_BROKERS).rows:
         if isinstance(broker, ox.NamedNode) and isinstance(ip, ox.Literal) and isinstance(port, ox.Literal):
             try:
-                found.append(ContextSource(broker.value, ip.value, int(port.value), tokens.get(broker.value)))
+                found.append(ContextSource(broker.value, ip.value, int(port.value), tokens.get(broker.value),
+                                           tls=isinstance(tls, ox.Literal) and tls.value in ("true", "1")))
             except ValueError:
                 continue   # a port the shapes refused already; nothing to ask
     return found
@@ -104,7 +108,10 @@ def context_sources(plant: PlantGraph, tokens: Mapping[str, str] | None = None) 
 def fetch_context(source: ContextSource, timeout: float = 3.0) -> list[ox.Quad]:
     """The context broker's whole context, parsed; raises :class:`OSError` or
     :class:`ValueError` saying why it could not be read."""
-    conn = http.client.HTTPConnection(source.host, source.port, timeout=timeout)
+    try:
+        conn = https.connection(source.host, source.port, timeout=timeout, tls=source.tls)
+    except EngineError as exc:  # no usable plant CA to verify an https broker with
+        raise ValueError(f"{source.url}: {exc}") from None
     try:
         headers = {"Accept": "application/n-quads"}
         if source.token is not None:

@@ -8,7 +8,7 @@ run), only what the ontology concluded:
   ``pk:ContextBroker`` or a Mosquitto that does not say (closed by default: engine.derived.access), so
   a plan shows who may connect; users from ``pk:secretRef`` / ``pk:clientCertificate`` and the
   bridges' principals; ``tls`` = ``pk:tls`` (TLS-only listeners: a Mosquitto, a Kafka broker of
-  its own, every node of a Kafka cluster that says it); ``certificate_port`` = ``pk:certificatePort`` (a TLS Mosquitto's certificate listener);
+  its own, every node of a Kafka cluster that says it, a context broker's HTTPS API); ``certificate_port`` = ``pk:certificatePort`` (a TLS Mosquitto's certificate listener);
   ``mqtt_port`` = ``pk:mqttPort``, the MQTT listener of a broker type that speaks MQTT beside its
   own protocol, which bridges from MQTT brokers connect to). A broker
   marked ``pk:external`` runs outside plantkg: it is left out of the brokers (and topics) to

@@ -138,9 +138,10 @@ def ngsi_worker_config(spec: BridgeSpec, state_dir: Path, token_file: Path | Non
     return NgsiWorkerConfig(
         bridge_id=folder_name(spec.local.id, spec.remote.id),
         mqtt_host=spec.local.host, mqtt_port=spec.local.port,
-        ngsi_url=f"http://{host_in_url(spec.remote.host)}:{spec.remote.port}",
+        ngsi_url=f"{'https' if spec.remote.tls else 'http'}://{host_in_url(spec.remote.host)}:{spec.remote.port}",
         routes=tuple(routes), state_dir=state_dir, token_file=token_file,
         mqtt_username=_mqtt_login(spec), mqtt_ca_file=_mqtt_ca(spec),
+        ngsi_ca_file=ca.ca_cert_file() if spec.remote.tls else None,  # a pk:tls context broker
         notify_username=_notify_login(spec, routes),
     )
 

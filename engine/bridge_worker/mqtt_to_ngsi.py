@@ -107,7 +107,7 @@ class MqttToNgsi:
     # --- the lanes ---------------------------------------------------------------------------
 
     def _lane(self, jobs: queue.Queue[_Job | None]) -> None:
-        client = NgsiClient(self.cfg.ngsi_url, self.cfg.token_file)
+        client = NgsiClient(self.cfg.ngsi_url, self.cfg.token_file, ca_file=self.cfg.ngsi_ca_file)
         try:
             while True:
                 job = jobs.get()

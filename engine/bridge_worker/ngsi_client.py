@@ -23,6 +23,8 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import quote, urlsplit
 
+from engine.security import https
+
 TIMEOUT = 10.0
 
 
@@ -55,13 +57,16 @@ def entity_path(entity_id: str, entity_type: str) -> str:
 
 
 class NgsiClient:
-    """One connection to the context broker at ``base_url`` (``http://host:port``)."""
+    """One connection to the context broker at ``base_url`` (``http://host:port``, or
+    ``https://host:port`` verified against ``ca_file`` only: the plant CA's certificate)."""
 
-    def __init__(self, base_url: str, token_file: Path | None = None, *, timeout: float = TIMEOUT) -> None:
+    def __init__(self, base_url: str, token_file: Path | None = None, *, timeout: float = TIMEOUT,
+                 ca_file: Path | None = None) -> None:
         parts = urlsplit(base_url)
         assert parts.hostname is not None and parts.port is not None
         self.base_url = base_url.rstrip("/")
         self.host, self.port = parts.hostname, parts.port
+        self.tls, self.ca_file = parts.scheme == "https", ca_file
         self.timeout = timeout
         self.token_file = token_file
         self._token = self._read_token()
@@ -123,9 +128,10 @@ class NgsiClient:
         if self._token is not None:
             headers["Authorization"] = f"Bearer {self._token}"
         for attempt in (1, 2):  # a kept-alive connection the server closed: one fresh try
-            if self._conn is None:
-                self._conn = http.client.HTTPConnection(self.host, self.port, timeout=self.timeout)
             try:
+                if self._conn is None:  # (a CA certificate that cannot be read: OSError, below)
+                    self._conn = https.connection(self.host, self.port, timeout=self.timeout,
+                                                  tls=self.tls, ca_file=self.ca_file)
                 self._conn.request(method, path, body=data, headers=headers)
                 response = self._conn.getresponse()
                 raw = response.read()

@@ -80,7 +80,8 @@ class NgsiRoute:
 @dataclass(frozen=True)
 class NgsiWorkerConfig:
     """One MQTT <-> NGSI bridge worker: the MQTT broker it is attached to, the context broker
-    (``ngsi_url``: ``http://host:port``), its routes, the token file, its state folder."""
+    (``ngsi_url``: ``http://host:port``, or ``https://`` with ``ngsi_ca_file``, the plant CA's
+    certificate it is verified against), its routes, the token file, its state folder."""
 
     bridge_id: str
     mqtt_host: str
@@ -93,6 +94,7 @@ class NgsiWorkerConfig:
     check_every: float = 30.0      # seconds between checks that the subscriptions are still right
     mqtt_username: str | None = None  # as WorkerConfig.mqtt_username
     mqtt_ca_file: Path | None = None  # as WorkerConfig.mqtt_ca_file
+    ngsi_ca_file: Path | None = None  # an https:// context broker (pk:tls): the plant CA's certificate
     #: The principal the context broker publishes the notifications as (a closed MQTT broker).
     notify_username: str | None = None
     mechanism: str = MECHANISM
@@ -109,6 +111,12 @@ class NgsiWorkerConfig:
         object.__setattr__(self, "mqtt_host", check_host("mqtt_host", self.mqtt_host))
         check_port("mqtt_port", self.mqtt_port)
         _check_url("ngsi_url", self.ngsi_url)
+        if self.ngsi_ca_file is not None:
+            object.__setattr__(self, "ngsi_ca_file", check_path("ngsi_ca_file", self.ngsi_ca_file))
+        if (self.ngsi_ca_file is not None) != self.ngsi_url.startswith("https://"):
+            raise ConfigValueError("ngsi_ca_file", self.ngsi_ca_file,
+                                   "an https:// context broker needs the CA certificate to verify it "
+                                   "with, and an http:// one none")
         if not isinstance(self.routes, tuple) or not self.routes:
             raise ConfigValueError("routes", self.routes, "a worker needs a non-empty tuple of routes")
         if not all(isinstance(r, NgsiRoute) for r in self.routes):
@@ -153,6 +161,7 @@ class NgsiWorkerConfig:
             "stats_interval": self.stats_interval, "check_every": self.check_every,
             "mqtt_username": self.mqtt_username,
             "mqtt_ca_file": None if self.mqtt_ca_file is None else str(self.mqtt_ca_file),
+            **({"ngsi_ca_file": str(self.ngsi_ca_file)} if self.ngsi_ca_file is not None else {}),
             **({"notify_username": self.notify_username} if self.notify_username else {}),
         }, indent=2)
 
@@ -179,11 +188,11 @@ def is_ngsi_config(text: str) -> bool:
 
 
 def _check_url(field: str, value: object) -> None:
-    """``http://<IP>:<port>`` with nothing after it (the worker adds the NGSI paths)."""
+    """``http://<IP>:<port>`` (or ``https://``) with nothing after it (the worker adds the NGSI paths)."""
     if not isinstance(value, str):
         raise ConfigValueError(field, value, "must be http://<ip>:<port>")
     parts = urlsplit(value)
-    if parts.scheme != "http" or parts.path not in ("", "/") or parts.query or parts.fragment \
+    if parts.scheme not in ("http", "https") or parts.path not in ("", "/") or parts.query or parts.fragment \
             or parts.username or parts.password or parts.hostname is None:
         raise ConfigValueError(field, value, "must be http://<ip>:<port>")
     check_host(field, parts.hostname)

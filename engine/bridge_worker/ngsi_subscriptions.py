@@ -115,7 +115,7 @@ class SubscriptionKeeper:
         self._thread.start()
 
     def _run(self) -> None:
-        client = NgsiClient(self.cfg.ngsi_url, self.cfg.token_file)
+        client = NgsiClient(self.cfg.ngsi_url, self.cfg.token_file, ca_file=self.cfg.ngsi_ca_file)
         delay = RETRY_DELAY[0]
         first = True
         try:

@@ -54,7 +54,8 @@ class NgsiWorker(BridgeLoop):
                 f"{self.health.refused} refused, {self.health.skipped} notifications skipped")
 
     def probe(self) -> None:
-        client = NgsiClient(self.cfg.ngsi_url, self.cfg.token_file, timeout=2.0)
+        client = NgsiClient(self.cfg.ngsi_url, self.cfg.token_file, timeout=2.0,
+                            ca_file=self.cfg.ngsi_ca_file)
         try:
             while not self.stopping.is_set():
                 try:
@@ -71,7 +72,7 @@ class NgsiWorker(BridgeLoop):
 def remove_subscriptions(cfg: NgsiWorkerConfig) -> int:
     """Delete every subscription this bridge owns on the context broker (the bridge is being
     deleted); returns how many. Raises :class:`NgsiError` if the context broker does not answer."""
-    client = NgsiClient(cfg.ngsi_url, cfg.token_file)
+    client = NgsiClient(cfg.ngsi_url, cfg.token_file, ca_file=cfg.ngsi_ca_file)
     try:
         return len(apply_plan(client, cfg, remove_all=True).delete)
     finally:

@@ -23,6 +23,9 @@ topped out near 1,500 updates/s, and lower with more clients. Here:
 - HTTP/1.1 keep-alive (also after 204, which waitress closed), pipelining answered in order,
   ``Expect: 100-continue``, chunked request bodies (given to the app with their length, as
   waitress did), ``HEAD`` without a body.
+- **TLS** (``ssl_context``, the context broker's ``pk:tls``): the listener speaks HTTPS only;
+  asyncio wraps each accepted connection and runs its handshake without blocking the loop, closing
+  it after ``HANDSHAKE_TIMEOUT`` s; a plain HTTP client gets no answer.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ import json
 import logging
 import signal
 import socket
+import ssl
 import sys
 import time
 from collections import deque
@@ -50,6 +54,9 @@ MAX_BODY = 16 * 1024 * 1024  # default ``max_body``; the context broker passes i
 MAX_HEADER_BYTES = 64 * 1024
 MAX_PIPELINED = 32  # requests read ahead on one connection before its socket is paused
 IDLE_TIMEOUT = 120.0
+#: Seconds a TLS client has to finish its handshake (asyncio runs it on the loop, so a slow or
+#: silent client holds nothing meanwhile; past this its connection is closed).
+HANDSHAKE_TIMEOUT = 10.0
 MAX_CONNECTIONS = 1000
 SERVER_NAME = "plantkg-context-broker"
 
@@ -186,7 +193,8 @@ class _Connection(asyncio.Protocol):
         """The client closed its sending side: answer what it sent, then close."""
         self.eof = True
         self._next()
-        return True  # keep the transport open for the answers
+        # keep the transport open for the answers (TLS has no half-close: asyncio closes it)
+        return not self.server.tls
 
     def pause_writing(self) -> None:
         self.write_paused = True
@@ -356,25 +364,29 @@ class HttpServer:
 
     def __init__(self, app: WSGIApp, host: str, port: int, threads: int,
                  inline: Inline | None = None, *, max_connections: int = MAX_CONNECTIONS,
-                 idle_timeout: float = IDLE_TIMEOUT, max_body: int = MAX_BODY) -> None:
+                 idle_timeout: float = IDLE_TIMEOUT, max_body: int = MAX_BODY,
+                 ssl_context: ssl.SSLContext | None = None) -> None:
         self.app = app
         self.host, self.port = host, port
         self.inline: Inline = inline or (lambda _environ: False)
         self.max_connections = max_connections
         self.max_body = max_body
+        self.tls = ssl_context is not None
         self.idle_timeout = idle_timeout
         self.pool = ThreadPoolExecutor(max_workers=max(1, threads), thread_name_prefix="cb-http")
         self.loop = asyncio.new_event_loop()
         self.connections: set[_Connection] = set()
         self._base = {"SERVER_NAME": host, "SERVER_PORT": str(port), "SCRIPT_NAME": "",
                       "SERVER_SOFTWARE": SERVER_NAME, "wsgi.version": (1, 0),
-                      "wsgi.url_scheme": "http", "wsgi.errors": sys.stderr,
+                      "wsgi.url_scheme": "http" if ssl_context is None else "https",
+                      "wsgi.errors": sys.stderr,
                       "wsgi.multithread": True, "wsgi.multiprocess": False,
                       "wsgi.run_once": False, "wsgi.input_terminated": True}
         # bind now, so a port in use is an error of the constructor (OSError), not of run()
         try:
             self._server = self.loop.run_until_complete(self.loop.create_server(
-                lambda: _Connection(self), host=host, port=port, reuse_address=True, backlog=1024))
+                lambda: _Connection(self), host=host, port=port, reuse_address=True, backlog=1024,
+                ssl=ssl_context, ssl_handshake_timeout=HANDSHAKE_TIMEOUT if ssl_context else None))
         except BaseException:
             self.loop.close()
             self.pool.shutdown(wait=False)
@@ -466,6 +478,8 @@ class HttpServer:
 
 
 def make_server(app: WSGIApp, host: str, port: int, threads: int,
-                inline: Inline | None = None, max_body: int = MAX_BODY) -> HttpServer:
-    """The server for ``app`` on ``host:port`` (bound on return; ``run()`` serves)."""
-    return HttpServer(app, host, port, threads, inline, max_body=max_body)
+                inline: Inline | None = None, max_body: int = MAX_BODY,
+                ssl_context: ssl.SSLContext | None = None) -> HttpServer:
+    """The server for ``app`` on ``host:port`` (bound on return; ``run()`` serves), HTTPS only
+    with ``ssl_context``."""
+    return HttpServer(app, host, port, threads, inline, max_body=max_body, ssl_context=ssl_context)

@@ -1,7 +1,8 @@
 """The context broker as a process: arguments, token, store, subscriptions, WSGI server, signals.
 
 ``python -m engine.context_broker --host H --port P --data-dir D [--token-file F | --open]
-[--principals P] [--closed-kafka HOST:PORT ...] [--tls-kafka HOST:PORT ...] [--log-file L] [--allow-remote] [--threads N] [--fsync]``
+[--principals P] [--closed-kafka HOST:PORT ...] [--tls-kafka HOST:PORT ...] [--tls-cert C --tls-key K]
+[--log-file L] [--allow-remote] [--threads N] [--fsync]``
 
 - Binds loopback unless ``--allow-remote`` (a non-loopback ``--host`` is refused otherwise).
 - Writes need ``Authorization: Bearer <token>`` (the first line of ``--token-file``) unless
@@ -12,6 +13,9 @@
   principal (:mod:`.subscriptions.kafka`); any other Kafka gets no credentials.
 - ``--tls-kafka HOST:PORT`` (repeated, likewise): the plant's Kafka brokers that speak TLS, which
   ``kafka://`` notifications reach over TLS, trusting only the plant CA (``$PLANTKG_CA_DIR``).
+- ``--tls-cert C --tls-key K`` (the NGSI driver renders them for ``pk:tls true``): the API speaks
+  HTTPS only (TLS 1.2+) with that certificate (the plant CA's, issued by the broker's agent); a
+  plain HTTP client gets no answer.
 - The store lives in ``D/oxigraph`` and its write-ahead log in ``D/context.wal`` (``D/context.lock``
   keeps a second process out, with a clear message and exit code 2); subscriptions in
   ``D/subscriptions``. An answered write survives kill -9; ``--fsync`` also makes it survive a
@@ -28,6 +32,7 @@ from __future__ import annotations
 import argparse
 import ipaddress
 import logging
+import ssl
 import sys
 from pathlib import Path
 
@@ -37,6 +42,7 @@ from engine.context_broker.app import MAX_BODY, create_app
 from engine.context_broker.store import ContextStore, StoreLocked
 from engine.context_broker.subscriptions.model import PlantKafkas
 from engine.errors import ConfigValueError
+from engine.security.https import server_context
 from engine.values import check_address
 
 log = logging.getLogger("engine.context_broker")
@@ -63,6 +69,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--tls-kafka", action="append", default=[], metavar="HOST:PORT",
                         help="a Kafka of the plant that speaks TLS: kafka:// notifications use TLS "
                              "there, trusting the plant CA only")
+    parser.add_argument("--tls-cert", type=Path, help="serve HTTPS only, with this certificate (PEM)")
+    parser.add_argument("--tls-key", type=Path, help="the private key of --tls-cert (PEM)")
     parser.add_argument("--log-file", type=Path)
     parser.add_argument("--allow-remote", action="store_true", help="allow a non-loopback --host")
     parser.add_argument("--threads", type=int, default=DEFAULT_THREADS)
@@ -125,6 +133,19 @@ def read_plant_kafkas(args: argparse.Namespace) -> PlantKafkas:
     return PlantKafkas(closed=read_closed_kafkas(args), tls=_addresses("--tls-kafka", args.tls_kafka))
 
 
+def read_tls(args: argparse.Namespace) -> ssl.SSLContext | None:
+    """The server's TLS context of ``--tls-cert``/``--tls-key`` (both or neither); None: plain HTTP."""
+    if (args.tls_cert is None) != (args.tls_key is None):
+        raise ConfigError("give --tls-cert and --tls-key together (or neither, for plain HTTP)")
+    if args.tls_cert is None:
+        return None
+    try:
+        return server_context(args.tls_cert, args.tls_key)
+    except (OSError, ssl.SSLError) as err:
+        raise ConfigError(f"cannot load --tls-cert {args.tls_cert} with --tls-key {args.tls_key}: "
+                          f"{getattr(err, 'strerror', None) or err}") from None
+
+
 def _addresses(option: str, given: list[str]) -> frozenset[tuple[str, int]]:
     out = set()
     for address in given:
@@ -154,6 +175,7 @@ def main(argv: list[str] | None = None) -> int:
         token = read_token(args)
         gate = read_gate(args, token)
         kafkas = read_plant_kafkas(args)
+        tls = read_tls(args)
         _logging(args.log_file)
     except ConfigError as err:
         print(f"error: {err}", file=sys.stderr)
@@ -175,13 +197,15 @@ def main(argv: list[str] | None = None) -> int:
                          subscriptions_blueprint=subscriptions.blueprint())
         # with --fsync a write waits for the disk: keep it off the event loop
         server = make_server(app, args.host, args.port, args.threads,
-                             inline=None if args.fsync else is_hot_write, max_body=MAX_BODY)
+                             inline=None if args.fsync else is_hot_write, max_body=MAX_BODY,
+                             ssl_context=tls)
     except OSError as err:
         subscriptions.close()
         store.close()
         print(f"error: cannot listen on {args.host}:{args.port}: {err.strerror or err}", file=sys.stderr)
         return 2
-    log.info("context broker on http://%s:%d (data %s, %d entities, writes %s)", args.host,
+    log.info("context broker on %s://%s:%d (data %s, %d entities, writes %s)",
+             "http" if tls is None else "https", args.host,
              args.port, args.data_dir, store.count(),
              "open" if token is None else "need a token" if gate is None else "closed: every request needs a token")
     try:

@@ -6,12 +6,12 @@ motion and action commands) writes the topic's entity there: one
 1 Hz. An :class:`NgsiTap` reads every entity of its broker's topics (``GET /v2/entities/<id>``,
 ``keyValues``, with its agent's token) twice a second and counts the changes it sees, so the demo shows the attribute
 values that really are on the context broker, whether a source wrote them or the MQTT <-> NGSI
-bridge did. Plain ``http.client`` (no proxy: the broker is addressed directly).
+bridge did. Plain ``http.client`` (no proxy: the broker is addressed directly), HTTPS trusting the
+plant CA for a ``pk:tls`` broker.
 """
 
 from __future__ import annotations
 
-import http.client
 import json
 import threading
 import time
@@ -19,6 +19,7 @@ import urllib.parse
 from typing import Any
 
 from engine.model import BrokerSpec
+from engine.security import https
 from engine.demo.simulate import Feed, Seen, payload
 
 #: How often an NGSI source writes, and how often a tap reads.
@@ -30,7 +31,7 @@ HIDDEN = frozenset({"id", "type", "ts", "source", "TimeInstant", "dateCreated", 
 
 def _request(broker: BrokerSpec, method: str, path: str, body: Any = None, token: str | None = None,
              timeout: float = 5.0) -> tuple[int, bytes]:
-    conn = http.client.HTTPConnection(broker.host, broker.port, timeout=timeout)
+    conn = https.connection(broker.host, broker.port, timeout=timeout, tls=broker.tls)  # pk:tls: the plant CA
     try:
         headers = {"Accept": "application/json"}
         data = None

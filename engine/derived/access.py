@@ -288,9 +288,10 @@ def access_label(spec: BrokerSpec) -> str:
             return f"users ({len(spec.users)}){tls}"
         return (f"open + users ({len(spec.users)}){tls}" if spec.users else f"open{tls}")
     if spec.kind == "ngsi-v2":
+        tls = ", TLS" if spec.tls else ""
         if spec.users:
-            return f"principals ({len(spec.users)})"
-        return "open" if spec.allow_anonymous else "token"
+            return f"principals ({len(spec.users)}){tls}"
+        return ("open" if spec.allow_anonymous else "token") + tls
     return "open"
 
 

@@ -17,6 +17,12 @@ A context broker holds entities, not topics: a topic it carries is one entity (`
 records the result. Health is a real ``GET /version`` answered 200 with an ``orion`` object, the
 check FiLiP's client makes first, not just an open port.
 
+With ``pk:tls true`` (``spec.tls``) its API speaks HTTPS only (TLS 1.2+): the agent issues it a
+certificate of the plant CA for its address into the broker folder (``tls-cert.pem``,
+``tls-key.pem``, 0600 like every rendered file; kept while current, issued again under the same
+rules as a Mosquitto's: :meth:`NgsiDriver.tls_renewal`), rendered as ``--tls-cert``/``--tls-key``;
+health then speaks HTTPS and verifies it against the plant CA only.
+
 The agent's token file is ``<state dir>/token`` (the agent's default; the broker folder is
 ``<state dir>/brokers/<id>/``); an agent started with another ``--token-file`` passes it in the
 environment variable ``PLANTKG_AGENT_TOKEN_FILE``.
@@ -43,6 +49,7 @@ from engine.drivers.base import (
     resolve_secret,
     spec_essence,
 )
+from engine.security import ca, https
 from engine.security.ngsi_principals import render_principals
 from engine.errors import ConfigValueError
 from engine.model import BridgeSpec, BrokerSpec, ObservedTopic, TopicSpec
@@ -54,6 +61,9 @@ TOKEN_FILE = "token"
 TOKEN_FILE_ENV = AGENT_TOKEN_FILE_ENV
 #: The principals file of a broker with users (token digests and entities; engine.context_broker.access).
 PRINCIPALS_FILE = "principals.json"
+#: The certificate and key of a ``tls`` broker (its HTTPS listener).
+TLS_CERT_FILE = "tls-cert.pem"
+TLS_KEY_FILE = "tls-key.pem"
 #: How much of a /version answer health reads (Orion's is a few hundred bytes).
 MAX_VERSION_BYTES = 65_536
 
@@ -96,15 +106,16 @@ class NgsiDriver:
                       bridges: tuple[BridgeSpec, ...] = ()) -> dict[str, str]:
         """The principals file of a closed broker (each user's token read here, on the broker's
         machine, and written as its SHA-256 digest only; 0600 like every rendered file; no users:
-        an empty list, so only the agent's token gets in); none for an open one. Bridges run as
-        workers beside MQTT."""
+        an empty list, so only the agent's token gets in); none for an open one. For ``tls`` its
+        certificate and key, kept while current. Bridges run as workers beside MQTT."""
         self.validate(spec)
         check_path("broker_dir", broker_dir)
         refuse_bridges(self.kind, bridges)
+        files = _tls_files(spec, broker_dir)
         if spec.allow_anonymous:
-            return {}
+            return files
         tokens = {u.name: (resolve_secret(u), u.write, u.read) for u in spec.users}
-        return {PRINCIPALS_FILE: render_principals(tokens)}
+        return {**files, PRINCIPALS_FILE: render_principals(tokens)}
 
     def token_file(self, broker_dir: Path) -> Path:
         """The agent's token file, which the context broker reads its write token from."""
@@ -124,6 +135,8 @@ class NgsiDriver:
             argv += ["--closed-kafka", address]
         for address in spec.tls_kafkas:  # ... and speak TLS there, trusting the plant CA
             argv += ["--tls-kafka", address]
+        if spec.tls:  # its own API: HTTPS only
+            argv += ["--tls-cert", str(broker_dir / TLS_CERT_FILE), "--tls-key", str(broker_dir / TLS_KEY_FILE)]
         if spec.allow_anonymous:
             return [*argv, "--open"]
         token = check_path("token_file", self.token_file(broker_dir))
@@ -138,12 +151,19 @@ class NgsiDriver:
         (broker_dir / DATA_DIR).mkdir(parents=True, exist_ok=True)
         if spec.allow_anonymous:
             (broker_dir / PRINCIPALS_FILE).unlink(missing_ok=True)
+        if not spec.tls:  # no key left behind by a broker that no longer speaks TLS
+            for name in (TLS_CERT_FILE, TLS_KEY_FILE):
+                (broker_dir / name).unlink(missing_ok=True)
 
     def health(self, spec: BrokerSpec, timeout: float) -> bool:
-        """``GET /version`` answered 200 with a JSON object holding an ``orion`` object."""
+        """``GET /version`` answered 200 with a JSON object holding an ``orion`` object (over
+        HTTPS verified against the plant CA for a ``tls`` broker)."""
         if not netutil.port_open(spec.host, spec.port, timeout=min(timeout, 0.5)):
             return False
-        conn = http.client.HTTPConnection(spec.host, spec.port, timeout=max(timeout, 0.05))
+        try:
+            conn = https.connection(spec.host, spec.port, timeout=max(timeout, 0.05), tls=spec.tls)
+        except (OSError, ca.CaError):  # (ssl.SSLError is an OSError)
+            return False  # no plant CA to verify it with: not healthy as far as plantkg can tell
         try:
             conn.request("GET", "/version", headers={"Accept": "application/json"})
             answer = conn.getresponse()
@@ -177,14 +197,42 @@ class NgsiDriver:
         return []
 
     def essence(self, spec: BrokerSpec) -> dict[str, Any]:
-        """Listener, whether writes need the token, the closed Kafkas (all on the command line),
-        and the principals."""
+        """Listener (and whether it speaks TLS), whether writes need the token, the closed Kafkas
+        (all on the command line), and the principals."""
         out = {**spec_essence(spec), "allow_anonymous": bool(spec.allow_anonymous)}
         if spec.closed_kafkas:
             out["closed_kafkas"] = list(spec.closed_kafkas)
         if spec.tls_kafkas:
             out["tls_kafkas"] = list(spec.tls_kafkas)
+        if spec.tls:  # only then: a plain broker's essence, and so its config hash, stays as it was
+            out["tls"] = True
         if spec.users:  # principals: who they are and their entities (their tokens are not in it)
             out["users"] = [{"name": u.name, "secret_ref": u.secret_ref, "write": sorted(u.write),
                              "read": sorted(u.read)} for u in sorted(spec.users, key=lambda u: u.name)]
         return out
+
+    def tls_renewal(self, spec: BrokerSpec, broker_dir: Path) -> str | None:
+        """Why the broker's TLS certificate must be issued again (engine.security.ca); None if
+        current or plain. The agent reports it, the plan turns it into an update, and the PUT
+        renders a new one (as for a Mosquitto)."""
+        if not spec.tls:
+            return None
+        return ca.renewal_reason(_read(broker_dir / TLS_CERT_FILE), (spec.host,))
+
+
+def _tls_files(spec: BrokerSpec, broker_dir: Path) -> dict[str, str]:
+    """A ``tls`` broker's certificate and key for its address: the previous ones while current (so
+    re-rendering gives the same files and does not restart it), else new ones; none when plain."""
+    if not spec.tls:
+        return {}
+    cert, key = ca.current_server_cert(_read(broker_dir / TLS_CERT_FILE), _read(broker_dir / TLS_KEY_FILE),
+                                       ca.load_or_create_ca(ca.ca_dir()), (spec.host,),
+                                       name=f"plantkg broker {spec.id}")
+    return {TLS_CERT_FILE: cert.decode("ascii"), TLS_KEY_FILE: key.decode("ascii")}
+
+
+def _read(path: Path) -> bytes | None:
+    try:
+        return path.read_bytes()
+    except OSError:
+        return None

@@ -234,6 +234,8 @@ def _spec(**kw):
     (_spec(kind="ngsi-v2", allow_anonymous=False), "token", None),
     (_spec(kind="ngsi-v2", allow_anonymous=True), "open", "may read and change every entity"),
     (_spec(kind="ngsi-v2", allow_anonymous=False, users=(ROBOT_USER, HMI_USER)), "principals (2)", None),
+    (_spec(kind="ngsi-v2", allow_anonymous=False, tls=True), "token, TLS", None),
+    (_spec(kind="ngsi-v2", allow_anonymous=False, users=(ROBOT_USER,), tls=True), "principals (1), TLS", None),
 ])
 def test_plans_and_status_say_who_may_use_a_broker(spec, label: str, warning: str | None) -> None:
     from engine.derived.access import access_label, open_broker_warnings  # noqa: PLC0415

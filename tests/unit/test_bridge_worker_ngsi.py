@@ -4,6 +4,7 @@ message refused), the loop rule, the subscription body and its reconciliation, w
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -131,6 +132,8 @@ def test_config_round_trips_through_json(tmp_path: Path) -> None:
     assert NgsiWorkerConfig.from_json(text) == cfg
     open_cfg = config(tmp_path)
     assert NgsiWorkerConfig.from_json(open_cfg.to_json()) == open_cfg
+    tls_cfg = replace(open_cfg, ngsi_url="https://127.0.0.5:1026", ngsi_ca_file=tmp_path / "ca.pem")
+    assert NgsiWorkerConfig.from_json(tls_cfg.to_json()) == tls_cfg
     assert json.loads(open_cfg.to_json())["token_file"] is None
 
 
@@ -146,7 +149,9 @@ def test_main_reads_either_kind_of_worker_json(tmp_path: Path) -> None:
 
 
 BAD_CONFIGS = [
-    ({"ngsi_url": "https://127.0.0.5:1026"}, "ngsi_url"),
+    ({"ngsi_url": "https://127.0.0.5:1026"}, "ngsi_ca_file"),  # https without the CA to verify it
+    ({"ngsi_url": "ftp://127.0.0.5:1026"}, "ngsi_url"),
+    ({"ngsi_ca_file": "/ca.pem"}, "ngsi_ca_file"),  # a CA for a plain http:// broker
     ({"ngsi_url": "http://orion:1026"}, "ngsi_url"),
     ({"ngsi_url": "http://127.0.0.5"}, "ngsi_url"),
     ({"ngsi_url": "http://127.0.0.5:1026/v2"}, "ngsi_url"),

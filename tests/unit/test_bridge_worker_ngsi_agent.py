@@ -71,6 +71,15 @@ def test_ipv6_context_broker_url_is_bracketed(tmp_path: Path) -> None:
     assert ngsi_worker_config(spec, tmp_path, None).ngsi_url == "http://[::1]:1026"
 
 
+def test_a_tls_context_broker_is_reached_over_https_verified_by_the_plant_ca(tmp_path: Path) -> None:
+    from engine.security import ca  # noqa: PLC0415
+    plain = ngsi_worker_config(ngsi_spec(), tmp_path, None)
+    assert (plain.ngsi_url, plain.ngsi_ca_file) == ("http://127.0.0.5:1026", None)
+    spec = replace(ngsi_spec(), remote=replace(ORION, tls=True))
+    cfg = ngsi_worker_config(spec, tmp_path, None)
+    assert (cfg.ngsi_url, cfg.ngsi_ca_file) == ("https://127.0.0.5:1026", ca.ca_cert_file())
+
+
 def test_only_an_ngsi_worker_takes_a_remote_token(tmp_path: Path) -> None:
     mirror = BridgeSpec(BridgeEnd("k2", "kafka", "127.0.0.4", 9092), BridgeEnd("kafka", "kafka", "127.0.0.3", 9092),
                         BridgeMechanism.MIRROR, (BridgeRoute("t", BridgeDirection.IN),))

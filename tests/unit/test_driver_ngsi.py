@@ -256,3 +256,72 @@ def test_nothing_listening_or_a_silent_listener_is_not_healthy() -> None:
     assert NgsiDriver().health(cb_spec(host="127.0.0.1", port=netutil.free_port()), 0.5) is False
     with socket.create_server(("127.0.0.1", 0)) as server:  # accepts, never answers
         assert NgsiDriver().health(cb_spec(host="127.0.0.1", port=server.getsockname()[1]), 0.3) is False
+
+
+# --- pk:tls: HTTPS only, a plant-CA certificate for its address ------------------------------
+
+def _version_app(environ: dict, start_response) -> list[bytes]:
+    body = json.dumps({"orion": {"version": "3.10.1"}}).encode()
+    start_response("200 OK", [("Content-Type", "application/json"), ("Content-Length", str(len(body)))])
+    return [body]
+
+
+def _https_server(tmp_path: Path, authority, port: int):
+    """A real context-broker HTTP server (engine.context_broker.http_server) answering /version
+    over TLS with a certificate of ``authority`` for 127.0.0.1, running until the block ends."""
+    from engine.context_broker.http_server import HttpServer  # noqa: PLC0415 - the server, not the driver
+    from engine.security import ca, https  # noqa: PLC0415
+    from tests.unit.context_broker.test_http_server import serving  # noqa: PLC0415
+    cert, key = ca.issue_server_cert(authority, ("127.0.0.1",), name="test")
+    (tmp_path / "c.pem").write_bytes(cert)
+    (tmp_path / "k.pem").write_bytes(key)
+    return serving(HttpServer(_version_app, "127.0.0.1", port, 1,
+                              ssl_context=https.server_context(tmp_path / "c.pem", tmp_path / "k.pem")))
+
+
+def test_tls_renders_a_plant_ca_certificate_for_its_address_kept_while_current(broker_dir: Path) -> None:
+    from cryptography import x509  # noqa: PLC0415
+    from engine.security import ca  # noqa: PLC0415
+    driver, spec = NgsiDriver(), cb_spec(tls=True)
+    files = driver.render_config(spec, broker_dir)
+    assert {"tls-cert.pem", "tls-key.pem", "principals.json"} <= set(files)
+    cert = x509.load_pem_x509_certificate(files["tls-cert.pem"].encode())
+    assert ca.needs_new_cert(files["tls-cert.pem"].encode(), ca.load_ca(ca.ca_dir()), ("127.0.0.3",)) is None
+    assert cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value.get_values_for_type(
+        x509.IPAddress)[0].exploded == "127.0.0.3"
+    assert driver.tls_renewal(spec, broker_dir) == "none yet"
+    for name, text in files.items():
+        (broker_dir / name).write_text(text)
+    assert driver.render_config(spec, broker_dir) == files  # the same files: no restart
+    assert driver.tls_renewal(spec, broker_dir) is None
+    assert driver.tls_renewal(replace(spec, host="127.0.0.4"), broker_dir) == "for other addresses"
+    argv = driver.command(spec, broker_dir)
+    at = argv.index("--tls-cert")
+    assert argv[at:at + 4] == ["--tls-cert", str(broker_dir / "tls-cert.pem"),
+                               "--tls-key", str(broker_dir / "tls-key.pem")]
+    assert set(driver.render_config(cb_spec(tls=True, allow_anonymous=True), broker_dir)) == {
+        "tls-cert.pem", "tls-key.pem"}  # an open one too
+
+
+def test_a_plain_broker_renders_no_tls_and_leaves_no_key(broker_dir: Path) -> None:
+    driver = NgsiDriver()
+    (broker_dir / "tls-key.pem").write_text("old key")
+    assert "--tls-cert" not in driver.command(cb_spec(), broker_dir)
+    assert not {"tls-cert.pem", "tls-key.pem"} & set(driver.render_config(cb_spec(), broker_dir))
+    driver.prepare(cb_spec(), broker_dir)
+    assert not (broker_dir / "tls-key.pem").exists()
+    assert driver.tls_renewal(cb_spec(), broker_dir) is None
+    assert "tls" not in driver.essence(cb_spec())  # a plain broker's essence stays as it was
+    assert driver.essence(cb_spec(tls=True))["tls"] is True
+
+
+def test_health_of_a_tls_broker_speaks_https_and_trusts_the_plant_ca_only(tmp_path: Path) -> None:
+    from engine.security import ca  # noqa: PLC0415
+    driver, port = NgsiDriver(), netutil.free_port("127.0.0.1")
+    spec = cb_spec(host="127.0.0.1", port=port, tls=True)
+    with _https_server(tmp_path, ca.load_or_create_ca(ca.ca_dir()), port):
+        assert driver.health(spec, 2.0) is True
+        assert driver.health(replace(spec, tls=False), 1.0) is False  # plain HTTP gets no answer
+    other_port = netutil.free_port("127.0.0.1")
+    with _https_server(tmp_path, ca.load_or_create_ca(tmp_path / "other-ca"), other_port):
+        assert driver.health(replace(spec, port=other_port), 1.0) is False  # another CA's certificate

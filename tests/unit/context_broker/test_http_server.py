@@ -11,6 +11,7 @@ import socket
 import threading
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import pytest
@@ -49,17 +50,25 @@ def inline(environ: dict[str, Any]) -> bool:
     return environ["PATH_INFO"].startswith("/inline")
 
 
+@contextmanager
+def serving(srv: HttpServer) -> Iterator[HttpServer]:
+    """``srv`` running in a thread; stopped and closed after."""
+    thread = threading.Thread(target=srv.run, kwargs={"stop_signals": ()}, daemon=True)
+    thread.start()
+    try:
+        yield srv
+    finally:
+        srv.stop()
+        thread.join(10)
+        assert not thread.is_alive()
+        srv.close()
+
+
 @pytest.fixture
 def server(request: pytest.FixtureRequest) -> Iterator[HttpServer]:
     options = getattr(request, "param", {})
-    srv = HttpServer(app, HOST, free_port(), threads=4, inline=inline, **options)
-    thread = threading.Thread(target=srv.run, kwargs={"stop_signals": ()}, daemon=True)
-    thread.start()
-    yield srv
-    srv.stop()
-    thread.join(10)
-    assert not thread.is_alive()
-    srv.close()
+    with serving(HttpServer(app, HOST, free_port(), threads=4, inline=inline, **options)) as srv:
+        yield srv
 
 
 def connect(srv: HttpServer) -> socket.socket:

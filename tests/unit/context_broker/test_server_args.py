@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from engine.context_broker.server import ConfigError, check_host, main, parse_args, read_token
+from engine.context_broker.server import ConfigError, check_host, main, parse_args, read_tls, read_token
 
 
 @pytest.mark.parametrize("host", ["127.0.0.1", "127.0.0.5", "::1", "localhost"])
@@ -69,3 +69,12 @@ def test_tls_kafkas_are_addresses(tmp_path: Path) -> None:
     assert kafkas.tls == {("127.0.0.4", 9093)} and kafkas.closed == {("127.0.0.4", 9093), ("127.0.0.5", 9092)}
     with pytest.raises(ConfigError, match="--tls-kafka 'kafka.local:9093'"):
         read_plant_kafkas(parse_args(["--data-dir", "d", "--open", "--tls-kafka", "kafka.local:9093"]))
+
+
+def test_tls_needs_both_the_certificate_and_its_key(tmp_path: Path) -> None:
+    base = ["--data-dir", str(tmp_path), "--open"]
+    assert read_tls(parse_args(base)) is None
+    with pytest.raises(ConfigError, match="together"):
+        read_tls(parse_args([*base, "--tls-cert", str(tmp_path / "cert.pem")]))
+    with pytest.raises(ConfigError, match="cannot load"):
+        read_tls(parse_args([*base, "--tls-cert", str(tmp_path / "no.pem"), "--tls-key", str(tmp_path / "no.key")]))
