@@ -153,14 +153,19 @@ def stop(child: Child, grace: float = 10.0) -> int:
     return _finish_stop(child, grace, time.monotonic() + grace)
 
 
-def stop_each(children: Sequence[Child], graces: Sequence[float]) -> list[int | Exception]:
+def stop_each(children: Sequence[Child], graces: Sequence[float],
+              after_signal: Callable[[], None] | None = None) -> list[int | Exception]:
     """:func:`stop` for many children at once, each with its grace: SIGTERM every group first,
     then wait for them all (each until its grace after the signals, then SIGKILL), so stopping N
     brokers takes about as long as the slowest one, not the sum. Each child's outcome, in order:
     its leader's exit code, or the error that kept it from being stopped (the others are still
-    waited for: one child that will not stop leaves none of the others running)."""
+    waited for: one child that will not stop leaves none of the others running).
+    ``after_signal`` runs once every group was signalled, before the wait (e.g. to wake children
+    that act on a signal only when their loop wakes up)."""
     for child in children:
         _signal_group(child, signal.SIGTERM)
+    if after_signal is not None:
+        after_signal()
     now = time.monotonic()
     outcomes: list[int | Exception] = []
     for child, grace in zip(children, graces, strict=True):

@@ -643,7 +643,13 @@ class BrokerManager:
         procs = [b.proc for b in brokers]
         assert all(p is not None for p in procs)
         grace = [b.driver.stop_grace if b.driver is not None else 30.0 for b in brokers]
-        failed = stop_together(procs, grace)  # type: ignore[arg-type]
+        wakes = [(b.driver.wake, b.spec) for b in brokers if getattr(b.driver, "wake", None) is not None]
+
+        def wake_all() -> None:  # drivers whose broker acts on SIGTERM only when its loop wakes
+            for wake, spec in wakes:
+                wake(spec)
+
+        failed = stop_together(procs, grace, wake_all if wakes else None)  # type: ignore[arg-type]
         errors: dict[str, Exception] = {}
         for b, error in zip(brokers, failed):
             if error is not None:

@@ -15,7 +15,7 @@ import logging
 import os
 import signal
 import threading
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -151,10 +151,12 @@ class AdoptedProcess:
         return process.read_tail(self.log_path, max_bytes)
 
 
-def stop_together(procs: Sequence[BrokerProcess], graces: Sequence[float]) -> list[Exception | None]:
+def stop_together(procs: Sequence[BrokerProcess], graces: Sequence[float],
+                  after_signal: Callable[[], None] | None = None) -> list[Exception | None]:
     """Stop many brokers at once, each with its grace: the agent's own children are all sent
-    SIGTERM, then waited for (:func:`engine.process.stop_each`); adopted ones are stopped from a
-    thread each meanwhile. Each one's error (None: stopped), in order."""
+    SIGTERM, then waited for (:func:`engine.process.stop_each`, which runs ``after_signal``
+    between the two); adopted ones are stopped from a thread each meanwhile. Each one's error
+    (None: stopped), in order."""
     errors: list[Exception | None] = [None] * len(procs)
     own = [i for i, p in enumerate(procs) if isinstance(p, SpawnedProcess)]
     other = [i for i in range(len(procs)) if i not in set(own)]
@@ -168,7 +170,8 @@ def stop_together(procs: Sequence[BrokerProcess], graces: Sequence[float]) -> li
     threads = [threading.Thread(target=stop_other, args=(i,), daemon=True) for i in other]
     for thread in threads:
         thread.start()
-    outcomes = process.stop_each([procs[i].child for i in own], [graces[i] for i in own])  # type: ignore[attr-defined]
+    outcomes = process.stop_each([procs[i].child for i in own], [graces[i] for i in own],  # type: ignore[attr-defined]
+                                 after_signal)
     for i, outcome in zip(own, outcomes):
         errors[i] = outcome if isinstance(outcome, Exception) else None  # else: its exit code
     for thread in threads:

@@ -117,3 +117,26 @@ def test_stop_each_waits_for_each_child_its_own_grace(tmp_path: Path) -> None:
     assert process.stop_each(children, [20.0, 0.3, 20.0]) == [7, -9, 7]
     assert time.monotonic() - start < 10
     assert not any(c.group_alive() for c in children)
+
+
+@pytest.mark.parametrize(("wake", "codes"), [(True, [0, 0]), (False, [-9, -9])], ids=["woken", "not woken"])
+def test_stop_each_runs_after_signal_between_the_signals_and_the_wait(tmp_path: Path, wake: bool,
+                                                                      codes: list[int]) -> None:
+    """Children that act on SIGTERM only once something wakes them (as an idle Mosquitto, whose
+    driver connects to it): ``after_signal`` runs once, after every child was signalled and before
+    the wait, so they exit 0; without it they are SIGKILLed when their grace runs out."""
+    woken = tmp_path / "woken"
+    script = (f"trap 'while [ ! -e {woken} ]; do sleep 0.01; done; exit 0' TERM; "
+              "echo ready; while :; do sleep 0.05; done")
+    children = [process.spawn(["sh", "-c", script], log_dir=tmp_path, name=f"w{i}") for i in range(2)]
+    for child in children:
+        process.wait_until(lambda c=child: "ready" in c.log_tail(), 5.0, 0.01)
+    calls: list[int] = []
+
+    def after_signal() -> None:
+        calls.append(1)
+        woken.touch()
+
+    assert process.stop_each(children, [1.0, 1.0], after_signal if wake else None) == codes
+    assert calls == ([1] if wake else [])
+    assert not any(c.group_alive() for c in children)
