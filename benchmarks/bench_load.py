@@ -5,7 +5,7 @@ For each number of Mosquitto brokers N (default 1, 5, 10, 25, 50, 100), on one m
 1. **Bring-up.** By hand (baseline), the fastest way: render N configs, spawn N mosquitto from 8
    threads, poll all at once (``benchmarks.mqtt_ready``: a non-blocking connect to every broker, a
    raw CONNECT as soon as one accepts, one select for all; a refusing one is tried again 0.25 ms
-   later) until every one answers with a CONNACK; SIGTERM all, then wait for all (``engine.process.stop_all``). Through plantkg: write an N-broker plant
+   later) until every one answers with a CONNACK; SIGTERM all, wake each (a connection to its port), then wait for all (``engine.process.stop_each``). Through plantkg: write an N-broker plant
    (``benchmarks.synthetic.mosquitto_plant``, free ports) and run one ``apply`` against one local
    agent (load, validate, reason, derive, observe, plan, dispatch: one batch request, in which the
    agent starts every broker at once and waits for their health checks together); later one
@@ -107,7 +107,9 @@ def _spawn_all(confs: list[Path], work: Path, children: list[process.Child]) -> 
 
 def by_hand(n: int, work: Path) -> tuple[float, float]:
     """The fastest way by hand: spawn n mosquitto in parallel, poll all at once until every one
-    answers a CONNECT; then SIGTERM all and wait for all. Returns (up s, down s)."""
+    answers a CONNECT; then SIGTERM all, wake each (a connection to its port: Mosquitto 2.0 masks
+    its signals while it waits in epoll up to 100 ms, and plantkg's agent wakes its brokers so too)
+    and wait for all. Returns (up s, down s)."""
     ports, confs = _hand_confs(n, work)
     children: list[process.Child] = []
     try:
@@ -116,8 +118,13 @@ def by_hand(n: int, work: Path) -> tuple[float, float]:
         wait_all_ready([(HOST, p) for p in ports])
         up = time.perf_counter() - start
         start = time.perf_counter()
-        process.stop_all(children)
-        return up, time.perf_counter() - start
+        outcomes = process.stop_each(children, [10.0] * len(children),
+                                     lambda: [netutil.port_open(HOST, p, timeout=0.05) for p in ports])
+        down = time.perf_counter() - start
+        failed = [o for o in outcomes if isinstance(o, Exception)]
+        if failed:
+            raise failed[0]
+        return up, down
     finally:
         for child in children:
             process.stop(child)
