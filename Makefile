@@ -4,8 +4,8 @@
 # Pass pytest options with PYTEST_ARGS, e.g. make test PYTEST_ARGS='-m "not integration"'
 # PYTEST_WORKERS=N runs the suite on N pytest-xdist workers (a file stays on one worker; every test
 # picks free ports and its own tmp dir). Default 4, twice the cores of the 2-core machines it runs
-# on: most integration tests wait on brokers and JVMs starting (28-30 min on 2 workers, 16 min on 4
-# at a9a6b96). PYTEST_WORKERS=0 runs one process. The suite's
+# on: most integration tests wait on brokers and JVMs starting (28-30 min on 2 workers, 19 min on 4
+# at 486fd62). PYTEST_WORKERS=0 runs one process. The suite's
 # time on a 2-core machine is in the README; the 30 slowest tests are listed at the end of a run.
 # `make bench` runs the benchmark studies and rebuilds benchmarks/RESULTS.md (BENCH_ARGS, e.g.
 # BENCH_ARGS='load --tiny'; see benchmarks/README.md).
