@@ -28,7 +28,7 @@ from paho.mqtt.enums import CallbackAPIVersion
 from engine import netutil, process
 from engine.cli import cli, main
 from engine.security import ca
-from tests.integration.agents import AgentFleet, start_agents
+from tests.integration.agents import AgentFleet, secret_files, start_agents
 
 filip_cb = pytest.importorskip("filip.clients.ngsi_v2")
 from filip.models.base import FiwareHeader  # noqa: E402
@@ -79,9 +79,7 @@ class Plant:
 def plant(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Plant]:
     tmp = tmp_path_factory.mktemp("cb-tls")
     agv_password, planner_token = secrets.token_urlsafe(16), secrets.token_urlsafe(16)
-    planner_file = tmp / "planner.token"
-    planner_file.write_text(planner_token, encoding="utf-8")
-    planner_file.chmod(0o600)
+    planner_file = secret_files(tmp / "secrets", {"planner": planner_token}) / "planner"
     with pytest.MonkeyPatch.context() as env:
         env.setenv(AGV_ENV, agv_password)  # the agent inherits it
         fleet = start_agents([HOST], tmp / "agents")
