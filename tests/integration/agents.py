@@ -12,10 +12,12 @@ the broker's ip.
 
 from __future__ import annotations
 
+import io
 import re
+import sys
 from collections import defaultdict
 from collections.abc import Callable, Iterator, Mapping
-from contextlib import contextmanager
+from contextlib import contextmanager, redirect_stderr
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -59,12 +61,16 @@ class AgentFleet:
                     self.broker_pids.add(broker.pid)
         return found
 
-    def stop(self) -> None:
+    def stop(self, *, expect_empty: bool = True) -> None:
+        """Delete what is left, stop the agents, check that no broker process survived and
+        (``expect_empty``) that nothing was left deployed: a test that failed before its destroy
+        leaves brokers, which is not a second failure to report over the first."""
         problems = []
         try:
             self.brokers()
             left = self.local.delete_all()
-            problems += [f"{b} was still deployed" for b in left]
+            if expect_empty:
+                problems += [f"{b} was still deployed" for b in left]
         except DispatchError as exc:
             problems.append(f"cleaning up: {exc}")
         self.local.stop()
@@ -114,6 +120,15 @@ class Deployment:
         """``plantkg COMMAND PLANT --agents AGENTS ARGS...`` in this process; its exit code."""
         return main([command, str(self.plant), "--agents", str(self.fleet.agents_file), *args])
 
+    def cli_ok(self, command: str, *args: str) -> None:
+        """:meth:`cli`, which must exit 0; else the assertion carries what it wrote to stderr
+        (a report's captured output may be cut, its assertion line is not)."""
+        err = io.StringIO()
+        with redirect_stderr(err):
+            code = self.cli(command, *args)
+        sys.stderr.write(err.getvalue())
+        assert code == 0, f"plantkg {command} exited {code}: {err.getvalue()[-3000:]}"
+
 
 @contextmanager
 def deployment(tmp_path: Path, ports: Mapping[str, str], render: Callable[[dict[str, int]], str], *,
@@ -140,10 +155,13 @@ def deployment(tmp_path: Path, ports: Mapping[str, str], render: Callable[[dict[
         plant.write_text(render(picked), encoding="utf-8")
         made = Deployment(fleet, plant, dict(ports), picked)
         if apply:
-            assert made.cli("apply", "--yes") == 0
+            made.cli_ok("apply", "--yes")
         yield made
-        assert made.cli("destroy", "--yes") == 0
-    finally:
+        made.cli_ok("destroy", "--yes")
+    except BaseException:
+        fleet.stop(expect_empty=False)
+        raise
+    else:
         fleet.stop()
 
 
