@@ -13,8 +13,10 @@ a permanent mistake, so the planner exits 2 saying which option to give, rather 
 forever; a context broker that is not up yet is only logged (it may come later). Afterwards each
 client says the same through :func:`unreachable` when a certificate is refused.
 
-:func:`trust_of` derives the same from a plant (the demo and the benchmark read the plant file):
-the context broker's ``pk:tls`` picks ``https://`` and the plant CA's certificate.
+:func:`plant_trust` derives the same from a plant (the demo and the benchmark read the plant
+file, as ``plantkg query --live`` does, engine/context_view.py): the fleet's context broker (the one
+its ``fleet:fleet-view`` resources send to, fleet/model/binding.py) is ``https://`` with the plant
+CA's certificate when it says ``pk:tls true``.
 """
 
 from __future__ import annotations
@@ -27,13 +29,19 @@ from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import urlsplit
 
+import pyoxigraph as ox
+
 from engine.errors import ConfigValueError
 from engine.security import ca, https
 from engine.values import host_in_url
+from fleet.model.binding import binding_of
 from fleet.planner.errors import PlannerError
+from kg.load import PlantGraph
+from kg.query import run_query
 
 log = logging.getLogger("fleet.planner")
 CA_OPTION = "--ngsi-ca-file"
+_BROKER = "SELECT ?ip ?port ?tls WHERE { ?broker pk:ip ?ip ; pk:port ?port . OPTIONAL { ?broker pk:tls ?tls } }"
 
 
 @dataclass(frozen=True)
@@ -128,3 +136,15 @@ def trust_of(host: str, port: int, tls: bool, ca_dir: Path | None = None) -> Ngs
     plant CA's certificate (``ca_dir``, default ``$PLANTKG_CA_DIR``) when it speaks TLS."""
     url = f"{'https' if tls else 'http'}://{host_in_url(host)}:{port}"
     return NgsiTrust(url, ca.ca_cert_file(ca_dir) if tls else None)
+
+
+def plant_trust(plant: PlantGraph, ca_dir: Path | None = None) -> NgsiTrust:
+    """The fleet's context broker in ``plant`` (:func:`fleet.model.binding.binding_of`), as
+    :func:`trust_of` makes it; :class:`PlannerError` when the plant has none."""
+    iri = binding_of(plant).context_broker_iri
+    rows = run_query(plant, _BROKER, {"broker": ox.NamedNode(iri)}).rows if iri is not None else ()
+    if not rows or not isinstance(rows[0][0], ox.Literal) or not isinstance(rows[0][1], ox.Literal):
+        raise PlannerError("the plant has no context broker for the fleet (with pk:ip and pk:port)",
+                           hint="let a fleet:fleet-view resource pk:sendsTo a broker of pk:brokerType \"ngsi-v2\"")
+    ip, port, tls = rows[0]
+    return trust_of(ip.value, int(port.value), isinstance(tls, ox.Literal) and tls.value in ("true", "1"), ca_dir)

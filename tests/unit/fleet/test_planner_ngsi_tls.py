@@ -25,7 +25,8 @@ from fleet.planner.__main__ import main
 from fleet.planner.errors import PlannerError
 from fleet.planner.events_ngsi import ContextBrokerError, NgsiEvents
 from fleet.planner.ngsi import TaskPublisher
-from fleet.planner.ngsi_tls import CA_OPTION, NgsiTrust, check_certificate, trust_of, untrusted
+from fleet.planner.ngsi_tls import CA_OPTION, NgsiTrust, check_certificate, plant_trust, trust_of, untrusted
+from kg.load import load_plant
 from fleet.planner.paper import NgsiClient
 from tests.unit.context_broker.test_http_server import serving
 from tests.unit.fleet.planner_data import JOBS, SITE
@@ -125,6 +126,18 @@ def test_the_plant_derives_https_and_the_plant_ca(plant_ca: ca.Ca) -> None:
     assert trust_of("127.0.0.3", 1026, False).flags() == ["--ngsi-url", "http://127.0.0.3:1026"]
     tls = trust_of("127.0.0.3", 1026, True, plant_ca.folder)
     assert tls.flags() == ["--ngsi-url", "https://127.0.0.3:1026", CA_OPTION, str(plant_ca.cert_file)]
+
+
+def test_the_fleets_context_broker_in_the_plant_file_says_whether_it_speaks_tls(tmp_path: Path,
+                                                                               plant_ca: ca.Ca) -> None:
+    text = EXAMPLE.read_text(encoding="utf-8")
+    assert plant_trust(load_plant([EXAMPLE]), plant_ca.folder).flags() == ["--ngsi-url", "http://127.0.0.3:1026"]
+    (tmp_path / "tls.ttl").write_text(text.replace('pk:port 1026 .', 'pk:port 1026 ; pk:tls true .'), encoding="utf-8")
+    assert plant_trust(load_plant([tmp_path / "tls.ttl"]), plant_ca.folder).flags() == [
+        "--ngsi-url", "https://127.0.0.3:1026", CA_OPTION, str(plant_ca.cert_file)]
+    (tmp_path / "none.ttl").write_text(text.replace('"ngsi-v2"', '"mosquitto"'), encoding="utf-8")
+    with pytest.raises(PlannerError, match="no context broker for the fleet"):
+        plant_trust(load_plant([tmp_path / "none.ttl"]))
 
 
 def test_the_client_reads_and_writes_over_https_trusting_the_ca_file(broker: HttpServer, plant_ca: ca.Ca) -> None:
