@@ -58,9 +58,11 @@ from engine import process
 from engine.demo.local_plant import LocalPlant, copy_on_free_ports
 from fleet.demo import Api
 from fleet.manager.client import ManagerClient
+from fleet.planner.ngsi_tls import plant_trust
 from fleet.sim.actions import ActionTimes
+from kg.load import load_plant
 
-CONTEXT_ID, MQTT_ID = "fleet-context", "fleet-mqtt"
+MQTT_ID = "fleet-mqtt"
 HALL_W, HALL_H = 24.0, 16.0
 
 
@@ -230,7 +232,7 @@ def run_fleet(work: Path, *, n_orders: int, n_vehicles: int, seed: int = 12, sam
             planner = process.spawn([sys.executable, "-m", "fleet.planner", "--plant", plant_file, "--lotlan", jobs,
                                      "--data-dir", pdata, "--manager-data-dir", mdata, "--map", map_file,
                                      "--min-battery", "5",
-                                     "--ngsi-url", f"http://127.0.0.3:{ports[CONTEXT_ID]}",
+                                     *plant_trust(load_plant([plant_file])).flags(),  # pk:tls: https, plant CA
                                      "--ngsi-token-file", cb_token], log_dir=logs, name="planner", cwd=ROOT)
             children.append(planner)
             api = Api(pdata, "planner")

@@ -46,6 +46,7 @@ from fleet.discovery import model_api
 from fleet.discovery.admission import admit
 from fleet.discovery.records import DataDir, now_iso
 from fleet.manager.service import render_record
+from fleet.planner.ngsi_tls import NgsiTrust, plant_trust
 from fleet.sim.kinematics import Limits
 from kg.errors import PlantKGError
 from kg.load import load_plant
@@ -215,10 +216,10 @@ def run_fleet_demo(*, vehicles: int, work_dir: Path | None, deadline: float, kee
         click.secho(f"\n4. the task planner takes {JOBS.name}; the demo presses 'Loaded' for the operator",
                     bold=True)
         cb_token = plant.agents.agents["127.0.0.3"].state_dir / "token"
+        context_broker = plant_trust(load_plant([plant_file]))  # https:// and the plant CA with pk:tls true
         planner = _spawn(stack, ["-m", "fleet.planner", "--plant", plant_file, "--lotlan", JOBS,
                                  "--data-dir", planner_data, "--manager-data-dir", manager_data,
-                                 "--ngsi-url", f"http://127.0.0.3:{ports[CONTEXT_ID]}",
-                                 "--ngsi-token-file", cb_token], logs, "planner")
+                                 *context_broker.flags(), "--ngsi-token-file", cb_token], logs, "planner")
         api = Api(planner_data, "planner")
         process.wait_until(lambda: api.where().get("pid") == planner.pid, 60, 0.05,
                            what="the planner's API", child=planner)
@@ -236,10 +237,10 @@ def run_fleet_demo(*, vehicles: int, work_dir: Path | None, deadline: float, kee
 
         click.secho("\n5. the Task entities on the context broker (GET /v2/entities?type=Task)", bold=True)
         cb_read_token = cb_token.read_text(encoding="utf-8").strip()  # closed by default: reads need it
-        entities = _task_entities(ports[CONTEXT_ID], cb_read_token)
+        entities = _task_entities(context_broker, cb_read_token)
         if finished:  # the planner writes each Task entity after its own state changed: wait for it
             try:
-                entities = process.wait_until(lambda: _ended(_task_entities(ports[CONTEXT_ID], cb_read_token)), 30, 0.1,
+                entities = process.wait_until(lambda: _ended(_task_entities(context_broker, cb_read_token)), 30, 0.1,
                                               what="the context broker to show every task ended")
             except process.WaitTimeoutError as exc:
                 click.secho(f"   {exc}", fg="red")
@@ -316,12 +317,14 @@ def _ended(entities: list[dict[str, Any]]) -> list[dict[str, Any]] | None:
     return entities if entities and all(e.get("state") in done for e in entities) else None
 
 
-def _task_entities(port: int, token: str) -> list[dict[str, Any]]:
-    """The Task entities, read with the context broker's agent's token (reads need it too)."""
-    request = urllib.request.Request(f"http://127.0.0.3:{port}/v2/entities?type=Task&options=keyValues&limit=100",
+def _task_entities(context_broker: NgsiTrust, token: str) -> list[dict[str, Any]]:
+    """The Task entities, read with the context broker's agent's token (reads need it too), over
+    https trusting the plant CA when the plant says ``pk:tls true``, as the planner."""
+    request = urllib.request.Request(f"{context_broker.url}/v2/entities?type=Task&options=keyValues&limit=100",
                                      headers={"Authorization": f"Bearer {token}"})
     try:
-        with urllib.request.urlopen(request, timeout=5) as reply:  # noqa: S310 - the plant's own broker
+        with urllib.request.urlopen(request, timeout=5,  # noqa: S310 - the plant's own broker
+                                    context=context_broker.context()) as reply:
             return json.loads(reply.read())
     except (OSError, ValueError) as exc:
         return [{"id": "(the context broker did not answer)", "state": str(exc)}]

@@ -32,6 +32,7 @@ from engine.bridge_worker.config import (
 )
 from engine.bridge_worker.ngsi_mapping import Refused, check_name
 from engine.errors import ConfigValueError
+from engine.security import https
 from engine.values import check_host, check_path, check_port
 
 MECHANISM = "mqtt-ngsi"
@@ -111,12 +112,8 @@ class NgsiWorkerConfig:
         object.__setattr__(self, "mqtt_host", check_host("mqtt_host", self.mqtt_host))
         check_port("mqtt_port", self.mqtt_port)
         _check_url("ngsi_url", self.ngsi_url)
-        if self.ngsi_ca_file is not None:
-            object.__setattr__(self, "ngsi_ca_file", check_path("ngsi_ca_file", self.ngsi_ca_file))
-        if (self.ngsi_ca_file is not None) != self.ngsi_url.startswith("https://"):
-            raise ConfigValueError("ngsi_ca_file", self.ngsi_ca_file,
-                                   "an https:// context broker needs the CA certificate to verify it "
-                                   "with, and an http:// one none")
+        object.__setattr__(self, "ngsi_ca_file",
+                           https.check_ca_file("ngsi_ca_file", self.ngsi_url, self.ngsi_ca_file, required=True))
         if not isinstance(self.routes, tuple) or not self.routes:
             raise ConfigValueError("routes", self.routes, "a worker needs a non-empty tuple of routes")
         if not all(isinstance(r, NgsiRoute) for r in self.routes):

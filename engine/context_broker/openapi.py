@@ -4,11 +4,19 @@ Built from data, so a route, its parameters, bodies and answers are written once
 for a fuzzer (schemathesis) to generate requests: every path and method, path/query/header
 parameters with their types, request bodies, and the status codes each operation can answer
 (Orion's error body for all errors).
+
+403 is documented where a closed broker (``--principals``, engine.context_broker.access) can refuse
+a principal its token is known for: every operation but the public ones (``GET /version``) and
+those of a subscription that only ever answer 404 for another's (:data:`NEVER_FORBIDDEN`: reading,
+listing, deleting; ``.subscriptions.ownership``). tests/unit/context_broker/test_openapi_forbidden.py
+provokes the 403 of each operation through the app and checks the two agree.
 """
 
 from __future__ import annotations
 
 from typing import Any
+
+from engine.context_broker.access import PUBLIC_PATHS
 
 ERROR = {"$ref": "#/components/schemas/Error"}
 JSON_ANY: dict[str, Any] = {}
@@ -37,10 +45,33 @@ QUERY = [_param("id"), _param("type"), _param("idPattern"), _param("typePattern"
          _param("mq"), _param("orderBy")]
 
 
+#: Subscription operations a principal is never refused with 403: another's subscription is 404
+#: to it (as if absent), and it lists only its own (.subscriptions.ownership).
+NEVER_FORBIDDEN = frozenset({("get", "/v2/subscriptions"), ("get", "/v2/subscriptions/{subscriptionId}"),
+                             ("delete", "/v2/subscriptions/{subscriptionId}")})
+FORBIDDEN = {"description": "a closed context broker (--principals) refuses the principal the token "
+                            "belongs to: outside its rights (Orion error body, error \"Forbidden\")",
+             "content": {"application/json": {"schema": ERROR}}}
+
+
 def _errors(*codes: int) -> dict[str, Any]:
     base = {400, 401, 404, 405, 409, 411, 413, 415, 422}
     return {str(c): {"description": "Orion error body", "content": {"application/json": {"schema": ERROR}}}
             for c in sorted(base | set(codes))}
+
+
+def may_be_forbidden(method: str, path: str) -> bool:
+    """Whether a closed broker can answer ``method`` ``path`` (a path of this document) with 403."""
+    return path not in PUBLIC_PATHS and (method, path) not in NEVER_FORBIDDEN
+
+
+def _with_forbidden(paths: dict[str, Any]) -> dict[str, Any]:
+    """``paths`` with the 403 answer on every operation :func:`may_be_forbidden` says can give it."""
+    for path, operations in paths.items():
+        for method, operation in operations.items():
+            if may_be_forbidden(method, path):
+                operation["responses"] = dict(sorted({**operation["responses"], "403": FORBIDDEN}.items()))
+    return paths
 
 
 def _ok(code: int, schema: dict[str, Any] | None = None, mimetype: str = "application/json",
@@ -146,7 +177,7 @@ def openapi_document(with_subscriptions: bool = False) -> dict[str, Any]:
         "info": {"title": "plantkg NGSI-v2 context broker", "version": "0.1.0",
                  "description": "FIWARE Orion's NGSI-v2 API (a subset, see docs/context-broker.md); "
                                 "the context is kept as RDF."},
-        "paths": paths,
+        "paths": _with_forbidden(paths),
         "components": {
             "securitySchemes": {"bearer": {"type": "http", "scheme": "bearer"}},
             "schemas": {

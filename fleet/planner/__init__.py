@@ -21,6 +21,8 @@ Layers, bottom to top (each module one job):
 - :mod:`dispatch` — a sub-task as a VDA 5050 order through the manager's API, or the paper's
   items (:mod:`paper`, ids in :mod:`paperids`) on the context broker; ``cancelOrder``;
 - :mod:`ngsi` — tasks as NGSI-v2 entities (type ``Task``) on the context broker, over HTTP;
+- :mod:`ngsi_tls` — how every NGSI client of the planner trusts an ``https://`` context broker
+  (``--ngsi-ca-file``: a ``pk:tls`` one's plant CA) and the check of its certificate at start;
 - :mod:`event_sources` (shared parsing and counts), :mod:`events_mqtt`, :mod:`events_ngsi` — LoTLan
   events fired from MQTT (``plantkg/events/<name>``) and from ``Event`` entities on the context
   broker (a subscription notifying a loopback endpoint of the planner), through the same journaled

@@ -2,6 +2,7 @@
 
     python -m fleet.planner --plant PLANT.ttl --lotlan jobs.tl --data-dir DIR \\
         --manager-data-dir MANAGER_DIR [--ngsi-url http://127.0.0.3:1026 --ngsi-token-file F] \\
+        [--ngsi-ca-file CA.pem] \\
         [--map map.json] [--min-battery 20] [--waiting-area [park|LOCATION]] [--no-charging] [--start] \\
         [--events-mqtt HOST:PORT [--events-topic plantkg/events]] [--events-ngsi [--events-ngsi-listen HOST:PORT]]
 
@@ -9,7 +10,10 @@ The fleet manager is found through its data directory (``manager.json``, ``manag
 ``discovered/*.ttl`` join the plant graph the assignment query runs on), or given as
 ``--manager-url URL --manager-token-file F [--discovered DIR]``. Vehicles and their VDA 5050
 states (position, progress) come from the manager's API; paper-channel vehicles are reached
-through the context broker (``--ngsi-url``; without it they are not assigned). ``--start`` starts one
+through the context broker (``--ngsi-url``; without it they are not assigned). A context broker with
+``pk:tls true`` is ``https://`` and verified against ``--ngsi-ca-file`` (the plant CA's ``ca.pem``;
+an ``https://`` URL without it: the system's store); a certificate the planner does not trust stops
+it at start with exit 2 (fleet/planner/ngsi_tls.py). ``--start`` starts one
 job of the program's start tasks when the journal has no job yet. ``--waiting-area`` sends the
 vehicle of a finished job task to the waiting area: the nearest free ``park-*`` spot (``park``, the
 value when none is given) or a Location of the LoTLan file; without it vehicles stay where they
@@ -46,6 +50,7 @@ from fleet.planner.events_mqtt import DEFAULT_PREFIX, MqttEvents, check_prefix
 from fleet.planner.events_ngsi import NgsiEvents, description_for
 from fleet.planner.journal import Journal
 from fleet.planner.ngsi import TaskPublisher
+from fleet.planner.ngsi_tls import CA_OPTION, NgsiTrust, check_certificate
 from fleet.planner.plantview import PlantView
 from fleet.planner.service import Planner, PlannerConfig
 from fleet.planner.paper import NgsiClient, PaperSender
@@ -84,6 +89,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--discovered", type=Path, help="the manager's discovered/ folder (with --manager-url)")
     p.add_argument("--ngsi-url", default=None, help="context broker (NGSI-v2) for the Task entities")
     p.add_argument("--ngsi-token-file", type=Path, default=None, help="its write token (first line)")
+    p.add_argument(CA_OPTION, type=Path, default=None, metavar="CA.pem",
+                   help="the CA certificate an https:// --ngsi-url is verified against (a pk:tls context "
+                        "broker: the plant CA's ca.pem; default: the system's store)")
     p.add_argument("--map", default="default", help="map JSON with the stations, or 'default'")
     p.add_argument("--min-battery", type=float, default=20.0, help="percent a vehicle needs to be assigned")
     p.add_argument("--waiting-area", nargs="?", const="park", default=None, metavar="park|LOCATION",
@@ -113,6 +121,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.events_ngsi and not args.ngsi_url:
             raise PlannerError("--events-ngsi needs --ngsi-url (the context broker that holds the Event entities)")
+        if args.ngsi_ca_file is not None and not args.ngsi_url:
+            raise PlannerError(f"{CA_OPTION} needs --ngsi-url (the https:// context broker it verifies)")
+        trust = NgsiTrust(args.ngsi_url, args.ngsi_ca_file) if args.ngsi_url else None
+        tls = trust.context() if trust is not None else None  # one context for every NGSI client
         plant_files = tuple(p.resolve() for p in args.plant)
         site = site_map.default_map() if args.map == "default" else site_map.load(Path(args.map))
         program = fleet.lotlan.load(args.lotlan)
@@ -134,9 +146,11 @@ def main(argv: list[str] | None = None) -> int:
             token = args.ngsi_token_file.read_text(encoding="utf-8").splitlines()[0].strip()
         plant = PlantView(plant_files, discovered)
         plant.current()
+        if trust is not None:
+            check_certificate(trust, tls)  # an untrusted certificate: exit 2 now, not retries forever
         journal = Journal(args.data_dir.resolve())
-        publisher = TaskPublisher(args.ngsi_url, token) if args.ngsi_url else None
-        ngsi = NgsiClient(args.ngsi_url, token) if args.ngsi_url else None
+        publisher = TaskPublisher(args.ngsi_url, token, context=tls) if args.ngsi_url else None
+        ngsi = NgsiClient(args.ngsi_url, token, context=tls) if args.ngsi_url else None
         dispatch = Dispatcher(VdaSender(manager, site.map_id), PaperSender(ngsi, site) if ngsi else None)
         config = PlannerConfig(site, min_battery=args.min_battery, paper=ngsi is not None,
                                waiting_area=args.waiting_area, charging=not args.no_charging)
@@ -152,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
             sources["mqtt"] = mqtt_events.status
         if args.events_ngsi:
             ngsi_events = NgsiEvents(args.ngsi_url, token, planner.fire, description_for(data_dir),
-                                     token_for(data_dir, "planner-notify"))
+                                     token_for(data_dir, "planner-notify"), context=tls)
             notify = NotifyServer(ngsi_events.notify, data_dir, *args.events_ngsi_listen)
             sources["ngsi"] = ngsi_events.status
         api = ApiServer(planner, data_dir, args.api_host, args.api_port, sources)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import ssl
 import threading
 import urllib.error
 import urllib.request
@@ -33,6 +34,7 @@ from typing import Any
 
 from fleet.planner.errors import PlannerError
 from fleet.planner.event_sources import EventMessageError, Fire, Refusal, Tally
+from fleet.planner.ngsi_tls import untrusted
 
 log = logging.getLogger("fleet.planner.events")
 ENTITY_TYPE = "Event"
@@ -121,8 +123,9 @@ class NgsiEvents:
     """Keeps the subscription and fires what its notifications carry; :meth:`status` for the API."""
 
     def __init__(self, url: str, token: str | None, fire: Fire, description: str, notify_token: str,
-                 timeout: float = 5.0, retry: float = 2.0, check: float = 30.0) -> None:
-        self.url, self.token = url.rstrip("/"), token
+                 timeout: float = 5.0, retry: float = 2.0, check: float = 30.0, *,
+                 context: ssl.SSLContext | None = None) -> None:
+        self.url, self.token, self.context = url.rstrip("/"), token, context  # context: an https:// broker
         self.tally = Tally("ngsi", fire)
         self.description, self.notify_token = description, notify_token
         self.timeout, self.retry, self.check = timeout, retry, check
@@ -212,11 +215,11 @@ class NgsiEvents:
         request = urllib.request.Request(self.url + path, method=method, headers=headers,
                                          data=None if body is None else json.dumps(body).encode("utf-8"))
         try:
-            with urllib.request.urlopen(request, timeout=self.timeout) as reply:
+            with urllib.request.urlopen(request, timeout=self.timeout, context=self.context) as reply:
                 raw = reply.read()
                 return reply.status, dict(reply.headers), json.loads(raw) if raw else None
         except urllib.error.HTTPError as exc:
             said = exc.read()[:300].decode("utf-8", "replace")
             raise ContextBrokerError(f"{method} {path}: {exc.code} {said}") from None
         except (urllib.error.URLError, OSError, ValueError) as exc:
-            raise ContextBrokerError(f"{method} {path}: {exc}") from None
+            raise ContextBrokerError(f"{method} {path}: {untrusted(exc, self.url) or exc}") from None

@@ -5,19 +5,22 @@ written over HTTP so the HMI and any NGSI client (FiLiP, curl, a real Orion) see
 them with ``POST /v2/op/update`` (``actionType: append``: create or update the attributes), so a
 slow or absent context broker never holds up the planner; a failed write is retried (every
 ``retry`` seconds) with the latest state, and nothing older ever overwrites something newer. The
-write token is the context broker's (its agent's token file), sent as ``Authorization: Bearer``.
+write token is the context broker's (its agent's token file), sent as ``Authorization: Bearer``;
+an ``https://`` context broker is verified with ``context`` (fleet/planner/ngsi_tls.py).
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import ssl
 import threading
 import urllib.error
 import urllib.request
 from typing import Any
 
 from fleet.planner.model import Task
+from fleet.planner.ngsi_tls import unreachable
 
 log = logging.getLogger("fleet.planner")
 ENTITY_TYPE = "Task"
@@ -64,9 +67,10 @@ def entity(task: Task) -> dict[str, Any]:
 
 
 class TaskPublisher:
-    def __init__(self, url: str, token: str | None, timeout: float = 5.0, retry: float = 1.0) -> None:
+    def __init__(self, url: str, token: str | None, timeout: float = 5.0, retry: float = 1.0, *,
+                 context: ssl.SSLContext | None = None) -> None:
         self.url = url.rstrip("/")
-        self.token = token
+        self.token, self.context = token, context
         self.timeout, self.retry = timeout, retry
         self._latest: dict[str, dict[str, Any]] = {}
         self._cond = threading.Condition()
@@ -119,12 +123,12 @@ class TaskPublisher:
             headers["Authorization"] = f"Bearer {self.token}"
         request = urllib.request.Request(self.url + "/v2/op/update", data=body, method="POST", headers=headers)
         try:
-            with urllib.request.urlopen(request, timeout=self.timeout) as reply:
+            with urllib.request.urlopen(request, timeout=self.timeout, context=self.context) as reply:
                 reply.read()
             return True
         except urllib.error.HTTPError as exc:
             log.warning("context broker refused %d Task entities: %s %s", len(entities), exc.code,
                         exc.read()[:300].decode("utf-8", "replace"))
         except (urllib.error.URLError, OSError) as exc:
-            log.warning("context broker at %s does not answer (%s); retrying", self.url, exc)
+            log.warning("%s; retrying the Task entities", unreachable(self.url, exc))
         return False

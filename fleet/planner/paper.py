@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import logging
+import ssl
 import time
 import urllib.error
 import urllib.parse
@@ -37,6 +38,7 @@ from typing import Any
 from fleet.planner import paperids
 from fleet.planner.errors import PlannerError
 from fleet.planner.machine import SendOrder
+from fleet.planner.ngsi_tls import unreachable
 from fleet.sim.map import SiteMap
 
 log = logging.getLogger("fleet.planner")
@@ -119,10 +121,12 @@ def motion_accepted(status: dict[str, Any] | None, plan: Items) -> bool:
 
 
 class NgsiClient:
-    """The few NGSI-v2 calls the planner makes, over plain HTTP with the broker's write token."""
+    """The few NGSI-v2 calls the planner makes, with the broker's write token (over HTTPS verified
+    with ``context`` for an ``https://`` broker: fleet/planner/ngsi_tls.py)."""
 
-    def __init__(self, url: str, token: str | None, timeout: float = 2.0, pause: float = 3.0) -> None:
-        self.url, self.token, self.timeout = url.rstrip("/"), token, timeout
+    def __init__(self, url: str, token: str | None, timeout: float = 2.0, pause: float = 3.0, *,
+                 context: ssl.SSLContext | None = None) -> None:
+        self.url, self.token, self.timeout, self.context = url.rstrip("/"), token, timeout, context
         self.pause = pause  # s without reads after the broker did not answer (the loop waits on reads)
         self._down_until = float("-inf")
 
@@ -133,12 +137,12 @@ class NgsiClient:
         data = json.dumps(body).encode("utf-8") if body is not None else None
         request = urllib.request.Request(self.url + path, data=data, method=method, headers=headers)
         try:
-            with urllib.request.urlopen(request, timeout=self.timeout) as reply:
+            with urllib.request.urlopen(request, timeout=self.timeout, context=self.context) as reply:
                 return reply.status, reply.read()
         except urllib.error.HTTPError as exc:
             return exc.code, exc.read()
         except (urllib.error.URLError, OSError) as exc:
-            raise PlannerError(f"the context broker at {self.url} does not answer: {exc}") from None
+            raise PlannerError(unreachable(self.url, exc)) from None
 
     def write(self, entity_id: str, item: dict[str, Any]) -> None:
         quoted = urllib.parse.quote(entity_id, safe=":")

@@ -6,17 +6,16 @@ Checked: the key is 0600 and ``status`` says TLS; FiLiP (its ``requests`` sessio
 plant CA's ``ca.pem``) creates and reads an entity over https; a plain http client and a client
 trusting another CA get nothing; the MQTT -> NGSI bridge worker rule R1 derives carries an AGV's
 message into the context broker over https (read back by the planner's principal through FiLiP);
-``plantkg query --live`` reads the context over https; a second plan is empty.
+``plantkg query --live`` reads the context over https; a second plan is empty. The plant and its
+fixture: tests/integration/cb_tls.py.
 """
 
 from __future__ import annotations
 
 import json
-import secrets
 import stat
 import uuid
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -25,74 +24,22 @@ from click.testing import CliRunner
 from paho.mqtt import client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
-from engine import netutil, process
+from engine import process
 from engine.cli import cli, main
 from engine.security import ca
-from tests.integration.agents import AgentFleet, secret_files, start_agents
+from tests.integration.cb_tls import HOST, STATUS_ID, Plant, tls_plant
 
-filip_cb = pytest.importorskip("filip.clients.ngsi_v2")
-from filip.models.base import FiwareHeader  # noqa: E402
-from filip.models.ngsi_v2.context import ContextAttribute, ContextEntity  # noqa: E402
+from filip.models.ngsi_v2.context import ContextAttribute, ContextEntity  # noqa: E402 - after cb_tls's importorskip
 
 pytestmark = pytest.mark.integration
 
-HOST = "127.0.0.3"
-STATUS_ID, THING_ID = "urn:ngsi-ld:AgvStatus:1", "urn:ngsi-ld:Thing:tls1"
-AGV_ENV = "PLANTKG_TEST_CB_TLS_AGV_PW"
-
-PLANT = """@prefix pk: <https://w3id.org/plantkg/ontology#> .
-@prefix : <https://example.org/cb-tls#> .
-:mq a pk:Broker ; pk:id "mq" ; pk:name "mq" ; pk:brokerType "mosquitto" ; pk:ip "{host}" ;
-    pk:port {mq_port} ; pk:hasTopic :status .
-:cb a pk:Broker ; pk:id "cb" ; pk:name "cb" ; pk:brokerType "ngsi-v2" ; pk:ip "{host}" ;
-    pk:port {cb_port} ; pk:tls true ; pk:hasTopic :status .
-:status a pk:Topic ; pk:id "status" ; pk:name "agv/1/status" ; pk:qos 1 ; pk:entityId "{status_id}" ;
-    pk:entityType "AgvStatus" .
-:agv a pk:Resource ; pk:id "agv" ; pk:name "agv" ; pk:sendsTo :mq ; pk:publishes :status ;
-    pk:secretRef "env:{agv_env}" .
-:planner a pk:Resource ; pk:id "planner" ; pk:name "planner" ; pk:sendsTo :cb ; pk:subscribes :status ;
-    pk:secretRef "file:{planner_file}" .
-"""
-
-
-@dataclass
-class Plant:
-    fleet: AgentFleet
-    plant: Path
-    ports: dict[str, int]
-    agv_password: str
-    planner_token: str
-
-    @property
-    def url(self) -> str:
-        return f"https://{HOST}:{self.ports['cb']}"
-
-    def filip(self, token: str) -> filip_cb.ContextBrokerClient:
-        session = requests.Session()
-        session.verify = str(ca.ca_cert_file())  # the plant CA only
-        session.trust_env = False  # else requests lets $REQUESTS_CA_BUNDLE override verify
-        session.headers.update({"authorization": f"Bearer {token}"})
-        return filip_cb.ContextBrokerClient(url=self.url, session=session, fiware_header=FiwareHeader())
+THING_ID = "urn:ngsi-ld:Thing:tls1"
 
 
 @pytest.fixture(scope="module")
 def plant(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Plant]:
-    tmp = tmp_path_factory.mktemp("cb-tls")
-    agv_password, planner_token = secrets.token_urlsafe(16), secrets.token_urlsafe(16)
-    planner_file = secret_files(tmp / "secrets", {"planner": planner_token}) / "planner"
-    with pytest.MonkeyPatch.context() as env:
-        env.setenv(AGV_ENV, agv_password)  # the agent inherits it
-        fleet = start_agents([HOST], tmp / "agents")
-    ports = {"mq": netutil.free_port(HOST), "cb": netutil.free_port(HOST)}
-    path = tmp / "plant.ttl"
-    path.write_text(PLANT.format(host=HOST, mq_port=ports["mq"], cb_port=ports["cb"], status_id=STATUS_ID,
-                                 agv_env=AGV_ENV, planner_file=planner_file), encoding="utf-8")
-    try:
-        assert main(["apply", str(path), "--agents", str(fleet.agents_file), "--yes"]) == 0
-        yield Plant(fleet, path, ports, agv_password, planner_token)
-        assert main(["destroy", str(path), "--agents", str(fleet.agents_file), "--yes"]) == 0
-    finally:
-        fleet.stop()
+    with tls_plant(tmp_path_factory.mktemp("cb-tls")) as applied:
+        yield applied
 
 
 def test_status_says_tls_and_the_key_is_private(plant: Plant, capsys: pytest.CaptureFixture[str]) -> None:
