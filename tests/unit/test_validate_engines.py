@@ -1,8 +1,10 @@
 """The fast engine (SPARQL on Oxigraph) and pySHACL (the reference) must give the same results.
 
-Two sources of plants: every shape case under ``tests/cases/shapes/`` (each also checked against its
-``expected.json``), and mutants of the example plants — triples dropped, literals replaced with
-hostile values, ids duplicated — generated from a fixed seed so a failure is reproducible.
+Two sources of plants: every shape case under ``tests/cases/shapes/`` (the fast engine held to its
+``expected.json`` here, pySHACL to the same file in tests/shapes/test_shapes_reference.py), and
+mutants of the example plants — triples dropped, literals replaced with hostile values, ids
+duplicated — generated from a fixed seed so a failure is reproducible, on which both engines run
+here and must agree.
 """
 
 from __future__ import annotations
@@ -44,25 +46,30 @@ def _expected(case: Path, name: str = "expected.json") -> set[tuple]:
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
-def test_engines_agree_on_shape_case(case: Path, shapes) -> None:
+def test_fast_engine_gives_each_shape_case_its_expected_results(case: Path, shapes) -> None:
+    """The fast engine gives each case exactly its ``expected.json``, each result naming the case's
+    file. pySHACL on the same cases is held to the same ``expected.json`` (or the documented
+    ``pyshacl-deviation.json``) by tests/shapes/test_shapes_reference.py, so the two engines agree
+    on every case through that file; running pySHACL here a second time on each case doubled the
+    suite's slowest work. The product's own pySHACL path (``engine="pyshacl"``) is held to the fast
+    engine on the mutants below."""
     plant = load_plant([case / "plant.ttl"])
     fast = validate(plant, shapes, engine="oxigraph")
-    reference = validate(plant, shapes, engine="pyshacl")
-    assert fast.engine == "oxigraph" and reference.engine == "pyshacl"
+    assert fast.engine == "oxigraph"
     assert _keys(fast.results) == _expected(case)
-    if (case / "pyshacl-deviation.json").exists():
-        # pySHACL departs from the SHACL spec here (the file says how); it must do exactly that.
-        assert _keys(reference.results) == _expected(case, "pyshacl-deviation.json")
-    else:
-        assert _keys(fast.results) == _keys(reference.results)
-        assert fast.conforms == reference.conforms
+    for r in fast.results:
+        assert r.file == str(case / "plant.ttl"), (case.name, r)
 
 
-def test_every_case_names_the_file(shapes) -> None:
-    for case in CASES:
+def test_the_reference_engine_is_what_engine_pyshacl_runs(shapes) -> None:
+    """``engine="pyshacl"`` reports pySHACL's results (the engine it says, and a violation the
+    fast engine also finds) on one case of each kind: a violation and a conforming plant."""
+    broken = next(c for c in CASES if _expected(c) and not (c / "pyshacl-deviation.json").exists())
+    for case in (broken, next(c for c in CASES if not _expected(c))):
         plant = load_plant([case / "plant.ttl"])
-        for r in validate(plant, shapes, engine="oxigraph").results:
-            assert r.file == str(case / "plant.ttl"), (case.name, r)
+        reference = validate(plant, shapes, engine="pyshacl")
+        assert reference.engine == "pyshacl"
+        assert _keys(reference.results) == _expected(case), case.name
 
 
 _HOSTILE = ["", "a\nb", "x\x00y", "70000", "-1", "0", "kafka", "MOSQUITTO", "a/b+#", "..", "é" * 300,
