@@ -220,6 +220,40 @@ def test_broker_command_refuses_bad_heap(tmp_path: Path, heap: str) -> None:
         kafka_runtime.broker_command(fake, Path("/usr/bin/java"), tmp_path / "s", tmp_path, heap=heap)
 
 
+@pytest.mark.parametrize(("value", "expected"), [
+    ("", []),
+    ("  ", []),
+    ("-XX:TieredStopAtLevel=1 -XX:+UseSerialGC", ["-XX:TieredStopAtLevel=1", "-XX:+UseSerialGC"]),
+    ("-XX:-UseCompressedOops", ["-XX:-UseCompressedOops"]),
+])
+def test_extra_jvm_options_are_xx_flags_from_the_environment(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, value: str, expected: list[str]) -> None:
+    assert kafka_runtime.extra_jvm_options({kafka_runtime.JVM_OPTS_ENV: value}) == expected
+    monkeypatch.setenv(kafka_runtime.JVM_OPTS_ENV, value)
+    fake = KafkaParts("3.9.1", tmp_path, tmp_path / "libs", None, None)
+    argv = kafka_runtime.broker_command(fake, Path("/usr/bin/java"), tmp_path / "s.p", logs_dir=tmp_path)
+    assert [a for a in argv if a.startswith("-XX:")] == expected
+    assert argv.index("-cp") > max((argv.index(o) for o in expected), default=0)
+
+
+@pytest.mark.parametrize("value", ["-Xmx8g", "-XX:+Evil;rm", "-XX:OnOutOfMemoryError=sh -c x", "-jar x.jar",
+                                   "-Dlog4j.configuration=http://x", "-XX:", "--XX:+A", "-XX:+A\n-cp"])
+def test_extra_jvm_options_refuse_anything_but_an_xx_flag(value: str) -> None:
+    with pytest.raises(ConfigValueError) as caught:
+        kafka_runtime.extra_jvm_options({kafka_runtime.JVM_OPTS_ENV: value})
+    assert kafka_runtime.JVM_OPTS_ENV in str(caught.value)
+
+
+def test_the_storage_tool_runs_on_c1_alone(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv(kafka_runtime.JVM_OPTS_ENV, raising=False)
+    fake = KafkaParts("3.9.1", tmp_path, tmp_path / "libs", None, None)
+    argv = kafka_runtime.storage_format_command(fake, Path("/usr/bin/java"), tmp_path / "s.p",
+                                                kafka_runtime.new_cluster_id())
+    assert "-XX:TieredStopAtLevel=1" in argv[:argv.index("-cp")]
+    broker = kafka_runtime.broker_command(fake, Path("/usr/bin/java"), tmp_path / "s.p", logs_dir=tmp_path)
+    assert not [a for a in broker if a.startswith("-XX:")]  # a broker keeps C2 unless told
+
+
 def test_cluster_id_never_starts_with_a_dash() -> None:
     """StorageTool reads ``-t -abc`` as an option; one id in 64 would start with '-' if drawn blindly."""
     ids = [kafka_runtime.new_cluster_id() for _ in range(3000)]

@@ -21,6 +21,7 @@ import base64
 import os
 import re
 import subprocess
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,6 +35,16 @@ DEFAULT_HEAP = "512m"
 _CLUSTER_ID = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]{21}")  # no leading "-": read as an option
 _HEAP = re.compile(r"[1-9][0-9]{0,5}[mMgG]")
 _PASSWORD = re.compile(r"[0-9a-f]{32,128}")
+#: Extra JVM options for every Kafka process plantkg starts (brokers, MirrorMaker, the storage
+#: tool), read from the environment of the process that starts them (the agent): HotSpot ``-XX:``
+#: flags only, each checked, e.g. ``-XX:TieredStopAtLevel=1 -XX:+UseSerialGC`` where many
+#: short-lived brokers share few cores (the test suite). Kafka's own scripts read
+#: ``KAFKA_JVM_PERFORMANCE_OPTS`` for the same purpose; plantkg runs the JVM without them.
+JVM_OPTS_ENV = "PLANTKG_KAFKA_JVM_OPTS"
+_XX_OPTION = re.compile(r"-XX:(?:[+-][A-Za-z][A-Za-z0-9]{0,80}|[A-Za-z][A-Za-z0-9]{0,80}=[A-Za-z0-9._:+-]{1,80})")
+#: The storage format tool runs once for a second or two: the C1 compiler alone starts it sooner,
+#: and nothing in it lives long enough to gain from C2.
+_ONE_SHOT_OPTIONS = ("-XX:TieredStopAtLevel=1",)
 #: The principal plantkg's own clients (the driver's AdminClient, the bridge workers, the nodes
 #: between themselves) use on a closed Kafka: a super user, authenticated with SASL/PLAIN.
 INTERNAL_USER = kafka_client.USER
@@ -271,10 +282,22 @@ def cluster_id(broker_dir: Path, given: str | None = None) -> str:
     return text
 
 
+def extra_jvm_options(environ: Mapping[str, str] | None = None) -> list[str]:
+    """The options :data:`JVM_OPTS_ENV` names (none when unset), each a checked ``-XX:`` flag;
+    :class:`ConfigValueError` names the variable and the first option that is not one."""
+    text = (os.environ if environ is None else environ).get(JVM_OPTS_ENV, "")
+    options = text.split()
+    for option in options:
+        if not _XX_OPTION.fullmatch(option):
+            raise ConfigValueError(JVM_OPTS_ENV, option, "expected HotSpot -XX: options separated by spaces, "
+                                                         "e.g. -XX:TieredStopAtLevel=1 -XX:+UseSerialGC")
+    return options
+
+
 def java_options(kafka: KafkaParts, heap: str, log4j: Path | None, logs_dir: Path | None) -> list[str]:
     if not _HEAP.fullmatch(heap):
         raise ConfigValueError("heap", heap, "expected a JVM size such as 512m or 1g")
-    opts = [f"-Xmx{heap}", "-Djava.awt.headless=true"]
+    opts = [f"-Xmx{heap}", *extra_jvm_options(), "-Djava.awt.headless=true"]
     if logs_dir is not None:
         opts.append(f"-Dkafka.logs.dir={check_path('logs_dir', logs_dir)}")
     if log4j is not None:
@@ -289,7 +312,7 @@ def storage_format_command(
     if not _CLUSTER_ID.fullmatch(cluster):
         raise ConfigValueError("cluster_id", cluster, "expected 22 base64url characters")
     opts = java_options(kafka, "256m", kafka.tools_log4j_config, None)
-    return [str(java), *opts, "kafka.tools.StorageTool", "format",
+    return [str(java), *_ONE_SHOT_OPTIONS, *opts, "kafka.tools.StorageTool", "format",
             "-t", cluster, "-c", str(check_path("properties_file", properties_file))]
 
 
