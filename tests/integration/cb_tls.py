@@ -19,10 +19,8 @@ from pathlib import Path
 import pytest
 import requests
 
-from engine import netutil
-from engine.cli import main
 from engine.security import ca
-from tests.integration.agents import AgentFleet, secret_files, start_agents
+from tests.integration.agents import AgentFleet, Deployment, deployment, secret_files
 
 filip_cb = pytest.importorskip("filip.clients.ngsi_v2")
 from filip.models.base import FiwareHeader  # noqa: E402
@@ -46,13 +44,23 @@ PLANT = """@prefix pk: <https://w3id.org/plantkg/ontology#> .
 """
 
 
-@dataclass
+@dataclass(frozen=True)
 class Plant:
-    fleet: AgentFleet
-    plant: Path
-    ports: dict[str, int]
+    deployed: Deployment
     agv_password: str
     planner_token: str
+
+    @property
+    def fleet(self) -> AgentFleet:
+        return self.deployed.fleet
+
+    @property
+    def plant(self) -> Path:
+        return self.deployed.plant
+
+    @property
+    def ports(self) -> dict[str, int]:
+        return self.deployed.ports
 
     @property
     def url(self) -> str:
@@ -76,16 +84,10 @@ def tls_plant(tmp: Path) -> Iterator[Plant]:
     """The plant applied in ``tmp`` (agents, secrets, plant file there); destroyed after."""
     agv_password, planner_token = secrets.token_urlsafe(16), secrets.token_urlsafe(16)
     planner_file = secret_files(tmp / "secrets", {"planner": planner_token}) / "planner"
-    with pytest.MonkeyPatch.context() as env:
-        env.setenv(AGV_ENV, agv_password)  # the agent inherits it
-        fleet = start_agents([HOST], tmp / "agents")
-    ports = {"mq": netutil.free_port(HOST), "cb": netutil.free_port(HOST)}
-    path = tmp / "plant.ttl"
-    path.write_text(PLANT.format(host=HOST, mq_port=ports["mq"], cb_port=ports["cb"], status_id=STATUS_ID,
-                                 agv_env=AGV_ENV, planner_file=planner_file), encoding="utf-8")
-    try:
-        assert main(["apply", str(path), "--agents", str(fleet.agents_file), "--yes"]) == 0
-        yield Plant(fleet, path, ports, agv_password, planner_token)
-        assert main(["destroy", str(path), "--agents", str(fleet.agents_file), "--yes"]) == 0
-    finally:
-        fleet.stop()
+
+    def render(ports: dict[str, int]) -> str:
+        return PLANT.format(host=HOST, mq_port=ports["mq"], cb_port=ports["cb"], status_id=STATUS_ID,
+                            agv_env=AGV_ENV, planner_file=planner_file)
+
+    with deployment(tmp, {"mq": HOST, "cb": HOST}, render, agent_env={AGV_ENV: agv_password}) as made:
+        yield Plant(made, agv_password, planner_token)

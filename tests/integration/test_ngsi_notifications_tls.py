@@ -17,17 +17,15 @@ import threading
 import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
-from pathlib import Path
 
 import pytest
 import requests
 from paho.mqtt import client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
-from engine import netutil, process
-from engine.cli import main
+from engine import process
 from engine.security import ca
-from tests.integration.agents import AgentFleet, secret_files, start_agents
+from tests.integration.agents import Deployment, deployment, secret_files
 
 pytestmark = pytest.mark.integration
 
@@ -51,11 +49,9 @@ PLANT = """@prefix pk: <https://w3id.org/plantkg/ontology#> .
 """
 
 
-@dataclass
+@dataclass(frozen=True)
 class Plant:
-    fleet: AgentFleet
-    plant: Path
-    ports: dict[str, int]
+    deployed: Deployment
     agv_password: str
     planner_token: str
 
@@ -65,24 +61,17 @@ def plant(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Plant]:
     tmp = tmp_path_factory.mktemp("notify-tls")
     agv_password, planner_token = secrets.token_urlsafe(16), secrets.token_urlsafe(16)
     planner_file = secret_files(tmp / "secrets", {"planner": planner_token}) / "planner"
-    with pytest.MonkeyPatch.context() as env:
-        env.setenv(AGV_ENV, agv_password)  # the agents inherit it
-        fleet = start_agents([MQ_HOST, CB_HOST], tmp / "agents")
-    ports = {"mq": netutil.free_port(MQ_HOST), "cb": netutil.free_port(CB_HOST)}
-    path = tmp / "plant.ttl"
-    path.write_text(PLANT.format(mq_host=MQ_HOST, cb_host=CB_HOST, mq_port=ports["mq"], cb_port=ports["cb"],
-                                 order_topic=ORDER_TOPIC, order_id=ORDER_ID, agv_env=AGV_ENV,
-                                 planner_file=planner_file), encoding="utf-8")
-    try:
-        assert main(["apply", str(path), "--agents", str(fleet.agents_file), "--yes"]) == 0
-        yield Plant(fleet, path, ports, agv_password, planner_token)
-        assert main(["destroy", str(path), "--agents", str(fleet.agents_file), "--yes"]) == 0
-    finally:
-        fleet.stop()
+
+    def render(ports: dict[str, int]) -> str:
+        return PLANT.format(mq_host=MQ_HOST, cb_host=CB_HOST, mq_port=ports["mq"], cb_port=ports["cb"],
+                            order_topic=ORDER_TOPIC, order_id=ORDER_ID, agv_env=AGV_ENV, planner_file=planner_file)
+
+    with deployment(tmp, {"mq": MQ_HOST, "cb": CB_HOST}, render, agent_env={AGV_ENV: agv_password}) as made:
+        yield Plant(made, agv_password, planner_token)
 
 
 def test_the_notify_principal_writes_exactly_the_topic_brought_back(plant: Plant) -> None:
-    users = {u.name: u for u in plant.fleet.brokers()["mq"].spec.users}
+    users = {u.name: u for u in plant.deployed.fleet.brokers()["mq"].spec.users}
     notify = users["plantkg.notify.mq.cb"]
     assert (notify.write, notify.read) == ((ORDER_TOPIC,), ())
     worker = users["plantkg.bridge.mq.cb"]
@@ -98,18 +87,18 @@ def test_an_order_reaches_the_agv_over_tls_at_the_closed_broker(plant: Plant) ->
     agv.on_connect = lambda c, _u, _f, reason, _p: c.subscribe(ORDER_TOPIC, qos=1)
     agv.on_subscribe = lambda *_: subscribed.set()
     agv.on_message = lambda _c, _u, msg: got.append(json.loads(msg.payload))
-    agv.connect(MQ_HOST, plant.ports["mq"], keepalive=10)
+    agv.connect(MQ_HOST, plant.deployed.ports["mq"], keepalive=10)
     agv.loop_start()
-    cb = f"http://{CB_HOST}:{plant.ports['cb']}"
+    cb = f"http://{CB_HOST}:{plant.deployed.ports['cb']}"
     planner = {"Authorization": f"Bearer {plant.planner_token}"}
     try:
         process.wait_until(subscribed.is_set, 30.0, what="the AGV's subscription over TLS")
 
         def mqtts_subscription() -> bool:
             answer = requests.get(f"{cb}/v2/subscriptions", timeout=10,
-                                  headers={"Authorization": f"Bearer {plant.fleet.agents[CB_HOST].token}"})
+                                  headers={"Authorization": f"Bearer {plant.deployed.fleet.agents[CB_HOST].token}"})
             subs = answer.json() if answer.status_code == 200 else []
-            return any(s["notification"]["mqtt"]["url"] == f"mqtts://{MQ_HOST}:{plant.ports['mq']}"
+            return any(s["notification"]["mqtt"]["url"] == f"mqtts://{MQ_HOST}:{plant.deployed.ports['mq']}"
                        and s["notification"]["mqtt"].get("user") == "plantkg.notify.mq.cb" for s in subs)
         process.wait_until(mqtts_subscription, 60.0, what="the worker's mqtts:// subscription")
         seq = 0

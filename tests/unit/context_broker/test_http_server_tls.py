@@ -10,6 +10,7 @@ import json
 import socket
 import ssl
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -34,13 +35,21 @@ def plant_ca(tmp_path: Path) -> ca.Ca:
     return ca.load_or_create_ca(tmp_path / "plant-ca")
 
 
+@contextmanager
+def tls_served(wsgi: Any, folder: Path, authority: ca.Ca) -> Iterator[HttpServer]:
+    """``wsgi`` served over HTTPS on a free port of HOST, with a certificate for HOST that
+    ``authority`` signed (its files in ``folder``)."""
+    cert, key = ca.issue_server_cert(authority, (HOST,), name="test context broker")
+    (folder / "cert.pem").write_bytes(cert)
+    (folder / "key.pem").write_bytes(key)
+    context = https.server_context(folder / "cert.pem", folder / "key.pem")
+    with serving(HttpServer(wsgi, HOST, free_port(), threads=2, ssl_context=context)) as srv:
+        yield srv
+
+
 @pytest.fixture
 def server(tmp_path: Path, plant_ca: ca.Ca) -> Iterator[HttpServer]:
-    cert, key = ca.issue_server_cert(plant_ca, (HOST,), name="test context broker")
-    (tmp_path / "cert.pem").write_bytes(cert)
-    (tmp_path / "key.pem").write_bytes(key)
-    context = https.server_context(tmp_path / "cert.pem", tmp_path / "key.pem")
-    with serving(HttpServer(app, HOST, free_port(), threads=2, ssl_context=context)) as srv:
+    with tls_served(app, tmp_path, plant_ca) as srv:
         yield srv
 
 

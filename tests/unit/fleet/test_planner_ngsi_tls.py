@@ -19,7 +19,7 @@ import fleet.lotlan
 from engine.context_broker.http_server import HttpServer
 from engine.process import wait_until
 from engine.netutil import free_port
-from engine.security import ca, https
+from engine.security import ca
 from fleet.planner import build
 from fleet.planner.__main__ import main
 from fleet.planner.errors import PlannerError
@@ -28,7 +28,7 @@ from fleet.planner.ngsi import TaskPublisher
 from fleet.planner.ngsi_tls import CA_OPTION, NgsiTrust, check_certificate, plant_trust, trust_of, untrusted
 from kg.load import load_plant
 from fleet.planner.paper import NgsiClient
-from tests.unit.context_broker.test_http_server import serving
+from tests.unit.context_broker.test_http_server_tls import tls_served
 from tests.unit.fleet.planner_data import JOBS, SITE
 from tests.unit.fleet.test_planner_cli import EXAMPLE, MAP
 
@@ -76,11 +76,7 @@ def plant_ca(tmp_path: Path) -> ca.Ca:
 
 @pytest.fixture
 def broker(tmp_path: Path, plant_ca: ca.Ca) -> Iterator[HttpServer]:
-    cert, key = ca.issue_server_cert(plant_ca, (HOST,), name="test context broker")
-    (tmp_path / "cert.pem").write_bytes(cert)
-    (tmp_path / "key.pem").write_bytes(key)
-    context = https.server_context(tmp_path / "cert.pem", tmp_path / "key.pem")
-    with serving(HttpServer(Store(), HOST, free_port(), threads=2, ssl_context=context)) as srv:
+    with tls_served(Store(), tmp_path, plant_ca) as srv:
         yield srv
 
 
