@@ -5,7 +5,7 @@ For each number of Mosquitto brokers N (default 1, 5, 10, 25, 50, 100), on one m
 1. **Bring-up.** By hand (baseline), the fastest way: render N configs, spawn N mosquitto from 8
    threads, poll all at once (``benchmarks.mqtt_ready``: a non-blocking connect to every broker, a
    raw CONNECT as soon as one accepts, one select for all; a refusing one is tried again 0.25 ms
-   later) until every one answers with a CONNACK; SIGTERM all, wake each (a connection to its port), then wait for all (``engine.process.stop_each``). Through plantkg: write an N-broker plant
+   later) until every one answers with a CONNACK; SIGTERM all, wake all (a connection to each port, opened at once), then wait for all (``engine.process.stop_each``). Through plantkg: write an N-broker plant
    (``benchmarks.synthetic.mosquitto_plant``, free ports) and run one ``apply`` against one local
    agent (load, validate, reason, derive, observe, plan, dispatch: one batch request, in which the
    agent starts every broker at once and waits for their health checks together); later one
@@ -81,13 +81,19 @@ def wait_all_ready(brokers: list[tuple[str, int]], deadline: float = READY_S) ->
 
 
 def _hand_confs(n: int, work: Path, nodelay: bool = True) -> tuple[list[int], list[Path]]:
-    """n configs as the agent renders them, on free ports; ``nodelay=False`` turns Mosquitto's
-    TCP_NODELAY back to its own default (off), which plantkg's rendering sets on."""
+    """n configs as the agent renders them, on free ports, each with persistence in a folder of its
+    own (the agent's safe default: a broker stopped by hand saves its state as plantkg's do; without
+    it the hand baseline skipped that write and the ratio compared two different brokers);
+    ``nodelay=False`` turns Mosquitto's TCP_NODELAY back to its own default (off), which plantkg's
+    rendering sets on."""
     ports = netutil.free_ports(n, HOST)
     confs = []
     for i, port in enumerate(ports):
         conf = work / f"hand-{i}.conf"
-        text = render_mosquitto_conf(MosquittoConfig(HOST, port, work / f"hand-{i}.log", default_run_as()))
+        data = work / f"hand-{i}-data"
+        data.mkdir(exist_ok=True)
+        text = render_mosquitto_conf(MosquittoConfig(HOST, port, work / f"hand-{i}.log", default_run_as(),
+                                                     data_dir=data))
         if not nodelay:
             assert "set_tcp_nodelay true\n" in text, "the rendering no longer sets TCP_NODELAY"
             text = text.replace("set_tcp_nodelay true\n", "set_tcp_nodelay false\n")
@@ -107,9 +113,9 @@ def _spawn_all(confs: list[Path], work: Path, children: list[process.Child]) -> 
 
 def by_hand(n: int, work: Path) -> tuple[float, float]:
     """The fastest way by hand: spawn n mosquitto in parallel, poll all at once until every one
-    answers a CONNECT; then SIGTERM all, wake each (a connection to its port: Mosquitto 2.0 masks
-    its signals while it waits in epoll up to 100 ms, and plantkg's agent wakes its brokers so too)
-    and wait for all. Returns (up s, down s)."""
+    answers a CONNECT; then SIGTERM all, wake all (a connection to each port, all opened at once:
+    Mosquitto 2.0 masks its signals while it waits in epoll up to 100 ms, and plantkg's agent wakes
+    its brokers so too) and wait for all. Returns (up s, down s)."""
     ports, confs = _hand_confs(n, work)
     children: list[process.Child] = []
     try:
@@ -119,7 +125,7 @@ def by_hand(n: int, work: Path) -> tuple[float, float]:
         up = time.perf_counter() - start
         start = time.perf_counter()
         outcomes = process.stop_each(children, [10.0] * len(children),
-                                     lambda: [netutil.port_open(HOST, p, timeout=0.05) for p in ports])
+                                     lambda: netutil.touch_all([(HOST, p) for p in ports]))
         down = time.perf_counter() - start
         failed = [o for o in outcomes if isinstance(o, Exception)]
         if failed:

@@ -7,9 +7,13 @@ the ports it returns are distinct.
 
 from __future__ import annotations
 
+import errno
 import ipaddress
 import random
+import selectors
 import socket
+import time
+from collections.abc import Sequence
 from pathlib import Path
 
 
@@ -69,3 +73,42 @@ def port_open(host: str, port: int, timeout: float = 0.2) -> bool:
             return True
     except OSError:
         return False
+
+
+def touch_all(addresses: Sequence[tuple[str, int]], timeout: float = 0.05) -> int:
+    """Open a TCP connection to each ``(host, port)`` at once and close it unused; returns how many
+    connected within ``timeout`` s (nothing listening is no error).
+
+    All connects are started non-blocking before any is awaited, so touching N listeners takes
+    about one round trip, not N (waking many brokers after their SIGTERM: the Mosquitto driver's
+    ``wake_address``)."""
+    pending: dict[socket.socket, tuple[str, int]] = {}
+    connected = 0
+    with selectors.DefaultSelector() as selector:
+        try:
+            for host, port in addresses:
+                sock = socket.socket(_family(host), socket.SOCK_STREAM)
+                sock.setblocking(False)
+                code = sock.connect_ex((host, port))
+                if code == 0:
+                    connected += 1
+                    sock.close()
+                elif code in (errno.EINPROGRESS, errno.EAGAIN):
+                    pending[sock] = (host, port)
+                    selector.register(sock, selectors.EVENT_WRITE)
+                else:
+                    sock.close()
+            end = time.monotonic() + timeout
+            while pending and (left := end - time.monotonic()) > 0:
+                for key, _events in selector.select(left):
+                    sock = key.fileobj
+                    assert isinstance(sock, socket.socket)
+                    selector.unregister(sock)
+                    del pending[sock]
+                    if sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR) == 0:
+                        connected += 1
+                    sock.close()
+        finally:
+            for sock in pending:
+                sock.close()
+    return connected

@@ -40,7 +40,7 @@ from pathlib import Path
 from collections.abc import Sequence
 from typing import Any
 
-from engine import process
+from engine import netutil, process
 from engine.agent import bring_up
 from engine.agent.folder import BrokerFolder, PidRecord
 from engine.agent.held import Held, clear_held, read_held, write_held
@@ -643,11 +643,11 @@ class BrokerManager:
         procs = [b.proc for b in brokers]
         assert all(p is not None for p in procs)
         grace = [b.driver.stop_grace if b.driver is not None else 30.0 for b in brokers]
-        wakes = [(b.driver.wake, b.spec) for b in brokers if getattr(b.driver, "wake", None) is not None]
+        wakes = [b.driver.wake_address(b.spec) for b in brokers  # type: ignore[union-attr]
+                 if getattr(b.driver, "wake_address", None) is not None]
 
         def wake_all() -> None:  # drivers whose broker acts on SIGTERM only when its loop wakes
-            for wake, spec in wakes:
-                wake(spec)
+            netutil.touch_all(wakes)
 
         failed = stop_together(procs, grace, wake_all if wakes else None)  # type: ignore[arg-type]
         errors: dict[str, Exception] = {}

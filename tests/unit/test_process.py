@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import socket
 import time
 from pathlib import Path
 
@@ -67,6 +68,39 @@ def test_free_ports_are_distinct_and_free() -> None:
     ports = netutil.free_ports(3)
     assert len(set(ports)) == 3
     assert not any(netutil.port_open("127.0.0.1", p) for p in ports)
+
+
+def test_touch_all_connects_to_every_listener_at_once_and_closes_unused() -> None:
+    """Each listener gets one connection, closed without a byte; a port nobody listens on and an
+    IPv6 one are no error; it counts the connections made."""
+    listeners = [socket.create_server(("127.0.0.1", 0)) for _ in range(5)]
+    try:
+        closed = netutil.free_port()
+        addresses = [("127.0.0.1", l.getsockname()[1]) for l in listeners] + [("127.0.0.1", closed)]
+        assert netutil.touch_all(addresses, timeout=5.0) == 5
+        for listener in listeners:
+            listener.settimeout(5)
+            conn, _ = listener.accept()
+            conn.settimeout(5)
+            assert conn.recv(1) == b""  # closed unused
+            conn.close()
+        assert netutil.touch_all([], timeout=0.01) == 0
+    finally:
+        for listener in listeners:
+            listener.close()
+
+
+def test_touch_all_gives_up_at_its_timeout() -> None:
+    """A listener whose backlog is full does not answer the handshake: touch_all returns at its
+    timeout with what connected (no hang, no error)."""
+    with socket.socket() as full:
+        full.bind(("127.0.0.1", 0))
+        full.listen(0)
+        port = full.getsockname()[1]
+        start = time.monotonic()
+        made = netutil.touch_all([("127.0.0.1", port)] * 8, timeout=0.2)
+        assert time.monotonic() - start < 5
+        assert 1 <= made < 8
 
 
 def test_stop_all_signals_every_child_before_waiting_for_any(tmp_path: Path) -> None:

@@ -163,13 +163,14 @@ class MosquittoDriver:
             for name in (TLS_CERT_FILE, TLS_KEY_FILE):
                 (broker_dir / name).unlink(missing_ok=True)
 
-    def wake(self, spec: BrokerSpec) -> None:
-        """Wake a Mosquitto just sent SIGTERM, so it exits now. Mosquitto 2.0 blocks its signals
-        while it waits in epoll (``rt_sigprocmask`` around ``epoll_wait(..., 100)``, seen with
-        strace): an idle broker acts on SIGTERM only when that wait times out, up to 100 ms later
-        (a destroy of one broker took ~0.1 s against ~1 ms by hand). A TCP connection to its
-        listener ends the wait at once; it is closed unused."""
-        netutil.port_open(spec.host, spec.port, timeout=0.05)
+    def wake_address(self, spec: BrokerSpec) -> tuple[str, int]:
+        """Where to wake a Mosquitto just sent SIGTERM, so it exits now. Mosquitto 2.0 blocks its
+        signals while it waits in epoll (``rt_sigprocmask`` around ``epoll_wait(..., 100)``, seen
+        with strace): an idle broker acts on SIGTERM only when that wait times out, up to 100 ms
+        later (a destroy of one broker took ~0.1 s against ~1 ms by hand). A TCP connection to its
+        listener ends the wait at once; the agent opens one to each broker it stops and closes it
+        unused (:func:`engine.netutil.touch_all`, all brokers of a batch at once)."""
+        return (spec.host, spec.port)
 
     def health(self, spec: BrokerSpec, timeout: float) -> bool:
         """An MQTT CONNECT answered by a CONNACK within ``timeout`` s: accepted, or refused as a
