@@ -18,11 +18,17 @@ both have a ``pk:secretRef`` to a throwaway password file. One deployment is sha
 4. ``apply`` adds a user (the HMI, publishing ``plant.kpi``) while the PLC keeps writing with
    acks=all: no write fails; the moment apply returns the HMI writes ``plant.kpi`` through each
    node alone, at once (the lead's PUT waited until every node enforced it:
-   engine.drivers.kafka.spread); only the lead node restarted.
+   engine.drivers.kafka.spread); only the lead node restarted;
+5. ``apply`` removes the HMI while node n3 is frozen (SIGSTOP: it cannot apply the metadata log):
+   apply does not return while n3 lags (for a minute after the restarted lead dropped the HMI,
+   far longer than apply takes without the wait); once n3 is let go, apply returns and n3 refuses
+   the HMI at once.
 """
 
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
 import threading
 import time
@@ -35,7 +41,10 @@ from confluent_kafka import KafkaException, Producer
 from confluent_kafka.admin import AdminClient
 
 from engine import process
+from engine.drivers.kafka.wire import NodeConnection
+from engine.errors import DriverError
 from engine.model import BrokerStatus
+from engine.security import kafka_client
 from tests.integration.agents import Deployment, deployment
 from tests.integration.kafka_clients import password_files, read_topic
 from tests.integration.test_kafka_auth import _as, _produce
@@ -213,3 +222,42 @@ def test_apply_adds_a_user_while_the_cluster_serves(cluster: Cluster) -> None:
     assert [n for n in NODES if after[n].started_at != before[n]] == ["n1"]  # type: ignore[attr-defined]
     code, out = cluster.run("plan", "--detailed-exitcode")
     assert code == 0 and "No changes." in out, out
+
+
+
+def _dropped_by_the_lead(address: str) -> bool:
+    """The node at ``address`` (the lead) no longer has the HMI's credential: its health check set
+    the users again after its restart (asked on its own listener, as plantkg)."""
+    with NodeConnection(address) as conn:
+        conn.login_plain(kafka_client.USER, kafka_client.password())
+        return "hmi" not in conn.scram_users()
+
+
+def test_apply_returns_only_once_a_lagging_node_caught_up(cluster: Cluster) -> None:
+    frozen = cluster.deployed.fleet.brokers()["n3"].pid  # type: ignore[attr-defined]
+    cluster.deployed.plant.write_text(_plant(cluster.deployed.ports, cluster.files), encoding="utf-8")  # no HMI
+    codes: list[int] = []
+    done = threading.Event()
+
+    def apply() -> None:
+        try:
+            codes.append(cluster.deployed.cli("apply", "--yes"))
+        finally:
+            done.set()
+
+    applying = threading.Thread(target=apply)
+    os.kill(frozen, signal.SIGSTOP)
+    try:
+        applying.start()
+        process.wait_until(lambda: done.is_set() or _dropped_by_the_lead(cluster.address("n1")), 300.0, 0.2,
+                           what="the restarted lead node to drop the HMI", ignore=(DriverError,))
+        # Without the wait for every node, apply returns well within this (the lead is healthy; the
+        # agents' answers take at most ~40 s while n3 hangs the AdminClient's requests it gets).
+        returned_while_frozen = done.wait(60.0)
+    finally:
+        os.kill(frozen, signal.SIGCONT)
+    applying.join(400)
+    out = cluster.capsys.readouterr()  # type: ignore[attr-defined]
+    assert not returned_while_frozen, f"apply returned while node n3 could not apply the metadata log:\n{out.out}"
+    assert codes == [0], out.out + out.err
+    assert at_once(cluster.address("n3"), "plant.kpi", cluster.user("hmi")) != []  # at once: removed there too

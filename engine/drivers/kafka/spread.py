@@ -31,7 +31,7 @@ from engine import process
 from engine.drivers.base import resolve_secret
 from engine.drivers.kafka.access import wanted_acls
 from engine.drivers.kafka.wire import AclKey, NodeConnection
-from engine.errors import AccessNotSpreadError, DriverError, WaitTimeoutError
+from engine.errors import AccessNotSpreadError, BrokerUnavailableError, DriverError, WaitTimeoutError
 from engine.model import BrokerUser
 
 #: Seconds between two rounds of asking the nodes that lag.
@@ -97,7 +97,7 @@ class Login:
 def node_lag(address: str, users: Sequence[BrokerUser], want: NodeAccess, login: Login,
              secret: Callable[[BrokerUser], str] = resolve_secret) -> tuple[str, ...]:
     """What the node at ``address`` lacks (empty: it enforces ``want``); a node that does not
-    answer lacks everything ("did not answer: ...")."""
+    answer, or answers an error, lags by that ("could not be asked (...)")."""
     try:
         with NodeConnection(address, ca_file=login.ca_file, timeout=login.timeout) as conn:
             conn.login_plain(login.user, login.password)
@@ -108,8 +108,10 @@ def node_lag(address: str, users: Sequence[BrokerUser], want: NodeAccess, login:
             with NodeConnection(address, ca_file=login.ca_file, timeout=login.timeout) as conn:
                 if not conn.login_scram(user.name, secret(user)):
                     return (f"refuses user {user.name!r}'s password (SCRAM-SHA-512)",)
+    except BrokerUnavailableError as exc:
+        return (f"could not be asked ({exc.message})",)
     except DriverError as exc:
-        return (f"did not answer: {exc.message}",)
+        return (f"answered with an error ({exc.message})",)
     return ()
 
 
