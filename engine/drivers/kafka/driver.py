@@ -170,8 +170,9 @@ class KafkaDriver:
     def settle(self, spec: BrokerSpec) -> None:
         """A closed cluster's lead: wait until every broker node of the cluster enforces the
         users and ACLs the lead set (AccessNotSpreadError after :attr:`settle_deadline` s).
-        Anything else returns at once: a node alone applies its own writes, an open cluster has
-        no users, another node sets nothing."""
+        Anything else returns at once: a node alone is one process that applies what it committed
+        within moments (and stays as fast as it was), an open cluster has no users, another node
+        sets nothing."""
         node = spec.kafka
         if node is None or not node.lead or not access.is_closed(spec):
             return

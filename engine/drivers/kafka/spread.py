@@ -15,7 +15,8 @@ would not ask that node), until each one reports:
 
 :func:`differences` (1 and 2) is pure; :func:`wait_every_node` does the polling, within a
 deadline, and raises :class:`~engine.errors.AccessNotSpreadError` naming the first node that
-still lags and what it lacks. A node alone needs none of this: it applies its own writes.
+still lags and what it lacks. A node alone is not waited for: its broker and controller are one
+process, which applies what it just committed within moments (and it was as fast as before).
 """
 
 from __future__ import annotations
