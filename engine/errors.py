@@ -112,3 +112,23 @@ class BrokerUnavailableError(DriverError):
     """The broker did not answer in time (down, still starting, restarting): worth retrying."""
 
     retryable = True
+
+
+class AccessNotSpreadError(BrokerUnavailableError):
+    """A node of a closed Kafka cluster does not enforce yet the users and ACLs set through its
+    lead (engine.drivers.kafka.spread): the node takes them from the cluster's metadata log, so
+    it may only be slow or restarting; retryable."""
+
+    def __init__(self, cluster: str, node: str, lacks: tuple[str, ...], timeout: float, *,
+                 others: tuple[str, ...] = ()) -> None:
+        shown = "; ".join(lacks[:5]) + (f"; and {len(lacks) - 5} more" if len(lacks) > 5 else "")
+        also = f" (nor yet node(s) {', '.join(others)})" if others else ""
+        super().__init__(
+            f"Kafka cluster {cluster!r}: node {node} does not enforce the plant's users and ACLs "
+            f"{timeout:.0f} s after they were set through the lead node: it {shown}{also}",
+            hint="that node applies them from the cluster's metadata log: check that it runs and "
+            f"follows the quorum (`plantkg status`, its kafka.log), then apply again",
+        )
+        self.cluster = cluster
+        self.node = node
+        self.lacks = lacks

@@ -10,6 +10,8 @@ poll against each other for the GIL and the CPUs. So a batch here:
   child's exec), then awaits all the spawned ones in one polling loop (:func:`wait_all_healthy`);
 - to delete them, stops every process together (SIGTERM to all before it waits for any), then
   moves each folder away;
+- once they are healthy, lets each driver that must (:class:`~engine.drivers.base.Settling`: a
+  closed Kafka cluster's lead) wait until what its broker set is in force on the other nodes;
 - answers each broker alone, in order: one that fails fails alone, as its single request would.
 
 The manager stays the owner of what this touches: its broker table and lock, each broker's fields
@@ -31,7 +33,7 @@ from engine.agent.fanout import each
 from engine.agent.folder import BrokerFolder
 from engine.agent.owners import Owners, claim
 from engine.agent.procs import BrokerProcess, log_end
-from engine.drivers.base import Driver, log_file
+from engine.drivers.base import Driver, Settling, log_file
 from engine.drivers.registry import DriverRegistry
 from engine.errors import BrokerUnavailableError, ProcessError
 from engine.model import BrokerSpec, BrokerStatus, ObservedBroker
@@ -81,8 +83,8 @@ class Steps(Generic[B]):
 def put_many(steps: Steps[B], requests: Sequence[tuple[BrokerSpec, str | None]],
              ) -> list[ObservedBroker | Exception]:
     """Make each broker run as its spec says (``(spec, owner)``, distinct ids): each is checked,
-    rendered and spawned, then all are awaited in one polling loop. Each its own answer or error,
-    in order."""
+    rendered and spawned, then all are awaited in one polling loop, then settled (a driver that
+    is :class:`Settling`). Each its own answer or error, in order."""
     ids = [spec.id for spec, _ in requests]
     if len(set(ids)) != len(ids):
         raise ValueError(f"put_many takes distinct broker ids, not {ids}")
@@ -109,6 +111,12 @@ def put_many(steps: Steps[B], requests: Sequence[tuple[BrokerSpec, str | None]],
         for i, error in zip(waiting, errors):
             if error is not None:
                 results[i] = error
+        settling = [i for i in todo if results[i] is None and isinstance(claimed[ids[i]].driver, Settling)]
+        settled = each(lambda i: claimed[ids[i]].driver.settle(claimed[ids[i]].spec),  # type: ignore[union-attr]
+                       settling, threads=SPAWN_THREADS, name="settle")
+        for i, outcome in zip(settling, settled):
+            if isinstance(outcome, Exception):
+                results[i] = outcome
         for i in todo:
             if results[i] is None:
                 results[i] = steps.observe(claimed[ids[i]])

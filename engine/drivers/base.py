@@ -109,6 +109,19 @@ class PeriodicSave(Protocol):
 
 
 @runtime_checkable
+class Settling(Protocol):
+    """A driver whose healthy broker may still have to wait for others to take in what it set:
+    a closed Kafka cluster's lead sets the users and ACLs, and the other nodes apply them from
+    the cluster's metadata log a moment later. The agent calls :meth:`settle` after every PUT of
+    such a broker that ended healthy (restarted or not), before it answers."""
+
+    def settle(self, spec: BrokerSpec) -> None:
+        """Return once what ``spec``'s broker set is in force wherever clients reach it (at once
+        when there is nothing to wait for); after the driver's own deadline a retryable
+        :class:`~engine.errors.BrokerUnavailableError` naming what lags."""
+
+
+@runtime_checkable
 class BridgeCarrier(Protocol):
     """A driver whose broker runs bridges itself (Mosquitto's ``connection`` sections)."""
 

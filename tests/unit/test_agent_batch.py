@@ -21,6 +21,7 @@ from engine.agent.procs import processes_mentioning
 from engine.agent.wire import WireError
 from engine.drivers.mosquitto.driver import MosquittoDriver
 from engine.drivers.registry import DriverRegistry
+from engine.errors import AccessNotSpreadError
 from engine.model import BrokerStatus
 from tests.unit.test_agent_app import AUTH, TOKEN, spec, topic
 
@@ -241,6 +242,34 @@ def test_a_broker_is_healthy_only_once_its_port_accepts_connections(tmp_path: Pa
         (result,) = batch(client, [[{"op": "put_broker", "spec": spec("a")}]]).get_json()["lanes"][0]
         assert result["outcome"] == "failed" and result["status"] == 503, result
         assert "still starting" in result["error"]["error"] and result["error"]["retryable"] is True
+    finally:
+        manager.close(stop_brokers=True)
+    assert not processes_mentioning(tmp_path)
+
+
+def test_a_settling_driver_is_waited_for_after_health_and_on_every_put(tmp_path: Path) -> None:
+    """A driver that must settle (a closed Kafka cluster's lead, engine.drivers.base.Settling) is
+    asked once its broker is healthy; its error is the PUT's answer (the broker keeps running),
+    and a PUT of the unchanged broker asks it again."""
+    calls: list[tuple[str, bool]] = []
+
+    class Lags(MosquittoDriver):
+        def settle(self, spec):  # type: ignore[no-untyped-def]
+            calls.append((spec.id, manager.get(spec.id).status is BrokerStatus.RUNNING))  # type: ignore[union-attr]
+            if len(calls) == 1:
+                raise AccessNotSpreadError("c", "127.0.0.9:9092", ("lacks user 'hmi'",), 0.1)
+
+    manager = BrokerManager(tmp_path / "state", DriverRegistry([Lags()])).open()
+    try:
+        client = create_app(AgentState(manager, TOKEN)).test_client()
+        a = spec("a")
+        (first,) = batch(client, [[{"op": "put_broker", "spec": a}]]).get_json()["lanes"][0]
+        assert first["outcome"] == "failed" and first["status"] == 503, first
+        assert "node 127.0.0.9:9092" in first["error"]["error"] and first["error"]["retryable"] is True
+        assert manager.get("a").status is BrokerStatus.RUNNING  # type: ignore[union-attr]
+        (again,) = batch(client, [[{"op": "put_broker", "spec": a}]]).get_json()["lanes"][0]
+        assert again["outcome"] == "done", again
+        assert calls == [("a", True), ("a", True)]
     finally:
         manager.close(stop_brokers=True)
     assert not processes_mentioning(tmp_path)

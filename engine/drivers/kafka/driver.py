@@ -14,6 +14,11 @@ before the next node stops, and a node the agent restarted after a crash counts 
 it caught up); a controller-only node accepts a connection on its quorum listener. A closed node
 alone, or a closed cluster's lead node, counts as running once its users and ACLs are as the spec
 says (engine.drivers.kafka.access; a cluster's are in its metadata log, shared by all its nodes).
+
+Settling (engine.drivers.base.Settling): the PUT of a closed cluster's lead node answers only once
+every broker node of the cluster enforces those users and ACLs (engine.drivers.kafka.spread), so
+a client that logs in at any node right after ``plantkg apply`` is let in. Not part of the health
+check: the lead stays healthy while another node is down. A node alone needs no such wait.
 """
 
 from __future__ import annotations
@@ -35,7 +40,7 @@ from engine.drivers.base import (
     refuse_bridges,
     spec_essence,
 )
-from engine.drivers.kafka import access, tls
+from engine.drivers.kafka import access, spread, tls
 from engine.drivers.kafka import runtime as kafka_runtime
 from engine.drivers.kafka.topics import Topics, admin_client, check_kafka_topic_name, in_sync
 from engine.errors import ConfigValueError, DriverError, EngineError
@@ -58,6 +63,8 @@ class KafkaDriver:
     implicit_topics = False
     start_deadline = 90.0
     stop_grace = 30.0
+    #: Seconds the lead's PUT waits for the other nodes to enforce the users and ACLs.
+    settle_deadline = 30.0
 
     def __init__(self, *, heap: str = kafka_runtime.DEFAULT_HEAP, admin_timeout: float = 30.0,
                  version: str = parts.KAFKA_VERSION) -> None:
@@ -159,6 +166,19 @@ class KafkaDriver:
                 log.warning("broker %s: users and ACLs not set yet: %s", spec.id, exc)
                 return False
         return True
+
+    def settle(self, spec: BrokerSpec) -> None:
+        """A closed cluster's lead: wait until every broker node of the cluster enforces the
+        users and ACLs the lead set (AccessNotSpreadError after :attr:`settle_deadline` s).
+        Anything else returns at once: a node alone is one process that applies what it committed
+        within moments (and stays as fast as it was), an open cluster has no users, another node
+        sets nothing."""
+        node = spec.kafka
+        if node is None or not node.lead or not access.is_closed(spec):
+            return
+        settings = kafka_client.client_settings(True, spec.tls)
+        login = spread.Login(settings["sasl.password"], settings["sasl.username"], settings.get("ssl.ca.location"))
+        spread.wait_every_node(node.cluster, node.bootstrap, spec.users, login, self.settle_deadline)
 
     # --- topics (engine.drivers.kafka.topics) -----------------------------------------------
 
