@@ -109,6 +109,23 @@ def _string(value: str | None) -> bytes:
     return struct.pack(">h", len(raw)) + raw
 
 
+def scram_client_final(password: str, client_first_bare: str, server_first: str,
+                       digest: str = "sha512") -> tuple[str, str, bytes]:
+    """The client's side of a SCRAM exchange after the server's first message (RFC 5802 section 3;
+    RFC 7677 for SHA-256, Kafka's SCRAM-SHA-512 with ``digest="sha512"``): the final message
+    without its proof, the proof (base64), and the server's final message that proves it knows the
+    password (``v=...``). Pure: held to the examples of RFC 5802 and RFC 7677 in tests/unit/test_kafka_wire.py."""
+    fields = dict(part.split("=", 1) for part in server_first.split(",") if "=" in part)
+    salted = hashlib.pbkdf2_hmac(digest, password.encode(), base64.b64decode(fields["s"]), int(fields["i"]))
+    client_key = hmac.digest(salted, b"Client Key", digest)
+    without_proof = f"c=biws,r={fields['r']}"
+    auth_message = f"{client_first_bare},{server_first},{without_proof}".encode()
+    signature = hmac.digest(hashlib.new(digest, client_key).digest(), auth_message, digest)
+    proof = base64.b64encode(bytes(a ^ b for a, b in zip(client_key, signature))).decode()
+    server_signature = hmac.digest(hmac.digest(salted, b"Server Key", digest), auth_message, digest)
+    return without_proof, proof, b"v=" + base64.b64encode(server_signature)
+
+
 def split_address(address: str) -> tuple[str, int]:
     """``host:port`` or ``[v6]:port`` (engine.values.host_in_url's form) as (host, port)."""
     host, _, port = address.rpartition(":")
@@ -169,19 +186,13 @@ class NodeConnection:
         fields = dict(part.split("=", 1) for part in server_first.split(",") if "=" in part)
         if not fields.get("r", "").startswith(nonce):
             raise BrokerUnavailableError(f"Kafka node {self.address} answered a SCRAM login with another nonce")
-        salted = hashlib.pbkdf2_hmac("sha512", password.encode(), base64.b64decode(fields["s"]), int(fields["i"]))
-        client_key = hmac.digest(salted, b"Client Key", "sha512")
-        without_proof = f"c=biws,r={fields['r']}"
-        auth_message = f"{bare},{server_first},{without_proof}".encode()
-        signature = hmac.digest(hashlib.sha512(client_key).digest(), auth_message, "sha512")
-        proof = base64.b64encode(bytes(a ^ b for a, b in zip(client_key, signature))).decode()
+        without_proof, proof, expected_final = scram_client_final(password, bare, server_first)
         code, _, final = self._authenticate(f"{without_proof},p={proof}".encode())
         if code == SASL_AUTHENTICATION_FAILED:
             return False
         if code:
             raise DriverError(f"Kafka node {self.address}: SCRAM login of {user!r} failed with error {code}")
-        server_signature = hmac.digest(hmac.digest(salted, b"Server Key", "sha512"), auth_message, "sha512")
-        return hmac.compare_digest(final, b"v=" + base64.b64encode(server_signature))
+        return hmac.compare_digest(final, expected_final)
 
     def acls(self) -> set[AclKey]:
         """Every ACL this node's authorizer holds (DescribeAcls v1, all filters ANY)."""
