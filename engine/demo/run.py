@@ -20,6 +20,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from collections.abc import Iterable
 from typing import Callable
 
 import click
@@ -64,19 +65,25 @@ def feeds(files: list[str]) -> list[Feed]:
     return out
 
 
-def make_demo_secrets(plant_feeds: list[Feed], environ: dict[str, str] | None = None) -> list[str]:
-    """Give each resource whose ``pk:secretRef`` is an unset environment variable a random
-    password in this process's environment (the demo's agents inherit it; nothing is written to
-    disk); returns the variables set. A ``file:`` reference must exist already."""
+def make_demo_secrets(refs: Iterable[str | None], environ: dict[str, str] | None = None) -> list[str]:
+    """Give each ``pk:secretRef`` that names an unset environment variable a random password in
+    this process's environment (the demo's agents inherit it; nothing is written to disk); returns
+    the variables set. A ``file:`` reference must exist already."""
     env = os.environ if environ is None else environ
     made = []
-    for feed in plant_feeds:
-        if feed.secret_ref and feed.secret_ref.startswith("env:"):
-            name = feed.secret_ref.removeprefix("env:")
+    for ref in refs:
+        if ref and ref.startswith("env:"):
+            name = ref.removeprefix("env:")
             if name not in env:
                 env[name] = secrets.token_urlsafe(24)
                 made.append(name)
     return made
+
+
+def secret_refs(desired: DesiredState, plant_feeds: list[Feed]) -> list[str | None]:
+    """Every secret the demo's brokers and simulated sources need: each broker user's (readers
+    too, such as a historian that only subscribes) and each feed's."""
+    return [u.secret_ref for b in desired.brokers for u in b.users] + [f.secret_ref for f in plant_feeds]
 
 
 def hosts_of(files: list[str]) -> list[str]:
@@ -161,7 +168,7 @@ def run_demo(files: list[str], run: Runner, *, duration: float | None, work_dir:
     desired = run_pipeline(files, None, observe=False).desired or DesiredState()
     via = bridged_in(desired)
     base = Path(work_dir) if work_dir else Path(tempfile.mkdtemp(prefix="plantkg-demo-"))
-    made = make_demo_secrets(plant_feeds)  # before the agents start: they inherit them
+    made = make_demo_secrets(secret_refs(desired, plant_feeds))  # before the agents start: they inherit them
     click.secho(f"1. starting an agent on each machine of the plant: {', '.join(hosts)}", bold=True)
     if made:
         click.echo(f"   the resources' passwords: random, in this demo's environment ({', '.join(made)})")
