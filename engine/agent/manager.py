@@ -61,7 +61,7 @@ from engine.agent.procs import (
 from engine.agent.save_tick import SaveTicker
 from engine.agent.supervision import backoff, start_supervisor
 from engine.agent.wire import BROKER_ID
-from engine.drivers.base import LOGS_DIR, BridgeCarrier, Driver, PeriodicSave, config_hash, log_file
+from engine.drivers.base import LOGS_DIR, BridgeCarrier, Driver, PeriodicSave, Waking, config_hash, log_file
 from engine.drivers.registry import DriverRegistry
 from engine.errors import (
     BrokerUnavailableError,
@@ -643,8 +643,7 @@ class BrokerManager:
         procs = [b.proc for b in brokers]
         assert all(p is not None for p in procs)
         grace = [b.driver.stop_grace if b.driver is not None else 30.0 for b in brokers]
-        wakes = [b.driver.wake_address(b.spec) for b in brokers  # type: ignore[union-attr]
-                 if getattr(b.driver, "wake_address", None) is not None]
+        wakes = [b.driver.wake_address(b.spec) for b in brokers if isinstance(b.driver, Waking)]
 
         def wake_all() -> None:  # drivers whose broker acts on SIGTERM only when its loop wakes
             netutil.touch_all(wakes)

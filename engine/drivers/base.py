@@ -109,6 +109,16 @@ class PeriodicSave(Protocol):
 
 
 @runtime_checkable
+class Waking(Protocol):
+    """A driver whose broker acts on SIGTERM only once something wakes its event loop (Mosquitto
+    2.0 masks its signals while it waits in epoll): the agent opens a connection to each address,
+    for all brokers it stops at once (:func:`engine.netutil.touch_all`), right after the signals."""
+
+    def wake_address(self, spec: BrokerSpec) -> tuple[str, int]:
+        """Where a TCP connection wakes ``spec``'s broker."""
+
+
+@runtime_checkable
 class Settling(Protocol):
     """A driver whose healthy broker may still have to wait for others to take in what it set:
     a closed Kafka cluster's lead sets the users and ACLs, and the other nodes apply them from

@@ -16,7 +16,7 @@ import pytest
 
 from engine import netutil, parts, process
 from engine.drivers import registry as registry_module
-from engine.drivers.base import Driver, config_hash
+from engine.drivers.base import Driver, Waking, config_hash
 from engine.drivers.kafka.driver import KafkaDriver, check_kafka_topic_name, read_controller_port
 from engine.drivers.mosquitto.driver import MosquittoDriver, check_mqtt_topic_name
 from engine.drivers.registry import DriverRegistry
@@ -404,4 +404,5 @@ def test_mosquitto_is_woken_at_its_listener() -> None:
     """After SIGTERM the agent wakes a Mosquitto (blocked in epoll with its signals masked) by a
     connection to its listener."""
     spec = BrokerSpec(id="m", iri="urn:m", name="m", kind="mosquitto", host="127.0.0.2", port=18830)
-    assert MosquittoDriver().wake_address(spec) == ("127.0.0.2", 18830)
+    assert isinstance(MosquittoDriver(), Waking) and MosquittoDriver().wake_address(spec) == ("127.0.0.2", 18830)
+    assert not isinstance(KafkaDriver(), Waking)  # a JVM acts on SIGTERM at once
