@@ -22,11 +22,15 @@ process, which applies what it just committed within moments (and it was as fast
 from __future__ import annotations
 
 import logging
+import ssl
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
+from enum import Enum
 from pathlib import Path
 from typing import Any
+
+from confluent_kafka.admin import AclOperation, AclPermissionType, ResourceType
 
 from engine import process
 from engine.drivers.base import resolve_secret
@@ -34,6 +38,7 @@ from engine.drivers.kafka.access import wanted_acls
 from engine.drivers.kafka.wire import AclKey, NodeConnection
 from engine.errors import AccessNotSpreadError, BrokerUnavailableError, DriverError, WaitTimeoutError
 from engine.model import BrokerUser
+from engine.security import https
 
 #: Seconds between two rounds of asking the nodes that lag.
 POLL = 0.1
@@ -63,16 +68,18 @@ def _codes(key: tuple[Any, ...]) -> AclKey:
 
 
 def describe_acl(key: AclKey) -> str:
-    """``ALLOW User:plc WRITE on TOPIC 'line.energy'`` (names of Kafka's codes, for an error)."""
+    """``ALLOW User:plc WRITE on TOPIC 'line.energy'`` (the names confluent-kafka gives Kafka's
+    codes, for an error)."""
     rtype, name, _pattern, principal, _host, operation, permission = key
-    return (f"{_PERMISSIONS.get(permission, permission)} {principal} {_OPERATIONS.get(operation, operation)} "
-            f"on {_RESOURCES.get(rtype, rtype)} {name!r}")
+    return (f"{_name(AclPermissionType, permission)} {principal} {_name(AclOperation, operation)} "
+            f"on {_name(ResourceType, rtype)} {name!r}")
 
 
-_RESOURCES = {2: "TOPIC", 3: "GROUP", 4: "CLUSTER", 5: "TRANSACTIONAL_ID", 6: "DELEGATION_TOKEN", 7: "USER"}
-_OPERATIONS = {2: "ALL", 3: "READ", 4: "WRITE", 5: "CREATE", 6: "DELETE", 7: "ALTER", 8: "DESCRIBE",
-               9: "CLUSTER_ACTION", 10: "DESCRIBE_CONFIGS", 11: "ALTER_CONFIGS", 12: "IDEMPOTENT_WRITE"}
-_PERMISSIONS = {2: "DENY", 3: "ALLOW"}
+def _name(kind: type[Enum], code: int) -> str | int:
+    try:
+        return kind(code).name
+    except ValueError:  # a code this client does not know: shown as the number
+        return code
 
 
 def differences(want: NodeAccess, seen: NodeAccess) -> tuple[str, ...]:
@@ -96,17 +103,18 @@ class Login:
 
 
 def node_lag(address: str, users: Sequence[BrokerUser], want: NodeAccess, login: Login,
-             secret: Callable[[BrokerUser], str] = resolve_secret) -> tuple[str, ...]:
+             secret: Callable[[BrokerUser], str] = resolve_secret,
+             tls: ssl.SSLContext | None = None) -> tuple[str, ...]:
     """What the node at ``address`` lacks (empty: it enforces ``want``); a node that does not
     answer, or answers an error, lags by that ("could not be asked (...)")."""
     try:
-        with NodeConnection(address, ca_file=login.ca_file, timeout=login.timeout) as conn:
+        with NodeConnection(address, tls=tls, timeout=login.timeout) as conn:
             conn.login_plain(login.user, login.password)
             lag = differences(want, NodeAccess(frozenset(conn.scram_users()), frozenset(conn.acls())))
         if lag:
             return lag
         for user in users:  # each on a connection of its own, as its client would
-            with NodeConnection(address, ca_file=login.ca_file, timeout=login.timeout) as conn:
+            with NodeConnection(address, tls=tls, timeout=login.timeout) as conn:
                 if not conn.login_scram(user.name, secret(user)):
                     return (f"refuses user {user.name!r}'s password (SCRAM-SHA-512)",)
     except BrokerUnavailableError as exc:
@@ -123,7 +131,8 @@ def wait_every_node(cluster: str, nodes: Sequence[str], users: Sequence[BrokerUs
     node lacks (default :func:`node_lag`; a test passes its own)."""
     began = time.monotonic()
     want = wanted(users)
-    ask = lag or (lambda node: node_lag(node, users, want, login))
+    tls = None if login.ca_file is None else https.client_context(Path(login.ca_file))  # once per wait
+    ask = lag or (lambda node: node_lag(node, users, want, login, tls=tls))
     pending = {node: ("was not asked yet",) for node in nodes}
 
     def all_caught_up() -> bool:

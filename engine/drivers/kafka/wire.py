@@ -30,7 +30,6 @@ import secrets
 import socket
 import ssl
 import struct
-from pathlib import Path
 
 from engine.errors import BrokerUnavailableError, DriverError
 
@@ -138,15 +137,16 @@ class NodeConnection:
     """One connection to one Kafka node's listener (a context manager); each method one request
     and its answer, within ``timeout`` seconds each."""
 
-    def __init__(self, address: str, *, ca_file: Path | str | None = None, timeout: float = 5.0) -> None:
+    def __init__(self, address: str, *, tls: ssl.SSLContext | None = None, timeout: float = 5.0) -> None:
+        """``tls``: the client context to speak TLS with (:func:`engine.security.https.client_context`:
+        the plant CA only, the node's address checked); None: plain TCP."""
         self.address = address
         host, port = split_address(address)
         self._correlation = 0
         try:
             sock = socket.create_connection((host, port), timeout=timeout)
-            if ca_file is not None:
-                context = ssl.create_default_context(cafile=str(ca_file))
-                sock = context.wrap_socket(sock, server_hostname=host)
+            if tls is not None:
+                sock = tls.wrap_socket(sock, server_hostname=host)
         except (OSError, ssl.SSLError) as exc:
             raise BrokerUnavailableError(f"Kafka node {address} did not answer: {exc}",
                                          hint="the node may be starting; try again") from exc
