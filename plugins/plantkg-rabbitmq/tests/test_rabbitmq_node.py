@@ -72,8 +72,11 @@ def stop_node(node: Node) -> None:
     assert not node.child.group_alive()
     assert processes_mentioning(str(node.broker_dir)) == []
     assert processes_mentioning(f"-port {ports.epmd}") == []  # its own port mapper
+    # The listeners close as the killed VM's last threads finish exiting, which can be a moment
+    # after its group is gone from /proc: poll, with a deadline, rather than look once.
     for port in (node.spec.port, node.mqtt_port, ports.dist, ports.epmd):
-        assert not netutil.port_open("127.0.0.1", port), f"port {port} still open"
+        process.wait_until(lambda p=port: not netutil.port_open("127.0.0.1", p), 10.0, 0.05,
+                           what=f"port {port} of the stopped node to close")
 
 
 @pytest.fixture(scope="module")
