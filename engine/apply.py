@@ -182,9 +182,22 @@ class _Lane:
     outcomes: list[Outcome] = field(default_factory=list)
     finished: bool = False
 
+    #: operation -> the operations without calls its calls make too (engine.apply_calls: a
+    #: deleted broker's topics); they start, end and fail with it.
+    carried: dict[int, list[int]] = field(default_factory=dict)
+
     @classmethod
     def of(cls, ops: list[Operation]) -> _Lane:
-        return cls(ops, [(i, call) for i, op in enumerate(ops) for call in op.calls])
+        lane = cls(ops, [(i, call) for i, op in enumerate(ops) for call in op.calls])
+        where = {op.change.address: i for i, op in enumerate(ops) if op.calls}
+        for i, op in enumerate(ops):
+            if op.carried_by is None:
+                continue
+            if op.carried_by not in where:  # apply_calls puts a broker's topics in its lane
+                raise AssertionError(f"{op.change.address} is carried by {op.carried_by}, "
+                                     "which is not in its lane")
+            lane.carried.setdefault(where[op.carried_by], []).append(i)
+        return lane
 
     def wave(self) -> list[tuple[int, Call]]:
         """The next calls to send together: from the cursor, while they go to the same host."""
@@ -276,10 +289,11 @@ class _Runner:
 
     def _start_ops(self, lane: _Lane, part: list[tuple[int, Call]]) -> None:
         for index, _ in part:
-            if index not in lane.started:
-                lane.started[index] = self.clock()
-                change = lane.ops[index].change
-                self.emit(ApplyEvent(EventKind.START, change.address, change.action))
+            for started in (*lane.carried.get(index, ()), index):
+                if started not in lane.started:
+                    lane.started[started] = self.clock()
+                    change = lane.ops[started].change
+                    self.emit(ApplyEvent(EventKind.START, change.address, change.action))
 
     def _agent_call(self, call: Call) -> AgentCall:
         token = _token_of(self.directory, call.remote_token_of) if call.remote_token_of else None
@@ -317,6 +331,9 @@ class _Runner:
                 lane.attempt = 0
                 last = lane.cursor == len(lane.steps) or lane.steps[lane.cursor][0] != index
                 if last:
+                    for carried in lane.carried.get(index, ()):
+                        lane.tally[carried] = lane.tally[index]
+                        self._done(lane, carried)
                     self._done(lane, index)
                 continue
             if result.error is not None:
@@ -360,7 +377,11 @@ class _Runner:
         self.emit(ApplyEvent(EventKind.FAILED, change.address, change.action, elapsed, attempts, error))
         lane.outcomes.append(Outcome(change, OutcomeStatus.FAILED, elapsed, attempts, error))
         why = f"not attempted: {change.address} failed"
-        for rest in lane.ops[index + 1:]:
+        done = {o.change.address for o in lane.outcomes}
+        for rest in [*(lane.ops[i] for i in lane.carried.get(index, ())), *lane.ops[index + 1:]]:
+            if rest.change.address in done:
+                continue
+            done.add(rest.change.address)
             self.emit(ApplyEvent(EventKind.SKIPPED, rest.change.address, rest.change.action, message=why))
             lane.outcomes.append(Outcome(rest.change, OutcomeStatus.SKIPPED, error=why))
         lane.finished = True

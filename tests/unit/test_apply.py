@@ -184,17 +184,56 @@ def test_plan_that_cannot_be_applied_dispatches_nothing() -> None:
     assert fleet.calls == []
 
 
-def test_removed_broker_topics_deleted_before_broker_on_its_old_host() -> None:
+REMOVED_TOPICS = ("topic.kafka.robot.abb-irb120.energy", "topic.kafka.robot.abb-irb120.position")
+
+
+def test_a_removed_brokers_topics_go_with_its_delete_on_its_old_host() -> None:
+    """The broker's DELETE removes its folder, topics and all: the topic deletes the plan shows
+    take no call of their own and are done when the broker's DELETE is."""
     desired, observed, _ = load_case("broker-removed-delete")
     fleet = FakeFleet.from_observed(observed)
-    result, _ = run(fleet, desired)
+    the_plan = plan(desired, observe_fleet(fleet, desired))
+    assert {c.address for c in the_plan.pending} >= {*REMOVED_TOPICS, "broker.kafka"}
+    ops = {op.change.address: op for op in operations(the_plan, desired)}
+    assert all(ops[t].calls == () and ops[t].carried_by == "broker.kafka" for t in REMOVED_TOPICS)
+    result, events = run(fleet, desired)
     assert result.ok
     deletes = [(h, v, k) for h, v, k in fleet.calls if v.startswith("delete")]
-    assert deletes == [
-        ("127.0.0.3", "delete_topic", "kafka/robot.abb-irb120.energy"),
-        ("127.0.0.3", "delete_topic", "kafka/robot.abb-irb120.position"),
-        ("127.0.0.3", "delete_broker", "kafka"),
-    ]
+    assert deletes == [("127.0.0.3", "delete_broker", "kafka")]
+    done = {o.change.address: o for o in result.changed}
+    assert set(REMOVED_TOPICS) <= set(done) and all(done[t].attempts == 1 for t in REMOVED_TOPICS)
+    started = [e.address for e in events if e.kind is EventKind.START]
+    finished = [e.address for e in events if e.kind is EventKind.DONE]
+    for topic in REMOVED_TOPICS:  # announced with the broker's delete, ended before it
+        assert started.index(topic) < started.index("broker.kafka")
+        assert finished.index(topic) < finished.index("broker.kafka")
+
+
+def test_a_failed_broker_delete_leaves_its_topics_not_attempted() -> None:
+    desired, observed, _ = load_case("broker-removed-delete")
+    fleet = FakeFleet.from_observed(observed)
+    fleet.fail[("delete_broker", "kafka")] = [PermanentDispatchError("refused")]
+    result, events = run(fleet, desired)
+    assert not result.ok
+    failed = {o.change.address for o in result.failed}
+    skipped = {o.change.address: o.error for o in result.skipped}
+    assert failed == {"broker.kafka"}
+    assert {t: skipped.get(t) for t in REMOVED_TOPICS} == {t: "not attempted: broker.kafka failed" for t in REMOVED_TOPICS}
+    assert [e.address for e in events if e.kind is EventKind.SKIPPED].count(REMOVED_TOPICS[0]) == 1
+    assert fleet.brokers["kafka"].topics  # nothing was deleted
+
+
+def test_a_topic_delete_of_a_broker_that_stays_keeps_its_call() -> None:
+    desired, observed, _ = load_case("broker-removed-delete")
+    fleet = FakeFleet.from_observed(observed)
+    topic = next(t for t in desired.topics if t.broker_id == "mosquitto")
+    fewer = replace(desired, topics=tuple(t for t in desired.topics if t != topic))
+    the_plan = plan(fewer, observe_fleet(fleet, fewer))
+    ops = {op.change.address: op for op in operations(the_plan, fewer)}
+    assert ops[topic.address].calls and ops[topic.address].carried_by is None
+    result, _ = run(fleet, fewer)
+    assert result.ok
+    assert ("delete_topic", f"mosquitto/{topic.name}") in fleet.verbs()
 
 
 def test_broker_moving_host_is_stopped_there_first() -> None:
