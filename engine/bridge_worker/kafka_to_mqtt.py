@@ -89,7 +89,7 @@ class KafkaToMqtt:
         self._window = ConsumeWindow(MAX_UNACKED, MAX_UNACKED - BATCH, FULL_PAUSE_AFTER)
         self._last_commit = 0.0
         self._own = cfg.bridge_id.encode("utf-8")
-        mqtt_link.on_puback = lambda mid: self._events.put(("puback", mid))
+        mqtt_link.on_pubacks = lambda mids: self._events.put(("pubacks", mids))
         mqtt_link.on_connection.append(lambda up, gen: self._events.put(("connection", (up, gen))))
 
     def start(self) -> None:
@@ -114,8 +114,7 @@ class KafkaToMqtt:
                 # poll returns at the first record; what else is already fetched comes without waiting
                 room = MAX_UNACKED - self.unacked
                 batch = [msg, *self.consumer.consume(min(BATCH, room), 0)] if room > 1 else [msg]
-                for record in batch:
-                    self._forward(record)
+                self._forward(batch)
                 self.link.flush()
         now = time.monotonic()
         if self._connected and now - self._last_commit >= COMMIT_EVERY:
@@ -140,11 +139,15 @@ class KafkaToMqtt:
             self._apply(kind, value, now)
 
     def _apply(self, kind: str, value: object, now: float) -> None:
-        if kind == "puback":
-            record = self._by_mid.pop(value, None)  # type: ignore[arg-type]
-            if record is not None:
-                PartitionLedger.acked(record, now)
-                self.health.count("forwarded_kafka_to_mqtt")
+        if kind == "pubacks":
+            acked = 0
+            for mid in value:  # type: ignore[attr-defined]
+                record = self._by_mid.pop(mid, None)
+                if record is not None:
+                    PartitionLedger.acked(record, now)
+                    acked += 1
+            if acked:
+                self.health.count("forwarded_kafka_to_mqtt", acked)
         else:
             self._connected, self._generation = value  # type: ignore[misc]
             self._by_mid.clear()
@@ -166,27 +169,40 @@ class KafkaToMqtt:
         except KafkaException:
             return []
 
-    def _forward(self, msg: Message) -> None:
-        if msg.error():
-            if msg.error().code() != KafkaError._PARTITION_EOF:
-                self.health.error(f"Kafka consumer: {msg.error().str()}")
-            return
-        ledger = self.ledgers.get((msg.topic(), msg.partition()))
-        if ledger is None:  # a record of a partition revoked meanwhile
-            return
-        if (BRIDGE_HEADER, self._own) in (msg.headers() or ()):
-            ledger.skipped(msg.offset())
-            return
-        route = self.routes[msg.topic()]
-        mid = self.link.publish(self._generation, route.mqtt_topic, msg.value() or b"", route.qos)
-        if mid is None:  # the connection changed: the rewind that follows publishes it again
-            return
-        record = ledger.sent(msg.offset())
-        if route.qos == 0:
-            PartitionLedger.acked(record, time.monotonic())
-            self.health.count("forwarded_kafka_to_mqtt")
-        else:
-            self._by_mid[mid] = record
+    def _forward(self, batch: list[Message]) -> None:
+        """Publish a batch of records in one go; the ledgers take them in offset order."""
+        entries: list[tuple[PartitionLedger, int, int | None]] = []  # (ledger, offset, QoS or None: skipped)
+        messages: list[tuple[str, bytes, int]] = []
+        for msg in batch:
+            if msg.error():
+                if msg.error().code() != KafkaError._PARTITION_EOF:
+                    self.health.error(f"Kafka consumer: {msg.error().str()}")
+                continue
+            ledger = self.ledgers.get((msg.topic(), msg.partition()))
+            if ledger is None:  # a record of a partition revoked meanwhile
+                continue
+            if (BRIDGE_HEADER, self._own) in (msg.headers() or ()):
+                entries.append((ledger, msg.offset(), None))
+                continue
+            route = self.routes[msg.topic()]
+            entries.append((ledger, msg.offset(), route.qos))
+            messages.append((route.mqtt_topic, msg.value() or b"", route.qos))
+        published = self.link.publish_many(self._generation, messages) if messages else []
+        if published is None:
+            return  # the connection changed: the rewind that follows publishes them again
+        mids, now, sent_qos0 = iter(published), time.monotonic(), 0
+        for ledger, offset, qos in entries:
+            if qos is None:
+                ledger.skipped(offset)
+                continue
+            record, mid = ledger.sent(offset), next(mids)
+            if qos == 0:
+                PartitionLedger.acked(record, now)
+                sent_qos0 += 1
+            else:
+                self._by_mid[mid] = record
+        if sent_qos0:
+            self.health.count("forwarded_kafka_to_mqtt", sent_qos0)
 
     def _commit(self, now: float, lag: float = COMMIT_LAG, wait: bool = False) -> None:
         """Commit what is due. Asynchronous unless ``wait`` (at a stop): a synchronous commit held
