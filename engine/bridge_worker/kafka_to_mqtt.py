@@ -90,6 +90,7 @@ class KafkaToMqtt:
         self._connected = False
         self._generation = -1
         self._paused = False
+        self._uncounted = 0      # records forwarded since the last health.count (one per pass)
         self._window = ConsumeWindow(MAX_UNACKED, MAX_UNACKED - BATCH, FULL_PAUSE_AFTER)
         self._last_commit = 0.0
         self._own = cfg.bridge_id.encode("utf-8")
@@ -120,10 +121,18 @@ class KafkaToMqtt:
                 batch = [msg, *self.consumer.consume(min(BATCH, room), 0)] if room > 1 else [msg]
                 self._forward(batch)
                 self.link.flush()
+        self._count_forwarded()
         now = time.monotonic()
         if self._connected and now - self._last_commit >= COMMIT_EVERY:
             self._last_commit = now
             self._commit(now)
+
+    def _count_forwarded(self) -> None:
+        """Add what was forwarded to the health counter: once per pass, not per PUBACK (its
+        lock was 13% of the main thread's samples at full speed, py-spy)."""
+        if self._uncounted:
+            self.health.count("forwarded_kafka_to_mqtt", self._uncounted)
+            self._uncounted = 0
 
     def _await_event(self, timeout: float) -> None:
         """Wait (at most ``timeout`` s) for the MQTT client's next event, a PUBACK most likely."""
@@ -132,6 +141,7 @@ class KafkaToMqtt:
         except queue.Empty:
             return
         self._apply(kind, value, time.monotonic())
+        self._drain_events()
 
     def _drain_events(self) -> None:
         now = time.monotonic()
@@ -150,8 +160,7 @@ class KafkaToMqtt:
                 if record is not None:
                     PartitionLedger.acked(record, now)
                     acked += 1
-            if acked:
-                self.health.count("forwarded_kafka_to_mqtt", acked)
+            self._uncounted += acked
         else:
             self._connected, self._generation = value  # type: ignore[misc]
             self._by_mid.clear()
@@ -205,8 +214,7 @@ class KafkaToMqtt:
                 sent_qos0 += 1
             else:
                 self._by_mid[mid] = record
-        if sent_qos0:
-            self.health.count("forwarded_kafka_to_mqtt", sent_qos0)
+        self._uncounted += sent_qos0
 
     def _commit(self, now: float, lag: float = COMMIT_LAG, wait: bool = False) -> None:
         """Commit what is due. Asynchronous unless ``wait`` (at a stop): a synchronous commit held
@@ -303,4 +311,5 @@ class KafkaToMqtt:
             self._drain_events()
             self._commit(time.monotonic(), STOP_COMMIT_LAG, wait=True)
             time.sleep(0.05)  # bounded by the deadline; PUBACKs arrive on the MQTT client's thread
+        self._count_forwarded()
         self.consumer.close()
