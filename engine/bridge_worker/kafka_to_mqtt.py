@@ -11,6 +11,8 @@ ledgers need no lock. Rules that make it lose nothing:
   up (Mosquitto keeps messages in memory: what it acknowledged just before a SIGKILL may be gone).
 - After an MQTT reconnect every partition is rewound to its committed offset and published again:
   replays give duplicates, never gaps.
+- At most ``MAX_UNACKED`` records wait for their PUBACK; past that the half stops consuming and
+  waits for PUBACKs (:mod:`engine.bridge_worker.consume_window` says why it does not pause).
 - Records carrying this bridge's ``plantkg.bridge`` header (its own MQTT -> Kafka records) are
   skipped, so a topic bridged both ways does not ping-pong.
 """
@@ -24,6 +26,7 @@ import time
 from confluent_kafka import OFFSET_INVALID, Consumer, KafkaError, KafkaException, Message, TopicPartition
 
 from engine.bridge_worker.config import Direction, Route, WorkerConfig
+from engine.bridge_worker.consume_window import ConsumeWindow, Flow
 from engine.bridge_worker.health import Health
 from engine.bridge_worker.ledgers import PartitionLedger, SentRecord
 from engine.bridge_worker.mqtt_link import MqttLink
@@ -37,14 +40,19 @@ log = logging.getLogger("plantkg.bridge.kafka-to-mqtt")
 COMMIT_LAG = 5.0
 STOP_COMMIT_LAG = 1.0    # at a clean stop (Mosquitto is up) wait at most this for commits
 COMMIT_EVERY = 0.2       # seconds between commit passes
-MAX_UNACKED = 5000       # records published and not yet PUBACKed before consuming pauses
+MAX_UNACKED = 5000       # records published and not yet PUBACKed before consuming stops
 BATCH = 500              # records taken from the consumer per pass (only those already fetched)
+#: A full window reopens at MAX_UNACKED - BATCH unacknowledged, so consuming goes on in batches.
+#: Longer full than FULL_PAUSE_AFTER s (its PUBACKs are not coming), the partitions are paused so
+#: that the consumer is polled again; a healthy Mosquitto empties the window in ~0.25 s at 20,000
+#: msg/s (benchmarks.bench_bridge).
+FULL_PAUSE_AFTER = 1.0
 ASSIGN_TIMEOUT = 30.0    # seconds to read (and first commit) the positions of new partitions
 
 Partition = tuple[str, int]
 
 
-def consumer_config(cfg: WorkerConfig, on_error) -> dict[str, object]:
+def consumer_config(cfg: WorkerConfig, on_error, on_commit) -> dict[str, object]:
     return {
         "bootstrap.servers": cfg.kafka_bootstrap,
         "client.id": cfg.client_id,
@@ -52,7 +60,11 @@ def consumer_config(cfg: WorkerConfig, on_error) -> dict[str, object]:
         "enable.auto.commit": False,
         "enable.auto.offset.store": False,
         "auto.offset.reset": "latest",
-        "fetch.wait.max.ms": 50,
+        # How long Kafka may hold a fetch that finds nothing new. Measured with the kafka-mqtt path
+        # of benchmarks.bench_bridge (10,000 msg/s paced; load average 6-8), time from a record's
+        # Kafka timestamp to the worker's poll, p50 per 0.5 s: 50 ms -> 55-260 ms, 10 ms -> 11-39,
+        # 5 ms -> 13-28; and the CPU Kafka spends on one idle worker: 11%, 22%, 27% of a core.
+        "fetch.wait.max.ms": 10,
         # A worker killed and restarted by its agent rejoins the group: the dead member's
         # partitions are free after this (Kafka's minimum), not after the default 45 s.
         "session.timeout.ms": 6000,
@@ -60,6 +72,7 @@ def consumer_config(cfg: WorkerConfig, on_error) -> dict[str, object]:
         "reconnect.backoff.ms": 100,
         "reconnect.backoff.max.ms": 2000,
         "error_cb": on_error,
+        "on_commit": on_commit,   # results of the asynchronous commits, served by poll()
         **cfg.kafka_auth(),
     }
 
@@ -70,16 +83,18 @@ class KafkaToMqtt:
         self.health = health
         self.link = mqtt_link
         self.routes: dict[str, Route] = {r.kafka_topic: r for r in cfg.routes_of(Direction.KAFKA_TO_MQTT)}
-        self.consumer = Consumer(consumer_config(cfg, self._kafka_error))
+        self.consumer = Consumer(consumer_config(cfg, self._kafka_error, self._committed))
         self.ledgers: dict[Partition, PartitionLedger] = {}
         self._by_mid: dict[int, SentRecord] = {}
         self._events: queue.SimpleQueue[tuple[str, object]] = queue.SimpleQueue()
         self._connected = False
         self._generation = -1
         self._paused = False
+        self._uncounted = 0      # records forwarded since the last health.count (one per pass)
+        self._window = ConsumeWindow(MAX_UNACKED, MAX_UNACKED - BATCH, FULL_PAUSE_AFTER)
         self._last_commit = 0.0
         self._own = cfg.bridge_id.encode("utf-8")
-        mqtt_link.on_puback = lambda mid: self._events.put(("puback", mid))
+        mqtt_link.on_pubacks = lambda mids: self._events.put(("pubacks", mids))
         mqtt_link.on_connection.append(lambda up, gen: self._events.put(("connection", (up, gen))))
 
     def start(self) -> None:
@@ -91,21 +106,42 @@ class KafkaToMqtt:
         return len(self._by_mid)
 
     def step(self, timeout: float) -> None:
-        """One turn of the main loop: apply the MQTT client's events, consume a record, commit."""
+        """One turn of the main loop: apply the MQTT client's events, consume records (or wait
+        for PUBACKs while the window is full), commit."""
         self._drain_events()
-        self._pause_or_resume()
-        msg = self.consumer.poll(timeout if self._paused else min(timeout, 0.01))
-        if msg is not None:
-            # poll returns at the first record; what else is already fetched comes without waiting
-            room = MAX_UNACKED - self.unacked
-            batch = [msg, *self.consumer.consume(min(BATCH, room), 0)] if room > 1 else [msg]
-            for record in batch:
-                self._forward(record)
-            self.link.flush()
+        flow = self._window.decide(self._connected, self.unacked, time.monotonic())
+        if flow is Flow.AWAIT_ACKS:
+            self._await_event(timeout)
+        else:
+            self._pause_or_resume(flow is Flow.PAUSE)
+            msg = self.consumer.poll(timeout if self._paused else min(timeout, 0.01))
+            if msg is not None:
+                # poll returns at the first record; what else is already fetched comes without waiting
+                room = MAX_UNACKED - self.unacked
+                batch = [msg, *self.consumer.consume(min(BATCH, room), 0)] if room > 1 else [msg]
+                self._forward(batch)
+                self.link.flush()
+        self._count_forwarded()
         now = time.monotonic()
         if self._connected and now - self._last_commit >= COMMIT_EVERY:
             self._last_commit = now
             self._commit(now)
+
+    def _count_forwarded(self) -> None:
+        """Add what was forwarded to the health counter: once per pass, not per PUBACK (its
+        lock was 13% of the main thread's samples at full speed, py-spy)."""
+        if self._uncounted:
+            self.health.count("forwarded_kafka_to_mqtt", self._uncounted)
+            self._uncounted = 0
+
+    def _await_event(self, timeout: float) -> None:
+        """Wait (at most ``timeout`` s) for the MQTT client's next event, a PUBACK most likely."""
+        try:
+            kind, value = self._events.get(timeout=timeout)
+        except queue.Empty:
+            return
+        self._apply(kind, value, time.monotonic())
+        self._drain_events()
 
     def _drain_events(self) -> None:
         now = time.monotonic()
@@ -114,19 +150,24 @@ class KafkaToMqtt:
                 kind, value = self._events.get_nowait()
             except queue.Empty:
                 return
-            if kind == "puback":
-                record = self._by_mid.pop(value, None)  # type: ignore[arg-type]
+            self._apply(kind, value, now)
+
+    def _apply(self, kind: str, value: object, now: float) -> None:
+        if kind == "pubacks":
+            acked = 0
+            for mid in value:  # type: ignore[attr-defined]
+                record = self._by_mid.pop(mid, None)
                 if record is not None:
                     PartitionLedger.acked(record, now)
-                    self.health.count("forwarded_kafka_to_mqtt")
-            else:
-                self._connected, self._generation = value  # type: ignore[misc]
-                self._by_mid.clear()
-                if self._connected:
-                    self._rewind()
+                    acked += 1
+            self._uncounted += acked
+        else:
+            self._connected, self._generation = value  # type: ignore[misc]
+            self._by_mid.clear()
+            if self._connected:
+                self._rewind()
 
-    def _pause_or_resume(self) -> None:
-        want_pause = not self._connected or self.unacked >= MAX_UNACKED
+    def _pause_or_resume(self, want_pause: bool) -> None:
         if want_pause == self._paused:
             return
         assignment = self._assignment()
@@ -141,45 +182,71 @@ class KafkaToMqtt:
         except KafkaException:
             return []
 
-    def _forward(self, msg: Message) -> None:
-        if msg.error():
-            if msg.error().code() != KafkaError._PARTITION_EOF:
-                self.health.error(f"Kafka consumer: {msg.error().str()}")
-            return
-        ledger = self.ledgers.get((msg.topic(), msg.partition()))
-        if ledger is None:  # a record of a partition revoked meanwhile
-            return
-        if (BRIDGE_HEADER, self._own) in (msg.headers() or ()):
-            ledger.skipped(msg.offset())
-            return
-        route = self.routes[msg.topic()]
-        mid = self.link.publish(self._generation, route.mqtt_topic, msg.value() or b"", route.qos)
-        if mid is None:  # the connection changed: the rewind that follows publishes it again
-            return
-        record = ledger.sent(msg.offset())
-        if route.qos == 0:
-            PartitionLedger.acked(record, time.monotonic())
-            self.health.count("forwarded_kafka_to_mqtt")
-        else:
-            self._by_mid[mid] = record
+    def _forward(self, batch: list[Message]) -> None:
+        """Publish a batch of records in one go; the ledgers take them in offset order."""
+        entries: list[tuple[PartitionLedger, int, int | None]] = []  # (ledger, offset, QoS or None: skipped)
+        messages: list[tuple[str, bytes, int]] = []
+        for msg in batch:
+            if msg.error():
+                if msg.error().code() != KafkaError._PARTITION_EOF:
+                    self.health.error(f"Kafka consumer: {msg.error().str()}")
+                continue
+            ledger = self.ledgers.get((msg.topic(), msg.partition()))
+            if ledger is None:  # a record of a partition revoked meanwhile
+                continue
+            if (BRIDGE_HEADER, self._own) in (msg.headers() or ()):
+                entries.append((ledger, msg.offset(), None))
+                continue
+            route = self.routes[msg.topic()]
+            entries.append((ledger, msg.offset(), route.qos))
+            messages.append((route.mqtt_topic, msg.value() or b"", route.qos))
+        published = self.link.publish_many(self._generation, messages) if messages else []
+        if published is None:
+            return  # the connection changed: the rewind that follows publishes them again
+        mids, now, sent_qos0 = iter(published), time.monotonic(), 0
+        for ledger, offset, qos in entries:
+            if qos is None:
+                ledger.skipped(offset)
+                continue
+            record, mid = ledger.sent(offset), next(mids)
+            if qos == 0:
+                PartitionLedger.acked(record, now)
+                sent_qos0 += 1
+            else:
+                self._by_mid[mid] = record
+        self._uncounted += sent_qos0
 
-    def _commit(self, now: float, lag: float = COMMIT_LAG) -> None:
+    def _commit(self, now: float, lag: float = COMMIT_LAG, wait: bool = False) -> None:
+        """Commit what is due. Asynchronous unless ``wait`` (at a stop): a synchronous commit held
+        the main loop 4-20 ms, five times a second, and every record fetched meanwhile waited
+        (p99 of the paced run of benchmarks.bench_bridge); the results come to :meth:`_committed`."""
         offsets = []
         for (topic, partition), ledger in self.ledgers.items():
             position = ledger.commit_position(now, lag)
-            if position is not None:
+            if position is not None and position > ledger.committed:
                 offsets.append(TopicPartition(topic, partition, position))
         if not offsets:
             return
         try:
-            done = self.consumer.commit(offsets=offsets, asynchronous=False)
+            done = self.consumer.commit(offsets=offsets, asynchronous=not wait)
         except KafkaException as exc:  # Kafka down: a later pass commits further; replays at worst
             self.health.error(f"Kafka commit failed: {exc}")
             return
-        for tp in done or offsets:
+        if wait:
+            self._note_committed(done or offsets)
+
+    def _committed(self, err: KafkaError | None, partitions: list[TopicPartition]) -> None:
+        """on_commit: the result of an asynchronous commit (called from consumer.poll)."""
+        if err is not None and err.code() != KafkaError._NO_OFFSET:
+            self.health.error(f"Kafka commit failed: {err.str()}")  # a later pass commits further
+        self._note_committed(partitions)
+
+    def _note_committed(self, partitions: list[TopicPartition]) -> None:
+        for tp in partitions:
             ledger = self.ledgers.get((tp.topic, tp.partition))
             if ledger is not None and tp.error is None and tp.offset >= 0:
-                ledger.committed = tp.offset
+                # commits may complete after a rewind: the ledger's commit never goes back
+                ledger.committed = max(ledger.committed, tp.offset)
 
     def _rewind(self) -> None:
         """After an MQTT (re)connect: publish again everything not committed."""
@@ -242,6 +309,7 @@ class KafkaToMqtt:
         self._paused = True
         while time.monotonic() < deadline and self._connected and any(l.records for l in self.ledgers.values()):
             self._drain_events()
-            self._commit(time.monotonic(), STOP_COMMIT_LAG)
+            self._commit(time.monotonic(), STOP_COMMIT_LAG, wait=True)
             time.sleep(0.05)  # bounded by the deadline; PUBACKs arrive on the MQTT client's thread
+        self._count_forwarded()
         self.consumer.close()

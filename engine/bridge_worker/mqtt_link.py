@@ -22,7 +22,7 @@ from __future__ import annotations
 import logging
 import ssl
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 from engine.bridge_worker import mqtt_wire as wire
 from engine.bridge_worker.config import Direction, WorkerConfig
@@ -40,7 +40,7 @@ KEEPALIVE = 10
 
 
 class MqttLink:
-    """Owns the MQTT client. ``on_message``, ``on_puback`` and ``on_connection`` are set by the
+    """Owns the MQTT client. ``on_message``, ``on_pubacks`` and ``on_connection`` are set by the
     forwarding halves and called from the client's I/O thread."""
 
     def __init__(self, cfg: WorkerConfig | NgsiWorkerConfig, health: Health,
@@ -49,7 +49,7 @@ class MqttLink:
         self.cfg = cfg
         self.health = health
         self.on_message: Callable[[wire.Publish], None] = lambda msg: None
-        self.on_puback: Callable[[int], None] = lambda mid: None
+        self.on_pubacks: Callable[[list[int]], None] = lambda mids: None
         self.on_connection: list[Callable[[bool, int], None]] = []
         self.generation = 0
         self._publish_lock = threading.Lock()
@@ -71,7 +71,7 @@ class MqttLink:
         client.on_disconnect = self._disconnected
         client.on_suback = self._subscribed
         client.on_message = lambda msg: self.on_message(msg)
-        client.on_puback = lambda mid: self.on_puback(mid)
+        client.on_pubacks = lambda mids: self.on_pubacks(mids)
         self.client = client
 
     def start(self) -> None:
@@ -103,13 +103,14 @@ class MqttLink:
     def unsubscribe(self, topic: str) -> None:
         self.client.unsubscribe([topic])
 
-    def publish(self, generation: int, topic: str, payload: bytes, qos: int) -> int | None:
-        """Queue a message on connection ``generation``; its packet id (0 for QoS 0), or None
-        (nothing sent) if that connection is not the current one. Sent at the next :meth:`flush`."""
+    def publish_many(self, generation: int, messages: Iterable[tuple[str, bytes, int]]) -> list[int] | None:
+        """Queue messages (topic, payload, QoS), in order, on connection ``generation``; their
+        packet ids (0 for QoS 0), or None (none sent) if that connection is not the current one.
+        Sent at the next :meth:`flush`."""
         with self._publish_lock:
             if generation != self.generation or not self.health.mqtt_connected:
                 return None
-            return self.client.publish(topic, payload, qos)
+            return self.client.publish_many(messages)
 
     # client callbacks (its I/O thread)
     def _connected(self, connack: wire.Connack) -> None:
