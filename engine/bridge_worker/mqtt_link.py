@@ -12,9 +12,10 @@ Publishing is tied to a connection: each (dis)connect starts a new ``generation`
 when a connection dropped is never sent again by the client: the Kafka -> MQTT half publishes
 everything again from its last commit, in order.
 
-Acknowledgements: :meth:`ack` sends a PUBACK at once; :meth:`ack_later` only queues it, and the
-caller sends a whole batch with :meth:`flush` (the MQTT -> Kafka half, after each pass over
-Kafka's delivery reports).
+Acknowledgements: :meth:`ack` sends a PUBACK at once; :meth:`ack_later` only queues it: the
+client's I/O thread writes what is queued on its next pass, and another thread that queued a
+batch wakes it with :meth:`flush`. The MQTT -> Kafka half serves Kafka's delivery reports on the
+I/O thread itself (:meth:`pump_on_io_thread`), so its PUBACKs leave on that thread's next write.
 """
 
 from __future__ import annotations
@@ -99,6 +100,11 @@ class MqttLink:
         """Read no more messages while ``full()``: the half has as many unacknowledged messages
         as it takes (the broker may send more than the Receive Maximum asked for)."""
         self.client.can_read = lambda: not full()
+
+    def pump_on_io_thread(self, pump: Callable[[], float]) -> None:
+        """Call ``pump()`` on every pass of the client's I/O thread while connected; it returns
+        the longest the thread may then wait for the socket (s)."""
+        self.client.pump = pump
 
     def unsubscribe(self, topic: str) -> None:
         self.client.unsubscribe([topic])

@@ -460,3 +460,27 @@ def test_counters_go_on_after_a_restart(tmp_path: Path, mosquitto: rig.Mosquitto
     send(30, 20)
     assert len(set(read_kafka(kafka_broker.bootstrap_servers, "counted", 50))) == 50
     assert workers.stats_reaching(lambda s: s.forwarded_mqtt_to_kafka >= 50).forwarded_mqtt_to_kafka == 50
+
+
+def test_the_mqtt_client_pumps_its_owner_on_its_io_thread_as_often_as_asked(mosquitto: rig.Mosquitto) -> None:
+    """The MQTT -> Kafka half serves Kafka's delivery reports through the client's ``pump``: it
+    runs on the client's I/O thread, and the wait it returns bounds that thread's wait for the
+    socket (an idle connection would otherwise pass once per TICK, and PUBACKs would wait)."""
+    from engine.bridge_worker.mqtt_client import TICK, MqttClient  # noqa: PLC0415 - this test only
+
+    client = MqttClient("127.0.0.1", mosquitto.port, "pump-test", keepalive=10, session_expiry=0,
+                        receive_maximum=10, clean_start=True)
+    calls: list[tuple[str, float]] = []
+
+    def pump() -> float:
+        calls.append((threading.current_thread().name, time.monotonic()))
+        return 0.01
+
+    client.pump = pump
+    client.start()
+    try:
+        process.wait_until(lambda: len(calls) >= 20, 30.0, 0.01, what="20 passes of the MQTT client")
+    finally:
+        client.stop()
+    assert {name for name, _ in calls} == {"mqtt-pump-test"}
+    assert calls[19][1] - calls[0][1] < 19 * TICK / 2, "the pump's wait did not bound the I/O thread's"
