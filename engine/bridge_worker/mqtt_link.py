@@ -35,7 +35,7 @@ from engine.security import principal_key
 log = logging.getLogger("plantkg.bridge.mqtt")
 
 SESSION_EXPIRY = 7 * 24 * 3600      # seconds Mosquitto keeps the session of a worker that is gone
-RECEIVE_MAXIMUM = 1000              # unacknowledged messages Mosquitto may send us at once
+RECEIVE_MAXIMUM = 1000              # unacknowledged messages Mosquitto may send us at once (default)
 RECONNECT_DELAY = (1, 5)            # reconnect backoff: first delay, cap (seconds)
 KEEPALIVE = 10
 
@@ -45,9 +45,12 @@ class MqttLink:
     forwarding halves and called from the client's I/O thread."""
 
     def __init__(self, cfg: WorkerConfig | NgsiWorkerConfig, health: Health,
-                 topics: list[tuple[str, int]] | None = None) -> None:
-        """``topics``: (topic, QoS) to subscribe; default: the MQTT -> Kafka routes of ``cfg``."""
+                 topics: list[tuple[str, int]] | None = None, receive_maximum: int = RECEIVE_MAXIMUM) -> None:
+        """``topics``: (topic, QoS) to subscribe; default: the MQTT -> Kafka routes of ``cfg``.
+        ``receive_maximum``: the unacknowledged messages the worker asks Mosquitto to send at
+        most (:attr:`receive_maximum`; the halves hold reading there, see :meth:`hold_reading_while`)."""
         self.cfg = cfg
+        self.receive_maximum = receive_maximum
         self.health = health
         self.on_message: Callable[[wire.Publish], None] = lambda msg: None
         self.on_puback: Callable[[int], None] = lambda mid: None
@@ -63,7 +66,7 @@ class MqttLink:
         password = principal_key.password_for(username).encode("utf-8") if username is not None else None
         context = ssl.create_default_context(cafile=str(cfg.mqtt_ca_file)) if cfg.mqtt_ca_file is not None else None
         client = MqttClient(cfg.mqtt_host, cfg.mqtt_port, cfg.client_id, keepalive=KEEPALIVE,
-                            session_expiry=SESSION_EXPIRY, receive_maximum=RECEIVE_MAXIMUM,
+                            session_expiry=SESSION_EXPIRY, receive_maximum=receive_maximum,
                             reconnect_delay=RECONNECT_DELAY, username=username, password=password,
                             ssl_context=context)
         client.subscriptions = [(topic, qos, True) for topic, qos in topics]

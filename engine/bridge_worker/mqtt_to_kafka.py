@@ -34,15 +34,23 @@ from confluent_kafka import KafkaError, KafkaException, Message, Producer
 from engine.bridge_worker.config import Direction, KeyMode, Route, WorkerConfig
 from engine.bridge_worker.health import Health
 from engine.bridge_worker.ledgers import InOrderAcks, PendingAck
-from engine.bridge_worker.mqtt_link import RECEIVE_MAXIMUM, MqttLink
+from engine.bridge_worker.mqtt_link import MqttLink
 from engine.bridge_worker.mqtt_wire import Publish
 
 log = logging.getLogger("plantkg.bridge.mqtt-to-kafka")
 
 RETRY_BACKOFF = 1.0   # seconds before a failed delivery is produced again
+#: Messages received and not yet confirmed by Kafka the worker takes at once (its MQTT Receive
+#: Maximum; it stops reading there). A message's PUBACK waits for Kafka's answer, so this window
+#: must cover the rate times Kafka's answer time, or reading stops and messages wait in Mosquitto.
+#: Measured (bench_bridge, 2 shared cores, load ~5-6): Kafka's answers to the worker took p50
+#: 5-55 ms, p99 110-320 ms, and 1000 was full again and again; with 1000 the mqtt-kafka row gave
+#: 14,814 msg/s max and p99 427 ms paced, with 5000 (as KafkaToMqtt's MAX_UNACKED) 20,214 msg/s and
+#: 181 ms in the next run. A SIGKILLed worker's duplicates grow with it (at most about twice this).
+IN_FLIGHT = 5000
 #: Seconds the MQTT I/O thread waits at most for its socket while Kafka writes are outstanding
 #: before it serves delivery reports again: a written message's PUBACK waits at most this long on
-#: top of Kafka's answer (2 ms = 20 messages at 10,000 msg/s, 2% of RECEIVE_MAXIMUM; not tuned
+#: top of Kafka's answer (2 ms = 20 messages at 10,000 msg/s, under 1% of IN_FLIGHT; not tuned
 #: further: the worker's wake-ups with messages arriving every 0.1 ms outnumber these).
 PUMP_EVERY = 0.002
 #: Seconds after which the fallback thread serves delivery reports itself when the I/O thread has
@@ -124,7 +132,7 @@ class MqttToKafka:
         mqtt_link.on_message = self.on_message
         mqtt_link.pump_on_io_thread(self._pump)
         mqtt_link.on_connection.append(self._connection_changed)
-        mqtt_link.hold_reading_while(lambda: len(self.acks) >= RECEIVE_MAXIMUM)
+        mqtt_link.hold_reading_while(lambda: len(self.acks) >= mqtt_link.receive_maximum)
 
     def start(self) -> None:
         self._thread.start()

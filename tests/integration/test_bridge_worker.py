@@ -23,7 +23,7 @@ from benchmarks import bridge_rig as rig
 from engine import process
 from engine.errors import WaitTimeoutError
 from engine.bridge_worker.config import Direction, Route, WorkerConfig
-from engine.bridge_worker.mqtt_link import RECEIVE_MAXIMUM
+from engine.bridge_worker.mqtt_to_kafka import IN_FLIGHT
 from engine.bridge_worker.stats import WorkerStats, read_stats
 from tests.integration.conftest import KafkaBroker, start_kafka
 
@@ -341,7 +341,7 @@ def test_mqtt_to_kafka_at_full_speed_worker_killed(tmp_path: Path, mosquitto: ri
                                                    kafka_broker: KafkaBroker, workers: Workers) -> None:
     """Many messages in flight: mosquitto_pub (C, 1000 in flight) sends 10,000 messages on one topic
     as fast as it can while the worker is SIGKILLed and started again. Nothing is missing, the
-    order holds, and the duplicates are bounded: the worker takes at most RECEIVE_MAXIMUM messages
+    order holds, and the duplicates are bounded: the worker takes at most IN_FLIGHT messages
     it has not confirmed (Mosquitto 2.0.11 sends past the Receive Maximum, the worker stops
     reading), and Mosquitto may not have read the PUBACKs of up to about as many more: it reads one
     packet per connection per pass of its event loop. (With several publishers at full speed that
@@ -368,7 +368,7 @@ def test_mqtt_to_kafka_at_full_speed_worker_killed(tmp_path: Path, mosquitto: ri
             sender.kill()
             sender.wait()
     duplicates = check_delivery("m2k-full-speed", [topic], values)
-    assert duplicates <= 2 * RECEIVE_MAXIMUM, duplicates
+    assert duplicates <= 2 * IN_FLIGHT, duplicates
 
 
 def test_kafka_to_mqtt_worker_killed(tmp_path: Path, mosquitto: rig.Mosquitto, kafka_broker: KafkaBroker,
