@@ -61,6 +61,13 @@ IDLE_WAIT = 0.5       # seconds the I/O thread may wait when no Kafka write is o
 BRIDGE_HEADER = "plantkg.bridge"
 
 
+#: librdkafka's ``linger.ms``. Measured in bench_bridge's paced run (10,000 msg/s, 4 alternating
+#: pairs of runs on the shared 2-core machine, load 4-5): with 2 ms (before issue 16) librdkafka's
+#: broker thread took 5-40 µs of CPU per message and the end-to-end p99 was 44-376 ms; with 5 ms,
+#: 2-7 µs and 9-146 ms, for 1.5-2 ms more at p50.
+LINGER_MS = 5
+
+
 def producer_config(cfg: WorkerConfig, on_error: Callable[[KafkaError], None]) -> dict[str, object]:
     return {
         "bootstrap.servers": cfg.kafka_bootstrap,
@@ -68,7 +75,7 @@ def producer_config(cfg: WorkerConfig, on_error: Callable[[KafkaError], None]) -
         "enable.idempotence": True,
         "acks": "all",
         "message.timeout.ms": 0,          # never give up: librdkafka retries in order
-        "linger.ms": 2,
+        "linger.ms": LINGER_MS,
         "reconnect.backoff.ms": 100,
         "reconnect.backoff.max.ms": 2000,
         "error_cb": on_error,
