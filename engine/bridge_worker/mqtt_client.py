@@ -13,8 +13,9 @@ waiting (the owner knows: ``on_disconnect``); nothing is sent again by this clie
 
 Callbacks run on the I/O thread and must not block: ``on_connect(connack)``, ``on_disconnect(why)``
 (None when :meth:`stop` ended it), ``on_message(publish)``, ``on_pubacks(mids)`` (the PUBACKs of
-one read, in order),
-``on_suback(reason codes)``, ``on_connect_failed(why)``.
+one read, in order), ``on_suback(reason codes)``, ``on_connect_failed(why)``; and ``pump()``, called
+on every pass of a connection's loop, which returns how long the thread may wait for the socket
+before the next.
 
 Receiving keeps to a window too: Mosquitto 2.0.11 does not hold to the client's Receive Maximum
 (it had 9,991 QoS-1 messages unacknowledged towards a worker that asked for at most 1,000), so
@@ -68,6 +69,11 @@ class MqttClient:
         #: Asked before each read: False holds back reading (TCP then holds the broker back)
         #: while the owner has as many messages unacknowledged as it takes.
         self.can_read: Callable[[], bool] = lambda: True
+        #: Called on every pass of the I/O thread while connected, before it writes what is
+        #: queued and waits: work the owner wants done on this thread (the MQTT -> Kafka half
+        #: serves Kafka's delivery reports here). Returns the longest the thread may then wait
+        #: for the socket, in seconds (at most TICK is used).
+        self.pump: Callable[[], float] = lambda: TICK
         self._lock = threading.Lock()            # guards everything below
         self._out = bytearray()
         self._connected = False
@@ -251,6 +257,7 @@ class MqttClient:
             if self._stopping.is_set():
                 self._write_out(wire.DISCONNECT_PACKET)
                 return
+            wait = min(TICK, self.pump())
             self._write_out()
             self._handle_backlog()
             reading = not self._backlog and self.can_read()
@@ -259,7 +266,7 @@ class MqttClient:
             if reading and isinstance(sock, ssl.SSLSocket) and sock.pending():
                 readable, woke = True, False   # TLS bytes already decrypted: no select needed
             else:
-                ready = select.select([sock, self._wake_r] if reading else [self._wake_r], [], [], TICK)[0]
+                ready = select.select([sock, self._wake_r] if reading else [self._wake_r], [], [], wait)[0]
                 readable, woke = sock in ready, self._wake_r in ready
             if woke:
                 try:

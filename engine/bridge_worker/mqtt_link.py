@@ -12,9 +12,10 @@ Publishing is tied to a connection: each (dis)connect starts a new ``generation`
 when a connection dropped is never sent again by the client: the Kafka -> MQTT half publishes
 everything again from its last commit, in order.
 
-Acknowledgements: :meth:`ack` sends a PUBACK at once; :meth:`ack_later` only queues it, and the
-caller sends a whole batch with :meth:`flush` (the MQTT -> Kafka half, after each pass over
-Kafka's delivery reports).
+Acknowledgements: :meth:`ack` sends a PUBACK at once; :meth:`ack_later` only queues it: the
+client's I/O thread writes what is queued on its next pass, and another thread that queued a
+batch wakes it with :meth:`flush`. The MQTT -> Kafka half serves Kafka's delivery reports on the
+I/O thread itself (:meth:`pump_on_io_thread`), so its PUBACKs leave on that thread's next write.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from engine.security import principal_key
 log = logging.getLogger("plantkg.bridge.mqtt")
 
 SESSION_EXPIRY = 7 * 24 * 3600      # seconds Mosquitto keeps the session of a worker that is gone
-RECEIVE_MAXIMUM = 1000              # unacknowledged messages Mosquitto may send us at once
+RECEIVE_MAXIMUM = 1000              # unacknowledged messages Mosquitto may send us at once (default)
 RECONNECT_DELAY = (1, 5)            # reconnect backoff: first delay, cap (seconds)
 KEEPALIVE = 10
 
@@ -44,9 +45,12 @@ class MqttLink:
     forwarding halves and called from the client's I/O thread."""
 
     def __init__(self, cfg: WorkerConfig | NgsiWorkerConfig, health: Health,
-                 topics: list[tuple[str, int]] | None = None) -> None:
-        """``topics``: (topic, QoS) to subscribe; default: the MQTT -> Kafka routes of ``cfg``."""
+                 topics: list[tuple[str, int]] | None = None, receive_maximum: int = RECEIVE_MAXIMUM) -> None:
+        """``topics``: (topic, QoS) to subscribe; default: the MQTT -> Kafka routes of ``cfg``.
+        ``receive_maximum``: the unacknowledged messages the worker asks Mosquitto to send at
+        most (:attr:`receive_maximum`; the halves hold reading there, see :meth:`hold_reading_while`)."""
         self.cfg = cfg
+        self.receive_maximum = receive_maximum
         self.health = health
         self.on_message: Callable[[wire.Publish], None] = lambda msg: None
         self.on_pubacks: Callable[[list[int]], None] = lambda mids: None
@@ -62,7 +66,7 @@ class MqttLink:
         password = principal_key.password_for(username).encode("utf-8") if username is not None else None
         context = ssl.create_default_context(cafile=str(cfg.mqtt_ca_file)) if cfg.mqtt_ca_file is not None else None
         client = MqttClient(cfg.mqtt_host, cfg.mqtt_port, cfg.client_id, keepalive=KEEPALIVE,
-                            session_expiry=SESSION_EXPIRY, receive_maximum=RECEIVE_MAXIMUM,
+                            session_expiry=SESSION_EXPIRY, receive_maximum=receive_maximum,
                             reconnect_delay=RECONNECT_DELAY, username=username, password=password,
                             ssl_context=context)
         client.subscriptions = [(topic, qos, True) for topic, qos in topics]
@@ -99,6 +103,11 @@ class MqttLink:
         """Read no more messages while ``full()``: the half has as many unacknowledged messages
         as it takes (the broker may send more than the Receive Maximum asked for)."""
         self.client.can_read = lambda: not full()
+
+    def pump_on_io_thread(self, pump: Callable[[], float]) -> None:
+        """Call ``pump()`` on every pass of the client's I/O thread while connected; it returns
+        the longest the thread may then wait for the socket (s)."""
+        self.client.pump = pump
 
     def unsubscribe(self, topic: str) -> None:
         self.client.unsubscribe([topic])

@@ -34,13 +34,38 @@ from confluent_kafka import KafkaError, KafkaException, Message, Producer
 from engine.bridge_worker.config import Direction, KeyMode, Route, WorkerConfig
 from engine.bridge_worker.health import Health
 from engine.bridge_worker.ledgers import InOrderAcks, PendingAck
-from engine.bridge_worker.mqtt_link import RECEIVE_MAXIMUM, MqttLink
+from engine.bridge_worker.mqtt_link import MqttLink
 from engine.bridge_worker.mqtt_wire import Publish
 
 log = logging.getLogger("plantkg.bridge.mqtt-to-kafka")
 
 RETRY_BACKOFF = 1.0   # seconds before a failed delivery is produced again
+#: Messages received and not yet confirmed by Kafka the worker takes at once (its MQTT Receive
+#: Maximum; it stops reading there). A message's PUBACK waits for Kafka's answer, so this window
+#: must cover the rate times Kafka's answer time, or reading stops and messages wait in Mosquitto.
+#: Measured (bench_bridge, 2 shared cores, load ~5-6): Kafka's answers to the worker took p50
+#: 5-55 ms, p99 110-320 ms, and 1000 was full again and again; with 1000 the mqtt-kafka row gave
+#: 14,814 msg/s max and p99 427 ms paced, with 5000 (as KafkaToMqtt's MAX_UNACKED) 20,214 msg/s and
+#: 181 ms in the next run. A SIGKILLed worker's duplicates grow with it (at most about twice this).
+IN_FLIGHT = 5000
+#: Seconds the MQTT I/O thread waits at most for its socket while Kafka writes are outstanding
+#: before it serves delivery reports again: a written message's PUBACK waits at most this long on
+#: top of Kafka's answer (2 ms = 20 messages at 10,000 msg/s, under 1% of IN_FLIGHT; not tuned
+#: further: the worker's wake-ups with messages arriving every 0.1 ms outnumber these).
+PUMP_EVERY = 0.002
+#: Seconds after which the fallback thread serves delivery reports itself when the I/O thread has
+#: not (it is reconnecting, or blocked writing to a slow broker): the poll timeout of the
+#: producer thread before issue 16.
+FALLBACK_AFTER = 0.05
+IDLE_WAIT = 0.5       # seconds the I/O thread may wait when no Kafka write is outstanding
 BRIDGE_HEADER = "plantkg.bridge"
+
+
+#: librdkafka's ``linger.ms``. Measured in bench_bridge's paced run (10,000 msg/s, 4 alternating
+#: pairs of runs on the shared 2-core machine, load 4-5): with 2 ms (before issue 16) librdkafka's
+#: broker thread took 5-40 µs of CPU per message and the end-to-end p99 was 44-376 ms; with 5 ms,
+#: 2-7 µs and 9-146 ms, for 1.5-2 ms more at p50.
+LINGER_MS = 5
 
 
 def producer_config(cfg: WorkerConfig, on_error: Callable[[KafkaError], None]) -> dict[str, object]:
@@ -50,7 +75,7 @@ def producer_config(cfg: WorkerConfig, on_error: Callable[[KafkaError], None]) -
         "enable.idempotence": True,
         "acks": "all",
         "message.timeout.ms": 0,          # never give up: librdkafka retries in order
-        "linger.ms": 2,
+        "linger.ms": LINGER_MS,
         "reconnect.backoff.ms": 100,
         "reconnect.backoff.max.ms": 2000,
         "error_cb": on_error,
@@ -80,15 +105,25 @@ class _Retry:
 
 
 class MqttToKafka:
-    """Subscribed MQTT messages -> Kafka records. Messages arrive on the MQTT client's thread;
-    deliveries are confirmed on this half's own polling thread."""
+    """Subscribed MQTT messages -> Kafka records. Messages arrive on the MQTT client's I/O
+    thread, and the same thread serves Kafka's delivery reports (:meth:`_pump`) and writes the
+    PUBACKs they release.
+
+    Why one thread: confluent-kafka takes the GIL once per delivery report. Served on a thread of
+    their own (a blocking ``poll`` loop, as before issue 16), 10,000 reports a second meant as
+    many hand-overs of the GIL between two threads, each a wake-up that waits for the other thread
+    to be scheduled, and PUBACKs that waited for a third wake-up of the I/O thread. Measured with
+    bench_bridge's paced run (10,000 msg/s, 2 shared cores, load 6-8): voluntary context switches
+    of the worker 0.26-0.33 per message before, 0.12-0.13 after, and the worker's CPU 26-43 µs per
+    message before, 19-28 after. A fallback thread serves the reports only while the I/O thread
+    does not (reconnecting, or blocked writing)."""
 
     def __init__(self, cfg: WorkerConfig, mqtt_link: MqttLink, health: Health) -> None:
         self.cfg = cfg
         self.health = health
         self.routes: dict[str, Route] = {r.mqtt_topic: r for r in cfg.routes_of(Direction.MQTT_TO_KAFKA)}
         self.link = mqtt_link
-        self.acks = InOrderAcks(mqtt_link.ack_later)   # sent in batches: see _poll_loop
+        self.acks = InOrderAcks(mqtt_link.ack_later)   # written by the I/O thread's next pass
         self.producer = Producer(producer_config(cfg, self._kafka_error))
         self._stopping = threading.Event()
         self._done = threading.Event()
@@ -96,12 +131,15 @@ class MqttToKafka:
         self._parked: dict[str, tuple[int, float]] = {}  # topic -> (records in _retries, last due)
         self._retry_lock = threading.Lock()
         self._seq = 0
-        self._written = 0   # records confirmed since the last pass of _poll_loop (its thread only)
+        self._written = 0   # records confirmed since the last _serve (guarded by _serving)
+        self._serving = threading.RLock()   # one thread at a time serves delivery reports
+        self._last_pump = 0.0               # monotonic time of the I/O thread's last _pump
         self._own = cfg.bridge_id.encode("utf-8")
-        self._thread = threading.Thread(target=self._poll_loop, name="kafka-producer", daemon=True)
+        self._thread = threading.Thread(target=self._fallback_loop, name="kafka-producer", daemon=True)
         mqtt_link.on_message = self.on_message
+        mqtt_link.pump_on_io_thread(self._pump)
         mqtt_link.on_connection.append(self._connection_changed)
-        mqtt_link.hold_reading_while(lambda: len(self.acks) >= RECEIVE_MAXIMUM)
+        mqtt_link.hold_reading_while(lambda: len(self.acks) >= mqtt_link.receive_maximum)
 
     def start(self) -> None:
         self._thread.start()
@@ -142,7 +180,8 @@ class MqttToKafka:
                                       on_delivery=record.delivered)
                 return
             except BufferError:  # librdkafka's queue is full: let deliveries drain it
-                self.producer.poll(0.05)
+                with self._serving:
+                    self.producer.poll(0.05)
             except KafkaException as exc:  # e.g. _UNKNOWN_TOPIC: the topic does not exist (yet)
                 self._retry_later(record, exc.args[0].str() if exc.args else str(exc))
                 return
@@ -162,7 +201,7 @@ class MqttToKafka:
         heapq.heappush(self._retries, _Retry(due, self._seq, record))
 
     def _delivered(self, record: _Record, err: KafkaError | None) -> None:
-        """The producer thread: Kafka's answer about one record."""
+        """Kafka's answer about one record (the thread serving reports holds ``_serving``)."""
         if err is None:
             self._written += 1
             if record.entry is not None:
@@ -170,17 +209,38 @@ class MqttToKafka:
             return
         self._retry_later(record, err.str())
 
-    def _poll_loop(self) -> None:
-        """Serve delivery reports; after each pass, send the PUBACKs now due in one write and
-        add the records written to the counter."""
-        while not self._done.is_set():
-            self.producer.poll(0.05)
-            self.link.flush()
-            if self._written:
-                self.health.count("forwarded_mqtt_to_kafka", self._written)
-                self._written = 0
+    def _pump(self) -> float:
+        """The MQTT I/O thread, on each pass: serve the delivery reports that came (the PUBACKs
+        they release leave on this pass's write); how long the thread may then wait."""
+        self._last_pump = time.monotonic()
+        self._serve()
+        return PUMP_EVERY if len(self.producer) or self._retries else IDLE_WAIT
+
+    def _fallback_loop(self) -> None:
+        """Serve delivery reports while the I/O thread does not, and wake it for their PUBACKs."""
+        while not self._done.wait(FALLBACK_AFTER):
+            if time.monotonic() - self._last_pump >= FALLBACK_AFTER:
+                self._serve()
+                self.link.flush()
+
+    def _serve(self) -> None:
+        """Serve the delivery reports that came, without waiting; add the records written to the
+        counter; produce again the retries now due. Skipped while another thread serves."""
+        if not self._serving.acquire(blocking=False):
+            return
+        try:
+            self.producer.poll(0)
+            self._count_written()
             if self._retries:
                 self._resend_due()
+        finally:
+            self._serving.release()
+
+    def _count_written(self) -> None:
+        """Add the records written since the last call to the counter (holding ``_serving``)."""
+        if self._written:
+            self.health.count("forwarded_mqtt_to_kafka", self._written)
+            self._written = 0
 
     def _resend_due(self) -> None:
         now = time.monotonic()
@@ -210,10 +270,12 @@ class MqttToKafka:
 
     def stop(self, deadline: float) -> None:
         """Take no new message; wait (until the monotonic ``deadline``) for the writes in flight
-        and their PUBACKs; then stop the polling thread."""
+        and their PUBACKs; then stop the fallback thread."""
         self._stopping.set()
         while len(self.acks) and time.monotonic() < deadline:
-            self.producer.flush(min(0.2, max(0.0, deadline - time.monotonic())))
+            with self._serving:
+                self.producer.flush(min(0.2, max(0.0, deadline - time.monotonic())))
+                self._count_written()
             self.link.flush()
         if len(self.acks):
             log.warning("%d messages still unconfirmed at stop: the broker sends them again", len(self.acks))

@@ -21,7 +21,7 @@ from engine.bridge_worker.health import Health
 from engine.bridge_worker.kafka_to_mqtt import KafkaToMqtt
 from engine.bridge_worker.loop import TICK, BridgeLoop, Half
 from engine.bridge_worker.mqtt_link import MqttLink
-from engine.bridge_worker.mqtt_to_kafka import MqttToKafka
+from engine.bridge_worker.mqtt_to_kafka import IN_FLIGHT, MqttToKafka
 from engine.bridge_worker.stats import WorkerStats
 
 log = logging.getLogger("plantkg.bridge")
@@ -35,7 +35,7 @@ class Worker(BridgeLoop):
         super().__init__()
         self.cfg = cfg
         self.health = Health(cfg.bridge_id)
-        self.link = MqttLink(cfg, self.health)
+        self.link = MqttLink(cfg, self.health, receive_maximum=IN_FLIGHT)
         self.m2k = MqttToKafka(cfg, self.link, self.health) if cfg.routes_of(Direction.MQTT_TO_KAFKA) else None
         self.k2m = KafkaToMqtt(cfg, self.link, self.health) if cfg.routes_of(Direction.KAFKA_TO_MQTT) else None
 

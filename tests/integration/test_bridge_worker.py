@@ -23,7 +23,7 @@ from benchmarks import bridge_rig as rig
 from engine import process
 from engine.errors import WaitTimeoutError
 from engine.bridge_worker.config import Direction, Route, WorkerConfig
-from engine.bridge_worker.mqtt_link import RECEIVE_MAXIMUM
+from engine.bridge_worker.mqtt_to_kafka import IN_FLIGHT
 from engine.bridge_worker.stats import WorkerStats, read_stats
 from tests.integration.conftest import KafkaBroker, start_kafka
 
@@ -42,9 +42,10 @@ def payload(stream: object, seq: int) -> bytes:
     return f"{stream}|{seq:06d}".encode()
 
 
-def check_delivery(label: str, streams: list[object], received: list[bytes]) -> int:
-    """received == sent as sets, first occurrences in order per stream; returns the duplicates."""
-    sent = {payload(s, i) for s in streams for i in range(N // len(streams))}
+def check_delivery(label: str, streams: list[object], received: list[bytes], count: int = N) -> int:
+    """received == sent (``count`` messages over ``streams``) as sets, first occurrences in order
+    per stream; returns the duplicates."""
+    sent = {payload(s, i) for s in streams for i in range(count // len(streams))}
     got = set(received)
     missing = sorted(sent - got)
     assert not missing, f"{label}: {len(missing)} missing: {missing[:3]}...{missing[-3:]}"
@@ -339,9 +340,9 @@ def test_mqtt_to_kafka_worker_killed(tmp_path: Path, mosquitto: rig.Mosquitto, k
 
 def test_mqtt_to_kafka_at_full_speed_worker_killed(tmp_path: Path, mosquitto: rig.Mosquitto,
                                                    kafka_broker: KafkaBroker, workers: Workers) -> None:
-    """Many messages in flight: mosquitto_pub (C, 1000 in flight) sends 10,000 messages on one topic
+    """Many messages in flight: mosquitto_pub (C, 1000 in flight) sends 4 x IN_FLIGHT messages on one topic
     as fast as it can while the worker is SIGKILLed and started again. Nothing is missing, the
-    order holds, and the duplicates are bounded: the worker takes at most RECEIVE_MAXIMUM messages
+    order holds, and the duplicates are bounded: the worker takes at most IN_FLIGHT messages
     it has not confirmed (Mosquitto 2.0.11 sends past the Receive Maximum, the worker stops
     reading), and Mosquitto may not have read the PUBACKs of up to about as many more: it reads one
     packet per connection per pass of its event loop. (With several publishers at full speed that
@@ -352,23 +353,24 @@ def test_mqtt_to_kafka_at_full_speed_worker_killed(tmp_path: Path, mosquitto: ri
     cfg = worker_config(tmp_path, "m2k-full-speed", mosquitto.port, bootstrap, Direction.MQTT_TO_KAFKA,
                         "m2k-full-speed")
     workers.start(cfg)
+    n = 4 * IN_FLIGHT  # more than the duplicates' bound, or the bound would hold whatever happens
     lines = tmp_path / "lines"
-    lines.write_bytes(b"".join(payload(topic, i) + b"\n" for i in range(N)))
+    lines.write_bytes(b"".join(payload(topic, i) + b"\n" for i in range(n)))
     with open(lines, "rb") as stdin:
         sender = subprocess.Popen([shutil.which("mosquitto_pub") or "mosquitto_pub", "-h", "127.0.0.1",
                                    "-p", str(mosquitto.port), "-t", topic, "-q", "1", "-M", "1000",
                                    "-i", "full-speed", "-l"], stdin=stdin)
     try:
-        workers.kill_when(lambda s: s.forwarded_mqtt_to_kafka >= N // 4)
+        workers.kill_when(lambda s: s.forwarded_mqtt_to_kafka >= n // 4)
         workers.start(workers.cfg)
-        values = read_kafka(bootstrap, "m2k-full-speed", N)
+        values = read_kafka(bootstrap, "m2k-full-speed", n)
         assert sender.wait(60) == 0
     finally:
         if sender.poll() is None:
             sender.kill()
             sender.wait()
-    duplicates = check_delivery("m2k-full-speed", [topic], values)
-    assert duplicates <= 2 * RECEIVE_MAXIMUM, duplicates
+    duplicates = check_delivery("m2k-full-speed", [topic], values, n)
+    assert duplicates <= 2 * IN_FLIGHT, duplicates
 
 
 def test_kafka_to_mqtt_worker_killed(tmp_path: Path, mosquitto: rig.Mosquitto, kafka_broker: KafkaBroker,
@@ -460,3 +462,27 @@ def test_counters_go_on_after_a_restart(tmp_path: Path, mosquitto: rig.Mosquitto
     send(30, 20)
     assert len(set(read_kafka(kafka_broker.bootstrap_servers, "counted", 50))) == 50
     assert workers.stats_reaching(lambda s: s.forwarded_mqtt_to_kafka >= 50).forwarded_mqtt_to_kafka == 50
+
+
+def test_the_mqtt_client_pumps_its_owner_on_its_io_thread_as_often_as_asked(mosquitto: rig.Mosquitto) -> None:
+    """The MQTT -> Kafka half serves Kafka's delivery reports through the client's ``pump``: it
+    runs on the client's I/O thread, and the wait it returns bounds that thread's wait for the
+    socket (an idle connection would otherwise pass once per TICK, and PUBACKs would wait)."""
+    from engine.bridge_worker.mqtt_client import TICK, MqttClient  # noqa: PLC0415 - this test only
+
+    client = MqttClient("127.0.0.1", mosquitto.port, "pump-test", keepalive=10, session_expiry=0,
+                        receive_maximum=10, clean_start=True)
+    calls: list[tuple[str, float]] = []
+
+    def pump() -> float:
+        calls.append((threading.current_thread().name, time.monotonic()))
+        return 0.01
+
+    client.pump = pump
+    client.start()
+    try:
+        process.wait_until(lambda: len(calls) >= 20, 30.0, 0.01, what="20 passes of the MQTT client")
+    finally:
+        client.stop()
+    assert {name for name, _ in calls} == {"mqtt-pump-test"}
+    assert calls[19][1] - calls[0][1] < 19 * TICK / 2, "the pump's wait did not bound the I/O thread's"
