@@ -60,8 +60,11 @@ def managed_fleet(plant: Path, hosts: list[str], agents_dir: Path,
         yield rig
         manager = rig.manager  # a test may have restarted it (and stopped its own)
         if manager.running():
-            process.stop(manager, grace=15.0)
-        assert manager.popen.returncode == 0, manager.log_tail()
+            # A stop finishes the reconcile in flight first (no half-done apply): one a test's last
+            # change started may still restart a broker and wait for its health. 15 s was too short
+            # once on CI's loaded machine (test_fleet_closed at 1da9870: SIGKILLed mid-reconcile).
+            process.stop(manager, grace=60.0)
+        assert manager.popen.returncode == 0, (manager.popen.returncode, manager.log_tail())
         assert main(["destroy", *rig.files(), "--agents", str(agents.agents_file), "--yes"]) == 0
     finally:
         if rig is not None and rig.manager.running():
