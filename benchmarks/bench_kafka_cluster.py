@@ -46,7 +46,7 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-from confluent_kafka import Consumer, KafkaException, Producer, TopicPartition
+from confluent_kafka import Consumer, KafkaError, KafkaException, Producer, TopicPartition
 from confluent_kafka.admin import AdminClient, NewTopic
 
 from benchmarks.common import RESULTS, command_line, machine, write_results
@@ -170,10 +170,27 @@ def by_hand(folder: Path, ports: dict[str, int]) -> tuple[float, list[process.Ch
     admin = AdminClient({"bootstrap.servers": bootstrap(ports), "log_level": 0})
     process.wait_until(lambda: len(admin.list_topics(timeout=2).brokers) == 3, 180, 0.05,
                        what="3 brokers registered", ignore=(KafkaException,))
-    admin.create_topics([NewTopic(TOPIC, 3, 3)])[TOPIC].result(60)
+    process.wait_until(lambda: _create_topic(admin), 60, 0.05, what="the topic to be created")
     process.wait_until(lambda: TOPIC in admin.list_topics(timeout=2).topics, 60, 0.05, what="the topic",
                        ignore=(KafkaException,))
     return time.monotonic() - start, children
+
+
+def _create_topic(admin: AdminClient) -> bool:
+    """One attempt to create TOPIC (RF 3); False on a transient error to retry — librdkafka
+    fails a request whose bootstrap connection it replaces by the node's own
+    (``_DESTROY_BROKER``), as plantkg's driver retries too (engine.drivers.kafka.topics)."""
+    try:
+        admin.create_topics([NewTopic(TOPIC, 3, 3)])[TOPIC].result(60)
+    except KafkaException as exc:
+        code = exc.args[0].code() if exc.args else None
+        if code == KafkaError.TOPIC_ALREADY_EXISTS:
+            return True
+        if exc.args and exc.args[0].retriable() or code in (
+                KafkaError._DESTROY_BROKER, KafkaError._TRANSPORT, KafkaError._TIMED_OUT, KafkaError._ALL_BROKERS_DOWN):
+            return False
+        raise
+    return True
 
 
 # --- 2. produce throughput -------------------------------------------------------------------

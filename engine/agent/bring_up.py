@@ -38,8 +38,13 @@ from engine.drivers.registry import DriverRegistry
 from engine.errors import BrokerUnavailableError, ProcessError
 from engine.model import BrokerSpec, BrokerStatus, ObservedBroker
 
-#: Seconds between polls of a starting broker's port.
+#: Seconds between polls of a starting broker's port, at first.
 READY_POLL = 0.00025
+#: Past its first moments, a starting broker's port is polled every ``elapsed / READY_BACKOFF`` s
+#: (at most its health-check interval): a poll then adds at most 1/50 to the wait, and a broker
+#: that takes seconds to listen is not polled 4,000 times a second. (Three agents doing that
+#: while three Kafka JVMs booted on two cores slowed the JVMs: benchmarks.bench_kafka_cluster.)
+READY_BACKOFF = 50.0
 #: Threads that render and spawn the brokers of one put_many (a spawn waits for its child's exec),
 #: and that run the health checks of those that listen.
 SPAWN_THREADS = 8
@@ -166,6 +171,7 @@ class _Waiting:
     """A broker being awaited by :func:`wait_all_healthy`: its poll state."""
 
     b: Broker
+    began: float                           # monotonic, when the wait began
     deadline: float                        # monotonic
     slow: float                            # seconds between health checks once it listens
     listening: bool = False
@@ -178,12 +184,13 @@ def wait_all_healthy(brokers: Sequence[Broker], update: Callable[..., None]) -> 
     one's error (None: healthy), in order. ``update(b, **fields)`` records its status.
 
     Until a broker's port accepts TCP connections, only that is polled, every ``READY_POLL``
-    s (a refused connect costs microseconds; Mosquitto listens ~6 ms after spawn, and every
-    poll interval of slack was added to each deployment); then the driver's own check, at
-    most every 1/5000 of its start deadline (Mosquitto 2 ms, Kafka's 90 s -> 18 ms). One loop
+    s at first (a refused connect costs microseconds; Mosquitto listens ~6 ms after spawn, and
+    every poll interval of slack was added to each deployment), less often as the wait grows
+    (:func:`poll_interval`); then the driver's own check, at most every 1/5000 of its start
+    deadline (Mosquitto 2 ms, Kafka's 90 s -> 18 ms). One loop
     for N brokers: N threads each polling would fight over the GIL and the CPUs."""
     start = time.monotonic()
-    waits = [_Waiting(b, start + b.driver.start_deadline, min(0.25, b.driver.start_deadline / 5000))
+    waits = [_Waiting(b, start, start + b.driver.start_deadline, min(0.25, b.driver.start_deadline / 5000))
              for b in brokers if b.driver is not None]
     assert len(waits) == len(brokers) and all(b.proc is not None for b in brokers)
     errors: dict[int, Exception | None] = {}
@@ -223,12 +230,22 @@ def _poll_all(waits: list[_Waiting], errors: dict[int, Exception | None], pool: 
             if now >= w.deadline:
                 errors[i] = _still_starting(w.b, update)
             else:
-                w.next_poll = now + (w.slow if w.listening else READY_POLL)
+                w.next_poll = now + poll_interval(now - w.began, w.listening, w.slow)
         pending = [w.next_poll for i, w in enumerate(waits) if i not in errors]
         if pending:
             pause = min(pending) - time.monotonic()
             if pause > 0:
                 time.sleep(pause)
+
+
+def poll_interval(elapsed: float, listening: bool, slow: float) -> float:
+    """Seconds until a starting broker is polled again, ``elapsed`` s into the wait: its health
+    check every ``slow`` s once it listens; before that its port, every :data:`READY_POLL` s while
+    a quick broker would come up (Mosquitto listens ~6 ms after spawn), then every
+    ``elapsed / READY_BACKOFF`` s, never more than ``slow``."""
+    if listening:
+        return slow
+    return min(slow, max(READY_POLL, elapsed / READY_BACKOFF))
 
 
 def _poll_port(w: _Waiting) -> bool:
