@@ -186,18 +186,21 @@ class KafkaDriver:
         check_kafka_topic_name(topic.name)
         check_topic_fields(topic, self.kind, KAFKA_TOPIC_FIELDS)
         default = spec.kafka.replication if spec.kafka is not None else None
-        return Topics(_admin(spec), self.admin_timeout).ensure(topic, default)
+        with Topics(_admin(spec), self.admin_timeout) as topics:
+            return topics.ensure(topic, default)
 
     def delete_topic(self, spec: BrokerSpec, name: str) -> None:
         check_kafka_topic_name(name)
-        Topics(_admin(spec), self.admin_timeout).delete(name)
+        with Topics(_admin(spec), self.admin_timeout) as topics:
+            topics.delete(name)
 
     def observe_topics(self, spec: BrokerSpec) -> list[ObservedTopic]:
         """Every topic but the internal ones, as the cluster has it; none from a cluster node
         that is not its lead (the cluster's topics are planned once, on the lead)."""
         if spec.kafka is not None and not spec.kafka.lead:
             return []
-        return Topics(_admin(spec), self.admin_timeout).observe()
+        with Topics(_admin(spec), self.admin_timeout) as topics:
+            return topics.observe()
 
     def essence(self, spec: BrokerSpec) -> dict[str, Any]:
         """Kind, address and port; for a cluster node also what its config renders of the

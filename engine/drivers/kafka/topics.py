@@ -78,11 +78,25 @@ def check_kafka_topic_name(name: object) -> str:
 
 
 class Topics:
-    """The topic verbs on one AdminClient, each bounded by ``timeout`` seconds."""
+    """The topic verbs on one AdminClient, each bounded by ``timeout`` seconds. Use it as a
+    context manager: leaving it drops the client (:meth:`close`)."""
 
     def __init__(self, admin: AdminClient, timeout: float) -> None:
-        self.admin = admin
+        self.admin: Any = admin
         self.timeout = timeout
+
+    def __enter__(self) -> Topics:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Drop the AdminClient now. A failed call's traceback holds frames that hold this object
+        (and an agent may keep that error, or a reference cycle through it, for a while): the
+        client would live on with it, its threads reconnecting every second to brokers perhaps
+        deleted since. Without the last reference librdkafka destroys it at once."""
+        self.admin = _Closed()
 
     def ensure(self, topic: TopicSpec, default_replication: int | None = None) -> ObservedTopic:
         """Create or change ``topic``; wait until the metadata shows it as asked.
@@ -216,6 +230,13 @@ class Topics:
                 return None
             return seen
         return poll(matching, max(end - time.monotonic(), 1.0), f"topic {topic.name!r} to match")
+
+
+class _Closed:
+    """The client of a closed :class:`Topics`: any use is a bug, said as such."""
+
+    def __getattr__(self, name: str) -> Any:
+        raise RuntimeError(f"Topics used after close ({name})")
 
 
 def in_sync(metadata: Any, node_id: int) -> bool:
