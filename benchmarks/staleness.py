@@ -3,13 +3,16 @@
 Each study measures some code (:data:`MEASURES`: paths of the repository). A results file records
 the commit it ran at (``machine.commit``, ``+changes`` when the tree had uncommitted edits). If
 commits after that one changed the measured paths, the table is stale: :func:`stale_note` says so,
-naming how many commits and the command that measures it again. ``plantkg-bench report`` puts the
+naming how many commits and the command that measures it again. Changes to comments and docstrings
+alone do not count (:func:`code_differs` compares the Python files' syntax trees): a comment that
+cites a figure must not make the figure stale. ``plantkg-bench report`` puts the
 note above the table and lists every stale table at the top of RESULTS.md, so no figure passes for
 the current code when it is not.
 """
 
 from __future__ import annotations
 
+import ast
 import subprocess
 from pathlib import Path
 from typing import Any
@@ -62,6 +65,51 @@ def commits_since(root: Path, commit: str, paths: tuple[str, ...]) -> int | None
     return int(done.stdout.strip())
 
 
+def code_differs(root: Path, commit: str, paths: tuple[str, ...]) -> bool:
+    """Whether the code under ``paths`` differs between ``commit`` and HEAD in more than comments
+    and docstrings: a changed Python file counts only if its syntax tree (docstrings left out)
+    changed; any other changed file (shapes, ontology) counts. True when git cannot tell."""
+    try:
+        done = subprocess.run(["git", "diff", "--name-only", commit, "HEAD", "--", *paths], cwd=root,
+                              capture_output=True, text=True, timeout=30, check=False)
+    except (OSError, subprocess.TimeoutExpired):
+        return True
+    if done.returncode != 0:
+        return True
+    for name in done.stdout.split():
+        if not name.endswith(".py"):
+            return True
+        before, after = _show(root, commit, name), _show(root, "HEAD", name)
+        if before is None or after is None or _code(before) is None or _code(before) != _code(after):
+            return True
+    return False
+
+
+def _show(root: Path, commit: str, name: str) -> str | None:
+    """The file ``name`` at ``commit`` (None: it does not exist there, or git failed)."""
+    try:
+        done = subprocess.run(["git", "show", f"{commit}:{name}"], cwd=root, capture_output=True,
+                              text=True, timeout=30, check=False)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return done.stdout if done.returncode == 0 else None
+
+
+def _code(source: str) -> str | None:
+    """The syntax tree of ``source`` without docstrings, as text (None: not valid Python)."""
+    try:
+        tree = ast.parse(source)
+    except SyntaxError:
+        return None
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if (isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+                and body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant)
+                and isinstance(body[0].value.value, str)):
+            node.body = body[1:] or [ast.Pass()]
+    return ast.dump(tree)
+
+
 def stale_note(root: Path, name: str, data: dict[str, Any]) -> str | None:
     """A sentence when the table of study ``name`` may not describe the current code, else None."""
     paths = MEASURES.get(name)
@@ -75,10 +123,10 @@ def stale_note(root: Path, name: str, data: dict[str, Any]) -> str | None:
     if count is None:
         return (f"**Stale?** Its commit {commit} is not in this checkout's history, so it cannot be "
                 f"matched to the code; re-run `plantkg-bench {name}`.")
-    if count == 0:
+    if count == 0 or not code_differs(root, commit, paths):
         return None
     return (f"**Stale:** {count} commit(s) after {commit} touched the code it measures "
             f"({', '.join(paths)}); re-run `plantkg-bench {name}`.")
 
 
-__all__ = ["MEASURES", "commits_since", "recorded_commit", "stale_note"]
+__all__ = ["MEASURES", "code_differs", "commits_since", "recorded_commit", "stale_note"]

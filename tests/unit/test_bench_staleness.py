@@ -64,3 +64,36 @@ def test_the_report_lists_a_table_without_a_commit(tmp_path: Path) -> None:
     text = report.render(results, tmp_path)
     assert "Tables that may not describe the current code" in text
     assert text.count("records no commit") == 2  # in the list at the top and above the table
+
+
+def test_comments_and_docstrings_do_not_make_a_table_stale(tmp_path: Path) -> None:
+    git(tmp_path, "init", "-q")
+    path = "engine/context_broker/app.py"
+    measured = commit(tmp_path, path, '"""The app."""\n\ndef f(x):\n    """Twice x."""\n    return 2 * x\n')
+    data = {"machine": {"commit": measured}}
+    commit(tmp_path, path, '"""The app, said otherwise."""\n\n# a comment citing 3.4 ms\n'
+                           'def f(x):\n    """Twice x, measured."""\n    return 2 * x  # fast\n')
+    assert staleness.stale_note(tmp_path, "context_broker", data) is None
+    commit(tmp_path, path, '"""The app."""\n\ndef f(x):\n    return 3 * x\n')
+    note = staleness.stale_note(tmp_path, "context_broker", data)
+    assert note is not None and "2 commit(s) after " + measured in note
+
+
+def test_a_changed_file_that_is_not_python_counts(tmp_path: Path) -> None:
+    git(tmp_path, "init", "-q")
+    measured = commit(tmp_path, "shapes/plant.ttl", "# shapes v1\n")
+    commit(tmp_path, "shapes/plant.ttl", "# shapes v2\n")
+    assert staleness.stale_note(tmp_path, "validate", {"machine": {"commit": measured}}) is not None
+
+
+def test_a_new_or_broken_python_file_counts(tmp_path: Path) -> None:
+    git(tmp_path, "init", "-q")
+    measured = commit(tmp_path, "kg/a.py", "x = 1\n")
+    data = {"machine": {"commit": measured}}
+    commit(tmp_path, "kg/b.py", "y = 2\n")
+    assert staleness.stale_note(tmp_path, "validate", data) is not None
+    git(tmp_path, "rm", "-q", "kg/b.py")
+    git(tmp_path, "-c", "user.name=t", "-c", "user.email=t@example.org", "commit", "-q", "-m", "rm")
+    assert staleness.stale_note(tmp_path, "validate", data) is None  # back to the measured code
+    commit(tmp_path, "kg/a.py", "x = (\n")
+    assert staleness.stale_note(tmp_path, "validate", data) is not None
