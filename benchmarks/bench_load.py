@@ -36,6 +36,8 @@ from __future__ import annotations
 
 import argparse
 import csv
+import os
+import shutil
 import statistics
 import sys
 import tempfile
@@ -178,6 +180,30 @@ def children_of(pid: int) -> list[int]:
         if int(fields[1]) == pid:
             found.append(int(stat.parent.name))
     return found
+
+
+def file_costs(folder: Path, count: int = 300) -> dict[str, float]:
+    """What this machine's file system charges for what an agent's broker start does to its state
+    folder (3 folders made, 4 files written whole: spec.json, the rendered config, pid.json,
+    topics.json; the log opened), measured in ``folder`` (where the agents keep their state):
+    µs of wall and of this process's kernel CPU per folder made and per whole-file write
+    (engine.whole_file.write_whole: a new file aside, then renamed). The by-hand baseline makes
+    its folders and configs before its clock starts, so this is the part of the apply / hand
+    ratio that is the file system's."""
+    from engine.whole_file import write_whole  # noqa: PLC0415
+
+    root = folder / "file-costs"
+    root.mkdir(parents=True, exist_ok=True)
+    out: dict[str, float] = {}
+    for what, step in (("mkdir", lambda i: (root / f"d{i}").mkdir()),
+                       ("write_whole", lambda i: write_whole(root / f"f{i}.json", '{"x": 1}\n'))):
+        cpu, start = os.times(), time.perf_counter()
+        for i in range(count):
+            step(i)
+        wall, sys_cpu = time.perf_counter() - start, os.times().system - cpu.system
+        out[f"{what}_us"], out[f"{what}_sys_us"] = wall / count * 1e6, sys_cpu / count * 1e6
+    shutil.rmtree(root)
+    return out
 
 
 def memory(agent_pid: int) -> dict[str, float]:
@@ -336,6 +362,7 @@ def measure(args: argparse.Namespace, argv: list[str] | None) -> tuple[dict[str,
     raw: list[BurstResult] = []
     rows = []
     with tempfile.TemporaryDirectory(prefix="plantkg-bench-load-") as tmp:
+        costs = file_costs(Path(tmp))
         for n in args.brokers:
             rows.append(one_size(n, args, Path(tmp), raw))
             print(f"{n} brokers: bring-up {rows[-1]['bringup']}", flush=True)
@@ -343,7 +370,7 @@ def measure(args: argparse.Namespace, argv: list[str] | None) -> tuple[dict[str,
                 rows[-1]["cells"] += nagle_arm(n, args, Path(tmp), raw)
         kafka = kafka_arm(args, Path(tmp), raw) if args.kafka_messages else None
         bridge = bridge_arm(args, Path(tmp), raw) if args.bridge_messages else None
-    return {"kafka": kafka, "bridge": bridge, "benchmark": "load", "machine": info, "command": command_line("benchmarks.bench_load", argv),
+    return {"kafka": kafka, "bridge": bridge, "file_costs": costs, "benchmark": "load", "machine": info, "command": command_line("benchmarks.bench_load", argv),
             "repeat": args.repeat, "deploy_repeat": args.deploy_repeat, "size": args.size,
             "apply_parallelism": args.apply_parallelism,
             "paper": "Fig. 12: 1-100 brokers x 100-500 messages < 1 KB, one machine", "rows": rows}, raw
@@ -389,6 +416,14 @@ def to_markdown(data: dict[str, object]) -> str:
                                                                   for k, v in up.items() if k != "total")
                              + "; destroy " + ", ".join(f"{k.removeprefix('stage_')} {v:.3f}"
                                                        for k, v in down.items() if k != "total"))
+    costs = data.get("file_costs")
+    if isinstance(costs, dict):
+        lines += ["", f"File system of the agents' state folder: making a folder {costs['mkdir_us']:.0f} µs "
+                  f"({costs['mkdir_sys_us']:.0f} µs of it kernel CPU), writing a small file whole "
+                  f"{costs['write_whole_us']:.0f} µs ({costs['write_whole_sys_us']:.0f}). An agent's broker start "
+                  "makes 3 folders and writes 4 files whole before its broker runs (spec, config, pid, then "
+                  "topics); the by-hand arm makes its folders and configs before its clock starts "
+                  "(`file_costs` in bench_load.py)."]
     lines += ["", f"## Latency per message, ms ({data['size']} B payload, QoS 1)", "",
               "| mode | brokers | messages | send burst ms | ack mean | ack p50 | ack p99 | delivery mean | "
               "delivery p50 | delivery p99 | stdev of burst means (ack / delivery) | lost |",

@@ -184,3 +184,13 @@ def test_durability_benchmark_runs(tmp_path: Path) -> None:
     # Mosquitto sends its PUBACK before the save that ends the pass (seen in CI): at most one.
     assert rows["1"]["killed"]["missing"] <= 1 and rows["1"]["killed_offline"]["missing"] <= 1
     assert "| 1 |" in (tmp_path / "durability.md").read_text()
+
+
+def test_load_bench_measures_the_file_system_and_cleans_up(tmp_path: Path) -> None:
+    from benchmarks.bench_load import file_costs
+
+    costs = file_costs(tmp_path, count=5)
+    assert set(costs) == {"mkdir_us", "mkdir_sys_us", "write_whole_us", "write_whole_sys_us"}
+    assert costs["mkdir_us"] > 0 and costs["write_whole_us"] > 0
+    assert all(v >= 0 for v in costs.values())
+    assert list(tmp_path.iterdir()) == []
