@@ -32,13 +32,19 @@ def machine() -> dict[str, object]:
             "platform": platform.platform(), "load_average": os.getloadavg(), "commit": commit()}
 
 
+#: What a benchmark run writes: changes there are results, not a difference in the code measured.
+RESULT_PATHS = (":(exclude)benchmarks/results", ":(exclude)benchmarks/RESULTS.md")
+
+
 def commit() -> str:
-    """The checked-out commit, with ``+changes`` when the working tree differs from it."""
+    """The checked-out commit, with ``+changes`` when the working tree differs from it outside the
+    results (so a series of runs that rewrite benchmarks/results/ one after the other all record
+    the commit they measured, not ``+changes`` from the runs before them)."""
     try:
         head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
                               cwd=ROOT, timeout=10).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
-                               text=True, cwd=ROOT, timeout=10).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", ".", *RESULT_PATHS],
+                               capture_output=True, text=True, cwd=ROOT, timeout=10).stdout.strip()
     except (OSError, subprocess.TimeoutExpired):
         return "unknown"
     return f"{head or 'unknown'}{'+changes' if dirty else ''}"
