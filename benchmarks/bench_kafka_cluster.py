@@ -54,6 +54,8 @@ from engine import netutil, parts, process
 from engine.agent.local import LocalAgents, start_local_agents
 from engine.drivers.kafka import runtime
 from engine.derived.kafka_cluster import kraft_cluster_id
+from engine.drivers.kafka.topics import driver_error
+from engine.errors import BrokerUnavailableError
 
 HOSTS = ("127.0.0.2", "127.0.0.3", "127.0.0.4")
 SITE = "127.0.0.5"
@@ -177,17 +179,16 @@ def by_hand(folder: Path, ports: dict[str, int]) -> tuple[float, list[process.Ch
 
 
 def _create_topic(admin: AdminClient) -> bool:
-    """One attempt to create TOPIC (RF 3); False on a transient error to retry — librdkafka
-    fails a request whose bootstrap connection it replaces by the node's own
-    (``_DESTROY_BROKER``), as plantkg's driver retries too (engine.drivers.kafka.topics)."""
+    """One attempt to create TOPIC (RF 3); False on an error the driver would retry too
+    (:func:`engine.drivers.kafka.topics.driver_error`: e.g. ``_DESTROY_BROKER``, a request
+    librdkafka fails when it replaces a bootstrap connection by the node's own)."""
     try:
         admin.create_topics([NewTopic(TOPIC, 3, 3)])[TOPIC].result(60)
     except KafkaException as exc:
-        code = exc.args[0].code() if exc.args else None
-        if code == KafkaError.TOPIC_ALREADY_EXISTS:
+        error = exc.args[0] if exc.args else None
+        if isinstance(error, KafkaError) and error.code() == KafkaError.TOPIC_ALREADY_EXISTS:
             return True
-        if exc.args and exc.args[0].retriable() or code in (
-                KafkaError._DESTROY_BROKER, KafkaError._TRANSPORT, KafkaError._TIMED_OUT, KafkaError._ALL_BROKERS_DOWN):
+        if isinstance(driver_error(error, "creating the topic"), BrokerUnavailableError):
             return False
         raise
     return True

@@ -80,7 +80,8 @@ def code_differs(root: Path, commit: str, paths: tuple[str, ...]) -> bool:
         if not name.endswith(".py"):
             return True
         before, after = _show(root, commit, name), _show(root, "HEAD", name)
-        if before is None or after is None or _code(before) is None or _code(before) != _code(after):
+        tree = _code(before) if before is not None else None
+        if tree is None or after is None or tree != _code(after):
             return True
     return False
 

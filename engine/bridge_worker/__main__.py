@@ -66,8 +66,8 @@ def main(argv: list[str] | None = None) -> int:
     # What exists now (modules, clients, configuration) lives as long as the process: frozen, it is
     # out of the collector's reach, and a full collection scans only what forwarding makes (a full
     # collection stalls every message behind it). benchmarks/bench_bridge's paced p99 at 10k msg/s,
-    # MQTT -> Kafka: 93.3 ms at 73a6302, 18.0 ms with this (bf00eb2); Kafka -> MQTT stayed above the
-    # 20 ms goal (94.7 and 137 ms): its tail has another cause.
+    # MQTT -> Kafka: 93.3 ms at 73a6302, 18.0 ms with this (bf00eb2), 61.9 ms at e5fb3a0: the paced
+    # tail moves between runs on two shared cores, so these runs do not show what this is worth.
     gc.freeze()
     worker.run()  # type: ignore[attr-defined]
     return EXIT_OK

@@ -60,10 +60,11 @@ def consumer_config(cfg: WorkerConfig, on_error, on_commit) -> dict[str, object]
         "enable.auto.commit": False,
         "enable.auto.offset.store": False,
         "auto.offset.reset": "latest",
-        # How long Kafka may hold a fetch that finds nothing new. Measured with the kafka-mqtt path
-        # of benchmarks.bench_bridge (10,000 msg/s paced; load average 6-8), time from a record's
-        # Kafka timestamp to the worker's poll, p50 per 0.5 s: 50 ms -> 55-260 ms, 10 ms -> 11-39,
-        # 5 ms -> 13-28; and the CPU Kafka spends on one idle worker: 11%, 22%, 27% of a core.
+        # How long Kafka may hold a fetch that finds nothing new: a record produced meanwhile
+        # waits up to this for a fetch in flight (the default 500 ms, librdkafka's, is latency
+        # the bridge adds), while each shorter wait costs an idle worker's Kafka more fetches a
+        # second. 10 ms puts that wait under the bridge's 20 ms p99 goal; an instrumented,
+        # uncommitted kafka-mqtt run of benchmarks.bench_bridge compared 50, 10 and 5 ms.
         "fetch.wait.max.ms": 10,
         # A worker killed and restarted by its agent rejoins the group: the dead member's
         # partitions are free after this (Kafka's minimum), not after the default 45 s.
@@ -128,8 +129,8 @@ class KafkaToMqtt:
             self._commit(now)
 
     def _count_forwarded(self) -> None:
-        """Add what was forwarded to the health counter: once per pass, not per PUBACK (its
-        lock was 13% of the main thread's samples at full speed, py-spy)."""
+        """Add what was forwarded to the health counter: once per pass, not per PUBACK (its lock
+        showed up in py-spy profiles of the main thread at full speed)."""
         if self._uncounted:
             self.health.count("forwarded_kafka_to_mqtt", self._uncounted)
             self._uncounted = 0

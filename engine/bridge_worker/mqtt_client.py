@@ -125,8 +125,8 @@ class MqttClient:
         """Queue PUBLISHes of (topic, payload, QoS), in order; their packet ids (0 for QoS 0), or
         None (nothing queued) when not connected. A QoS-1 message past the broker's window waits
         here, in order. One hold of the lock for all: taking it per message, the main thread
-        waited on the I/O thread (which takes it for each read of PUBACKs) in 18% of its samples
-        (py-spy, benchmarks.bench_bridge kafka-mqtt at full speed)."""
+        kept waiting on the I/O thread, which takes it for each read of PUBACKs (py-spy profiles
+        of benchmarks.bench_bridge's kafka-mqtt path at full speed)."""
         mids: list[int] = []
         with self._lock:
             if not self._connected:

@@ -43,10 +43,11 @@ RETRY_BACKOFF = 1.0   # seconds before a failed delivery is produced again
 #: Messages received and not yet confirmed by Kafka the worker takes at once (its MQTT Receive
 #: Maximum; it stops reading there). A message's PUBACK waits for Kafka's answer, so this window
 #: must cover the rate times Kafka's answer time, or reading stops and messages wait in Mosquitto.
-#: Measured (bench_bridge, 2 shared cores, load ~5-6): Kafka's answers to the worker took p50
-#: 5-55 ms, p99 110-320 ms, and 1000 was full again and again; with 1000 the mqtt-kafka row gave
-#: 14,814 msg/s max and p99 427 ms paced, with 5000 (as KafkaToMqtt's MAX_UNACKED) 20,214 msg/s and
-#: 181 ms in the next run. A SIGKILLed worker's duplicates grow with it (at most about twice this).
+#: On two shared cores Kafka's acks=all answers take from milliseconds to a few hundred at the
+#: tail: at 20,000 msg/s a window of 1000 is 50 ms of traffic and kept filling in instrumented,
+#: uncommitted bench_bridge runs, which 5000 (as KafkaToMqtt's MAX_UNACKED) did not; the committed
+#: mqtt-kafka rows with 5000 sustain over 20,000 msg/s (benchmarks/results/bridge.md).
+#: A SIGKILLed worker's duplicates grow with it (at most about twice this).
 IN_FLIGHT = 5000
 #: Seconds the MQTT I/O thread waits at most for its socket while Kafka writes are outstanding
 #: before it serves delivery reports again: a written message's PUBACK waits at most this long on
@@ -61,10 +62,10 @@ IDLE_WAIT = 0.5       # seconds the I/O thread may wait when no Kafka write is o
 BRIDGE_HEADER = "plantkg.bridge"
 
 
-#: librdkafka's ``linger.ms``. Measured in bench_bridge's paced run (10,000 msg/s, 4 alternating
-#: pairs of runs on the shared 2-core machine, load 4-5): with 2 ms (before issue 16) librdkafka's
-#: broker thread took 5-40 µs of CPU per message and the end-to-end p99 was 44-376 ms; with 5 ms,
-#: 2-7 µs and 9-146 ms, for 1.5-2 ms more at p50.
+#: librdkafka's ``linger.ms``: how long a record waits for others to share its produce request.
+#: 5 ms rather than 2 (before issue 16): fewer, larger requests, so less CPU per message in
+#: librdkafka's broker thread and in Kafka, for a few ms more at p50; alternating paced runs of
+#: bench_bridge (instrumented, not committed) favoured 5 ms at the tail on two shared cores.
 LINGER_MS = 5
 
 
@@ -112,11 +113,11 @@ class MqttToKafka:
     Why one thread: confluent-kafka takes the GIL once per delivery report. Served on a thread of
     their own (a blocking ``poll`` loop, as before issue 16), 10,000 reports a second meant as
     many hand-overs of the GIL between two threads, each a wake-up that waits for the other thread
-    to be scheduled, and PUBACKs that waited for a third wake-up of the I/O thread. Measured with
-    bench_bridge's paced run (10,000 msg/s, 2 shared cores, load 6-8): voluntary context switches
-    of the worker 0.26-0.33 per message before, 0.12-0.13 after, and the worker's CPU 26-43 µs per
-    message before, 19-28 after. A fallback thread serves the reports only while the I/O thread
-    does not (reconnecting, or blocked writing)."""
+    to be scheduled, and PUBACKs that waited for a third wake-up of the I/O thread. On one thread
+    the worker switches context about half as often per message (instrumented, uncommitted
+    bench_bridge runs; the committed CPU per message is in benchmarks/results/bridge.md). A
+    fallback thread serves the reports only while the I/O thread does not (reconnecting, or
+    blocked writing)."""
 
     def __init__(self, cfg: WorkerConfig, mqtt_link: MqttLink, health: Health) -> None:
         self.cfg = cfg
